@@ -1,0 +1,29 @@
+# Two commands do all set-up on a fresh machine: `make run` and `make test`.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	# A CPU build of torch lies on disk here; an unpinned torch would pull a multi-GB CUDA build.
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q -e '.[dev,ray,parquet]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/inertia-gym optimize --agent bo --budget 100 --seed 0 --out runs/optimize
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 --durations=15
+
+lint: $(STAMP)
+	$(BIN)/ruff check inertia_gym agents scripts tests
+
+bench: $(STAMP)
+	$(BIN)/python scripts/bench_speed.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,18 @@
+"""inertia-gym: informative torque excitation for identifying a tumbling rigid body's inertia.
+
+The package holds pure physics and estimation (dynamics, sensors, estimation, information,
+excitation, simulation), thin shells over them (envs, cli) and the sim-vs-real diagnosis tool
+(discrepancy). Importing it registers the Gymnasium environment "InertiaGym/Excitation-v0".
+"""
+
+from inertia_gym.errors import ConfigError, EstimatorDivergedError, InertiaGymError, RecordingError
+from inertia_gym.scenario import Scenario
+
+__all__ = [
+    "ConfigError",
+    "EstimatorDivergedError",
+    "InertiaGymError",
+    "RecordingError",
+    "Scenario",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,87 @@
+"""Scale-separated log-Cholesky parameterisation of the inertia.
+
+    J(phi) = exp(s) L L^T,   L = [[1, 0, 0], [l10, exp(g1), 0], [l20, l21, exp(g2)]]
+    phi = (s, l10, g1, l20, l21, g2)
+
+J is symmetric positive definite for every phi, and every SPD J has exactly one phi
+(s = log Jxx, L the Cholesky factor of J / Jxx). The first coordinate is the pure scale: J -> cJ
+is s -> s + log c with the shape untouched. Torque-free motion does not depend on the scale, so
+the filters' Jacobian along s is exactly -J^-1 tau: with no torque the scale is never updated and
+its variance stays at the prior, which is how the tool can say "scale not identified" instead
+of printing a confident wrong number. Covariances map to theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz)
+with D = d theta / d phi (delta method); D[:, 0] = theta.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from inertia_gym.errors import ConfigError
+
+
+@nb.njit(cache=True)
+def theta_from_phi(phi):
+    """theta (6,) of eq. (8) from phi (6,)."""
+    c, l10, e1, l20, l21, e2 = math.exp(phi[0]), phi[1], math.exp(phi[2]), phi[3], phi[4], \
+        math.exp(phi[5])
+    return c * np.array(
+        (1.0, l10, l20, l10 * l10 + e1 * e1, l10 * l20 + e1 * l21, l20 * l20 + l21 * l21 + e2 * e2)
+    )
+
+
+@nb.njit(cache=True)
+def dtheta_dphi(phi):
+    """Jacobian D[i, j] = d theta_i / d phi_j, shape (6, 6)."""
+    c, l10, e1, l20, l21, e2 = math.exp(phi[0]), phi[1], math.exp(phi[2]), phi[3], phi[4], \
+        math.exp(phi[5])
+    d = np.zeros((6, 6))
+    d[:, 0] = theta_from_phi(phi)
+    d[1, 1] = c
+    d[2, 3] = c
+    d[3, 1] = 2 * c * l10
+    d[3, 2] = 2 * c * e1 * e1
+    d[4, 1] = c * l20
+    d[4, 2] = c * e1 * l21
+    d[4, 3] = c * l10
+    d[4, 4] = c * e1
+    d[5, 3] = 2 * c * l20
+    d[5, 4] = 2 * c * l21
+    d[5, 5] = 2 * c * e2 * e2
+    return d
+
+
+@nb.njit(cache=True)
+def inertia_from_phi(phi):
+    """J(phi), shape (3, 3), kg·m²."""
+    t = theta_from_phi(phi)
+    j = np.empty((3, 3))
+    j[0, 0], j[0, 1], j[0, 2] = t[0], t[1], t[2]
+    j[1, 0], j[1, 1], j[1, 2] = t[1], t[3], t[4]
+    j[2, 0], j[2, 1], j[2, 2] = t[2], t[4], t[5]
+    return j
+
+
+def phi_from_inertia(inertia) -> np.ndarray:
+    """phi (6,) of a symmetric positive definite inertia (3, 3)."""
+    j = np.asarray(inertia, dtype=float)
+    try:
+        low = np.linalg.cholesky(j / j[0, 0])
+    except np.linalg.LinAlgError as exc:
+        raise ConfigError(f"inertia is not positive definite: {j.tolist()}") from exc
+    if not j[0, 0] > 0:
+        raise ConfigError(f"inertia is not positive definite: {j.tolist()}")
+    return np.array(
+        [np.log(j[0, 0]), low[1, 0], np.log(low[1, 1]), low[2, 0], low[2, 1], np.log(low[2, 2])]
+    )
+
+
+def decouple_scale(cov_phi: np.ndarray) -> np.ndarray:
+    """Zero the covariance between the scale s and the shape: a prior or process noise that
+    correlates them would let torque-free data move the unobservable scale."""
+    out = np.array(cov_phi, dtype=float, copy=True)
+    out[..., 0, 1:] = 0.0
+    out[..., 1:, 0] = 0.0
+    return out

@@ -1,0 +1,144 @@
+"""Information metric of the paper: regressor Psi, Gram matrices, windowed lambda_min, cost J.
+
+theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz) (eq. 8). Psi is derived from tau = J w_dot + w x (J w)
+(eq. 6) and corrects two entries printed wrongly in eq. (10): row 1, column 6 is w_y w_z (printed
+w_y w_x) and row 3, column 1 is -w_x w_y (printed 0).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from inertia_gym.errors import ConfigError
+
+# Index pairs (i, j), i <= j, of the 21 distinct entries of a symmetric 6x6 matrix.
+_UPPER = np.array([(i, j) for i in range(6) for j in range(i, 6)], dtype=np.int64)
+
+
+@nb.njit(cache=True)
+def psi_into(w, w_dot, out):
+    """Write Psi(w, w_dot), shape (3, 6), into out. w in rad/s, w_dot in rad/s²."""
+    wx, wy, wz = w[0], w[1], w[2]
+    ax, ay, az = w_dot[0], w_dot[1], w_dot[2]
+    out[0, 0] = ax
+    out[0, 1] = ay - wx * wz
+    out[0, 2] = az + wx * wy
+    out[0, 3] = -wy * wz
+    out[0, 4] = wy * wy - wz * wz
+    out[0, 5] = wy * wz
+    out[1, 0] = wx * wz
+    out[1, 1] = ax + wy * wz
+    out[1, 2] = wz * wz - wx * wx
+    out[1, 3] = ay
+    out[1, 4] = az - wx * wy
+    out[1, 5] = -wx * wz
+    out[2, 0] = -wx * wy
+    out[2, 1] = wx * wx - wy * wy
+    out[2, 2] = ax - wy * wz
+    out[2, 3] = wx * wy
+    out[2, 4] = ay + wx * wz
+    out[2, 5] = az
+
+
+def psi(w, w_dot) -> np.ndarray:
+    """Regressor of eq. (9) with the errata fixed: Psi(w, w_dot) theta = J w_dot + w x J w.
+
+    w, w_dot : (..., 3) arrays (rad/s, rad/s²). Returns (..., 3, 6).
+    """
+    w = np.asarray(w, dtype=float)
+    w_dot = np.asarray(w_dot, dtype=float)
+    if w.shape != w_dot.shape or w.shape[-1:] != (3,):
+        raise ConfigError(f"w and w_dot must both have shape (..., 3), got {w.shape}, {w_dot.shape}")
+    flat_w, flat_a = w.reshape(-1, 3), w_dot.reshape(-1, 3)
+    out = np.empty((flat_w.shape[0], 3, 6))
+    for k in range(flat_w.shape[0]):
+        psi_into(flat_w[k], flat_a[k], out[k])
+    return out.reshape(w.shape[:-1] + (3, 6))
+
+
+def theta_from_inertia(inertia) -> np.ndarray:
+    """theta (..., 6) of eq. (8) from symmetric inertia matrices (..., 3, 3)."""
+    j = np.asarray(inertia, dtype=float)
+    return np.stack(
+        [j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1
+    )
+
+
+def inertia_from_theta(theta) -> np.ndarray:
+    """Symmetric inertia (..., 3, 3) from theta (..., 6) of eq. (8)."""
+    t = np.asarray(theta, dtype=float)
+    rows = [
+        np.stack([t[..., 0], t[..., 1], t[..., 2]], -1),
+        np.stack([t[..., 1], t[..., 3], t[..., 4]], -1),
+        np.stack([t[..., 2], t[..., 4], t[..., 5]], -1),
+    ]
+    return np.stack(rows, -2)
+
+
+@nb.njit(cache=True)
+def gram_prefix(w_hat, w_dot_hat):
+    """Prefix sums of G_k = Psi_k^T Psi_k (eq. 13).
+
+    w_hat, w_dot_hat : (n, 3). Returns C of shape (n+1, 6, 6) with C[s] = sum_{k<s} G_k, so that
+    the window sum over k = s .. s+N-1 is C[s+N] - C[s].
+    """
+    n = w_hat.shape[0]
+    out = np.zeros((n + 1, 6, 6))
+    p = np.empty((3, 6))
+    for k in range(n):
+        psi_into(w_hat[k], w_dot_hat[k], p)
+        for i in range(6):
+            for j in range(i, 6):
+                g = p[0, i] * p[0, j] + p[1, i] * p[1, j] + p[2, i] * p[2, j]
+                out[k + 1, i, j] = out[k, i, j] + g
+                out[k + 1, j, i] = out[k + 1, i, j]
+    return out
+
+
+def window_length(t_on: float, dt: float) -> int:
+    """N_T = max(5, ceil(T_on / dt)) samples (paper, simulation section)."""
+    return max(5, int(math.ceil(t_on / dt - 1e-9)))
+
+
+def window_starts(n: int, n_window: int, bursts=None) -> np.ndarray:
+    """Valid window starts S of an episode of n samples.
+
+    With bursts = None every start s with s + n_window <= n is valid ("episode" window set).
+    With bursts an (m, 2) array of [start, stop) sample indices, only windows overlapping a
+    burst are kept ("burst" window set).
+    """
+    starts = np.arange(max(n - n_window + 1, 0))
+    if bursts is None:
+        return starts
+    keep = np.zeros(starts.shape, dtype=bool)
+    for b0, b1 in np.asarray(bursts, dtype=np.int64).reshape(-1, 2):
+        keep |= (starts < b1) & (starts + n_window > b0)
+    return starts[keep]
+
+
+def windowed_lambda_min(prefix, starts, n_window: int, epsilon: float) -> np.ndarray:
+    """lambda_min of G_bar(s) = sum_{k=s}^{s+N-1} G_k + eps I6 (eq. 14) for each s in starts."""
+    starts = np.asarray(starts, dtype=np.int64)
+    if starts.size == 0:
+        return np.empty(0)
+    g_bar = prefix[starts + n_window] - prefix[starts] + epsilon * np.eye(6)
+    return np.linalg.eigvalsh(g_bar)[:, 0]
+
+
+def soft_min(values, beta: float) -> float:
+    """alpha = -1/beta log(mean exp(-beta v)) (eq. 24), computed stably; -> min as beta -> inf."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        raise ConfigError("soft-min of an empty set of windows: the episode is shorter than N_T")
+    if not beta > 0:
+        raise ConfigError(f"softmin_beta must be > 0, got {beta}")
+    m = v.min()
+    return float(m - np.log(np.mean(np.exp(-beta * (v - m)))) / beta)
+
+
+def cost(alpha: float, epsilon_lambda: float) -> float:
+    """J = -log(alpha + eps_lambda) (eq. 15)."""
+    return float(-np.log(alpha + epsilon_lambda))

@@ -1,0 +1,356 @@
+"""Closed loop of truth, sensors, estimator and burst law, compiled and batched over runs.
+
+One call to :func:`run_segment` advances B independent runs (seeds) by a segment of time steps:
+truth (Gauss-Legendre, dynamics.py) -> intermittent noisy sensors -> EKF (estimation/ekf.py), with
+the torque of eq. (18) computed from the filter's rate at each burst start and held over the
+burst. All randomness is drawn beforehand from explicit numpy Generators, so a run is a pure
+function of its inputs. Per step it records w_hat and w_dot_hat of eq. (12) for the information
+metric; per measurement it records the estimate for plots and validation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numba as nb
+import numpy as np
+
+from inertia_gym.dynamics import NO_DISTURBANCE, euler_to_quat, gauss_legendre_step_into, inv3
+from inertia_gym.errors import ConfigError
+from inertia_gym.estimation import ekf
+from inertia_gym.estimation.inertia_param import (
+    decouple_scale,
+    dtheta_dphi,
+    inertia_from_phi,
+    phi_from_inertia,
+    theta_from_phi,
+)
+from inertia_gym.scenario import Scenario
+
+STATUS_OK, STATUS_DIVERGED = 0, 1
+
+
+def pack_filter_config(sc: Scenario) -> np.ndarray:
+    """Flat filter configuration read by the compiled kernels (layout in estimation/ekf.py)."""
+    cfg = np.zeros(ekf.CONFIG_SIZE)
+    cfg[ekf.C_DT] = sc.dt
+    cfg[ekf.C_GYRO] = sc.gyro_sigma
+    cfg[ekf.C_QUAT] = sc.quat_sigma
+    cfg[ekf.C_ACC] = sc.accel_sigma
+    cfg[ekf.C_MAG] = sc.mag_sigma
+    cfg[ekf.C_QQ] = sc.Q_quat
+    cfg[ekf.C_QW] = sc.Q_omega
+    cfg[ekf.C_QTH] = sc.Q_theta
+    cfg[ekf.C_GAMMA] = sc.alpha_gamma
+    cfg[ekf.C_QMIN] = sc.alpha_qmin
+    cfg[ekf.C_USE_QUAT] = 1.0 if sc.quat_sigma > 0 else 0.0
+    cfg[ekf.C_USE_VEC] = 1.0 if sc.use_vector_sensors else 0.0
+    cfg[ekf.C_GRAV] = sc.gravity_inertial
+    cfg[ekf.C_MAGREF] = sc.mag_inertial
+    cfg[ekf.C_NIS_GATE] = sc.nis_gate
+    cfg[ekf.C_STEP_LIMIT] = sc.inertia_step_limit
+    return cfg
+
+
+@dataclasses.dataclass(frozen=True)
+class SimState:
+    """State of B closed-loop runs between segments (arrays have leading dimension B).
+
+    y_true (B, 7) true (q, w); x (B, 13) filter mean (q, w, phi); P (B, 13, 13) filter covariance;
+    n_updates (B,) filter updates so far; steps_to_meas (B,) steps until the next measurement;
+    step (B,) time steps elapsed; diverged (B,) bool.
+    """
+
+    y_true: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    n_updates: np.ndarray
+    steps_to_meas: np.ndarray
+    step: np.ndarray
+    diverged: np.ndarray
+
+    @property
+    def batch(self) -> int:
+        """Number of runs B."""
+        return self.y_true.shape[0]
+
+    def theta_hat(self) -> np.ndarray:
+        """Estimated theta (B, 6) of eq. (8)."""
+        return np.array([theta_from_phi(x[7:13]) for x in self.x])
+
+    def inertia_hat(self) -> np.ndarray:
+        """Estimated inertia (B, 3, 3), kg·m²."""
+        return np.array([inertia_from_phi(x[7:13]) for x in self.x])
+
+    def P_theta(self) -> np.ndarray:
+        """Covariance of theta (B, 6, 6) by the delta method, P_theta = D P_phi D^T."""
+        out = np.empty((self.batch, 6, 6))
+        for b in range(self.batch):
+            d = dtheta_dphi(self.x[b, 7:13])
+            out[b] = d @ self.P[b, 7:13, 7:13] @ d.T
+        return out
+
+    def select(self, index) -> "SimState":
+        """Sub-batch (index: int, slice or array)."""
+        idx = np.atleast_1d(np.arange(self.batch)[index])
+        return SimState(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
+
+
+def _draw_meas_interval(sc: Scenario, rng: np.random.Generator) -> int:
+    lo, hi = sc.meas_interval
+    return max(1, int(round(rng.uniform(lo, hi) / sc.dt)))
+
+
+def initial_state(sc: Scenario, rngs: list[np.random.Generator]) -> SimState:
+    """B runs at the scenario's start; the filter's (q, w) come from a first noisy measurement."""
+    q0 = euler_to_quat(sc.attitude0_euler_deg)
+    y0 = np.concatenate([q0, sc.omega0])
+    phi0 = phi_from_inertia(sc.inertia_guess_array)
+    d0_inv = np.linalg.inv(dtheta_dphi(phi0))
+    p0 = np.zeros((13, 13))
+    p0[:7, :7] = sc.P0_attitude_rate * np.eye(7)
+    p0[7:, 7:] = d0_inv @ np.array(sc.P0_theta) @ d0_inv.T
+    p0[7:, 7:] = decouple_scale(0.5 * (p0[7:, 7:] + p0[7:, 7:].T))
+    batch = len(rngs)
+    x = np.empty((batch, 13))
+    for b, rng in enumerate(rngs):
+        q_meas = q0 + sc.quat_sigma * rng.standard_normal(4)
+        x[b, :4] = q_meas / np.linalg.norm(q_meas)
+        x[b, 4:7] = np.asarray(sc.omega0) + sc.gyro_sigma * rng.standard_normal(3)
+        x[b, 7:] = phi0
+    return SimState(
+        y_true=np.tile(y0, (batch, 1)),
+        x=x,
+        P=np.tile(p0, (batch, 1, 1)),
+        n_updates=np.zeros(batch, dtype=np.int64),
+        steps_to_meas=np.array([_draw_meas_interval(sc, r) for r in rngs], dtype=np.int64),
+        step=np.zeros(batch, dtype=np.int64),
+        diverged=np.zeros(batch, dtype=bool),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Trace:
+    """What a segment recorded, per run b (arrays padded to the longest run of the batch).
+
+    w_hat, w_dot_hat, tau : (B, n, 3) per step; n_steps (B,).
+    meas_step (B, m) step index of each measurement from the run's start; n_meas (B,);
+    theta_hat, theta_var (B, m, 6) posterior mean and variance of theta after each update;
+    w_true, w_est (B, m, 3); nis (B, m).
+    """
+
+    w_hat: np.ndarray
+    w_dot_hat: np.ndarray
+    tau: np.ndarray
+    n_steps: np.ndarray
+    meas_step: np.ndarray
+    n_meas: np.ndarray
+    theta_hat: np.ndarray
+    theta_var: np.ndarray
+    w_true: np.ndarray
+    w_est: np.ndarray
+    nis: np.ndarray
+
+
+@nb.njit(cache=True)
+def _segment_one(
+    y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, a, b, v, tau_max,
+    meas_at, z_noise, cfg, record_steps,
+    out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_w_true, log_w_est, log_nis,
+):
+    """Advance one run by n_steps; returns (status, number of measurements processed)."""
+    dt = cfg[ekf.C_DT]
+    inertia_true_inv = inv3(inertia_true)
+    work7 = np.empty((5, 7))
+    y_next = np.empty(7)
+    x_next = np.empty(7)
+    psi_work = np.empty((3, 6))
+    phi_top = np.zeros((7, 13))
+    for i in range(7):
+        phi_top[i, i] = 1.0
+    tau = np.zeros(3)
+    burst_i = 0
+    meas_i = 0
+    status = 0
+    z = np.empty(ekf.measurement_size(cfg))
+    for k in range(n_steps):
+        # Burst law (18): computed from the filter's rate at the burst start, held over the burst.
+        if burst_i < bursts.shape[0] and k == bursts[burst_i, 1]:
+            tau[:] = 0.0
+            burst_i += 1
+        if burst_i < bursts.shape[0] and k == bursts[burst_i, 0]:
+            w_h = x[4:7]
+            for i in range(3):
+                tau[i] = b * v[i]
+            tau[0] += a * (w_h[1] * v[2] - w_h[2] * v[1])
+            tau[1] += a * (w_h[2] * v[0] - w_h[0] * v[2])
+            tau[2] += a * (w_h[0] * v[1] - w_h[1] * v[0])
+            peak = max(abs(tau[0]), abs(tau[1]), abs(tau[2]))
+            if peak > tau_max:  # saturate |tau|_inf <= tau_max, keeping the direction
+                for i in range(3):
+                    tau[i] *= tau_max / peak
+        if record_steps:
+            inertia_hat = inertia_from_phi(x[7:13])
+            w_h = x[4:7]
+            hx = inertia_hat @ w_h
+            rhs = tau - np.array(
+                (w_h[1] * hx[2] - w_h[2] * hx[1], w_h[2] * hx[0] - w_h[0] * hx[2],
+                 w_h[0] * hx[1] - w_h[1] * hx[0])
+            )
+            out_w_dot_hat[k] = np.linalg.solve(inertia_hat, rhs)  # eq. (12)
+            out_w_hat[k] = w_h
+            out_tau[k] = tau
+        gauss_legendre_step_into(
+            y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_next, work7[0:4]
+        )
+        y_true[:] = y_next
+        if status == 0:
+            ekf.ekf_predict_step(x, tau, dt, phi_top, work7, psi_work, x_next)
+        if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
+            if status == 0:
+                P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
+                phi_top[:, :] = 0.0
+                for i in range(7):
+                    phi_top[i, i] = 1.0
+                _measure(y_true, z_noise[meas_i], cfg, z)
+                log_nis[meas_i] = ekf.ekf_update(x, P, z, cfg)
+                n_updates += 1
+                if not ekf.state_is_sane(x, P):
+                    status = 1
+            log_theta[meas_i] = theta_from_phi(x[7:13])
+            d = dtheta_dphi(x[7:13])
+            p_th = d @ P[7:13, 7:13] @ d.T
+            for i in range(6):
+                log_var[meas_i, i] = p_th[i, i]
+            log_w_true[meas_i] = y_true[4:7]
+            log_w_est[meas_i] = x[4:7]
+            meas_i += 1
+    return status, meas_i, n_updates
+
+
+@nb.njit(cache=True)
+def _measure(y_true, noise, cfg, z):
+    """Noisy measurement of the true state: gyro, [normalised quaternion], [body vectors]."""
+    for i in range(3):
+        z[i] = y_true[4 + i] + noise[i]
+    row = 3
+    if cfg[ekf.C_USE_QUAT] > 0:
+        norm = 0.0
+        for i in range(4):
+            z[row + i] = y_true[i] + noise[3 + i]
+            norm += z[row + i] ** 2
+        norm = math.sqrt(norm)
+        for i in range(4):
+            z[row + i] /= norm
+        row += 4
+    if cfg[ekf.C_USE_VEC] > 0:
+        g_b, _ = ekf.body_vector_and_jacobian(y_true[0:4], cfg[ekf.C_GRAV])
+        m_b, _ = ekf.body_vector_and_jacobian(y_true[0:4], cfg[ekf.C_MAGREF])
+        for i in range(3):
+            z[row + i] = g_b[i] + noise[7 + i]
+            z[row + 3 + i] = m_b[i] + noise[10 + i]
+
+
+@nb.njit(cache=True, parallel=True)
+def _segment_batch(
+    y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi, v, tau_max,
+    meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat, out_tau,
+    log_theta, log_var, log_w_true, log_w_est, log_nis, status, meas_done,
+):
+    for r in nb.prange(y_true.shape[0]):
+        if status[r] != 0:
+            continue
+        st, done, nu = _segment_one(
+            y_true[r], inertia_true, dist, x[r], P[r], n_updates[r], n_steps[r],
+            bursts[r, : n_bursts[r]], xi[r, 0], xi[r, 1], v[r], tau_max,
+            meas_at[r, : n_meas[r]], z_noise[r], cfg, record_steps,
+            out_w_hat[r], out_w_dot_hat[r], out_tau[r], log_theta[r], log_var[r],
+            log_w_true[r], log_w_est[r], log_nis[r],
+        )
+        status[r] = st
+        meas_done[r] = done
+        n_updates[r] = nu
+
+
+def run_segment(
+    sc: Scenario,
+    state: SimState,
+    n_steps,
+    bursts,
+    xi,
+    v,
+    rngs: list[np.random.Generator],
+    *,
+    record_steps: bool = True,
+    disturbance=None,
+) -> tuple[SimState, Trace]:
+    """Advance B runs by one segment.
+
+    n_steps : (B,) int steps per run (0 leaves a run as it is).  bursts : (B, nb, 2) int [start, stop) step indices from the
+    segment start (nb may be 0).  xi : (B, 3) (a, b, T_on); T_on only enters through bursts.
+    v : (B, 3) unit burst directions.  rngs : one Generator per run (measurement times, noise).
+    record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
+    disturbance : packed (20,) vector of dynamics.Disturbance acting on the truth, or None.
+    Runs that had diverged are left untouched.
+    """
+    batch = state.batch
+    n_steps = np.broadcast_to(np.asarray(n_steps, dtype=np.int64), (batch,)).copy()
+    if np.any(n_steps < 0) or not np.any(n_steps > 0):
+        raise ConfigError(f"segment lengths must be >= 0 steps, one > 0; got {n_steps.tolist()}")
+    bursts = np.asarray(bursts, dtype=np.int64).reshape(batch, -1, 2)
+    n_bursts = np.full(batch, bursts.shape[1], dtype=np.int64)
+    xi = np.broadcast_to(np.asarray(xi, dtype=float), (batch, 3))
+    v = np.broadcast_to(np.asarray(v, dtype=float), (batch, 3))
+    if not (np.all(np.isfinite(xi)) and np.all(np.isfinite(v))):
+        raise ConfigError("xi and v must be finite")
+    cfg = pack_filter_config(sc)
+    # Measurement schedule and noise, per run, from its own generator.
+    schedules, steps_to_meas = [], state.steps_to_meas.copy()
+    for r in range(batch):
+        at, nxt = [], int(steps_to_meas[r])
+        while nxt <= n_steps[r]:
+            at.append(nxt)
+            nxt += _draw_meas_interval(sc, rngs[r])
+        steps_to_meas[r] = nxt - n_steps[r]
+        schedules.append(at)
+    max_meas = max(1, max(len(s) for s in schedules))
+    meas_at = np.zeros((batch, max_meas), dtype=np.int64)
+    n_meas = np.array([len(s) for s in schedules], dtype=np.int64)
+    sigmas = np.concatenate(
+        [np.full(3, sc.gyro_sigma), np.full(4, sc.quat_sigma),
+         np.full(3, sc.accel_sigma), np.full(3, sc.mag_sigma)]
+    )
+    z_noise = np.zeros((batch, max_meas, 13))
+    for r in range(batch):
+        meas_at[r, : n_meas[r]] = schedules[r]
+        z_noise[r, : n_meas[r]] = sigmas * rngs[r].standard_normal((n_meas[r], 13))
+    n_max = max(1, int(n_steps.max())) if record_steps else 1
+    out_w_hat = np.zeros((batch, n_max, 3))
+    out_w_dot_hat = np.zeros((batch, n_max, 3))
+    out_tau = np.zeros((batch, n_max, 3))
+    log_theta = np.full((batch, max_meas, 6), np.nan)
+    log_var = np.full((batch, max_meas, 6), np.nan)
+    log_w_true = np.full((batch, max_meas, 3), np.nan)
+    log_w_est = np.full((batch, max_meas, 3), np.nan)
+    log_nis = np.full((batch, max_meas), np.nan)
+    y_true, x, P = state.y_true.copy(), state.x.copy(), state.P.copy()
+    n_updates = state.n_updates.copy()
+    status = state.diverged.astype(np.int64)
+    meas_done = np.zeros(batch, dtype=np.int64)
+    dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
+    _segment_batch(
+        y_true, sc.inertia_true_array, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi,
+        v, sc.tau_max, meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat,
+        out_tau, log_theta, log_var, log_w_true, log_w_est, log_nis, status, meas_done,
+    )
+    new_state = SimState(
+        y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
+        step=state.step + n_steps, diverged=status != STATUS_OK,
+    )
+    trace = Trace(
+        w_hat=out_w_hat, w_dot_hat=out_w_dot_hat, tau=out_tau, n_steps=n_steps,
+        meas_step=state.step[:, None] + meas_at, n_meas=n_meas, theta_hat=log_theta,
+        theta_var=log_var, w_true=log_w_true, w_est=log_w_est, nis=log_nis,
+    )
+    return new_state, trace
