@@ -1,0 +1,1 @@
+"""Sub-commands of the `inertia-gym` CLI (thin shells over the library)."""

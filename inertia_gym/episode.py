@@ -1,0 +1,120 @@
+"""One excitation episode of Algorithm 1 and its cost, for B runs at once.
+
+An episode applies N bursts of eq. (18) with parameters xi = (a, b, T_on), each followed by a
+dwell drawn from the scenario, while truth and estimator run (simulation.py). Its cost is the
+paper's J = -log(alpha + eps_lambda), alpha the soft-min (eq. 24) of lambda_min over windows of
+N_T = max(5, ceil(T_on/dt)) samples of the Gram of Psi(w_hat, w_dot_hat) (eqs. 12-14). The
+estimator state carries over to the next episode (k0 advances), as in Algorithm 1.
+
+Cost options: "info" is the paper's J; "posterior" is the change of log det P_theta over the
+episode (the log-volume of the inertia posterior; more negative is more informative), the
+posterior-uncertainty cost the paper's conclusion proposes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from inertia_gym.errors import ConfigError
+from inertia_gym.excitation import burst_direction, check_xi, episode_schedule
+from inertia_gym.information import (
+    cost as info_cost,
+    gram_prefix,
+    soft_min,
+    window_length,
+    window_starts,
+    windowed_lambda_min,
+)
+from inertia_gym.scenario import Scenario
+from inertia_gym.simulation import SimState, run_segment
+from inertia_gym.validation import relative_error
+
+COSTS = ("info", "posterior")
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeResult:
+    """Outcome of one episode of one run.
+
+    cost : the selected cost (lower is better).  info_cost : J of eq. (15) with eq. (24).
+    posterior_cost : change of log det P_theta over the episode.  alpha : soft-min of lambda_min.
+    lambda_min : (W,) lambda_min of each window in S.  duration : s.  v : (3,) burst direction.
+    theta_hat : (6,).  p_theta_eigvals : (6,) ascending.  rel_error : ||J_hat - J||_F/||J||_F.
+    diverged : the estimator left its domain during the episode (costs are then +inf).
+    """
+
+    cost: float
+    info_cost: float
+    posterior_cost: float
+    alpha: float
+    lambda_min: np.ndarray
+    duration: float
+    v: np.ndarray
+    theta_hat: np.ndarray
+    p_theta_eigvals: np.ndarray
+    rel_error: float
+    diverged: bool
+
+
+def information_cost(sc: Scenario, w_hat, w_dot_hat, bursts, t_on: float) -> tuple[float, float,
+                                                                                  np.ndarray]:
+    """(J, alpha, lambda_min per window) of one episode's per-step estimates.
+
+    w_hat, w_dot_hat : (n, 3) rad/s, rad/s². bursts : (m, 2) [start, stop) step indices.
+    """
+    n_window = window_length(t_on, sc.dt)
+    prefix = gram_prefix(np.ascontiguousarray(w_hat), np.ascontiguousarray(w_dot_hat))
+    starts = window_starts(len(w_hat), n_window, bursts if sc.window_set == "burst" else None)
+    lam = windowed_lambda_min(prefix, starts, n_window, sc.epsilon)
+    alpha = soft_min(lam, sc.softmin_beta)
+    return info_cost(alpha, sc.epsilon_lambda), alpha, lam
+
+
+def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generator], *,
+                cost: str = "info") -> tuple[SimState, list[EpisodeResult]]:
+    """Run one episode for each of the B runs in `state` with xi (3,) or (B, 3).
+
+    Returns the new state and one EpisodeResult per run. xi is checked against the scenario's
+    bounds; each run draws its dwell times, measurement times and noise from its own Generator.
+    """
+    if cost not in COSTS:
+        raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
+    batch = state.batch
+    xi = np.asarray(xi, dtype=float)
+    xi = np.tile(xi, (batch, 1)) if xi.ndim == 1 else xi
+    if xi.shape != (batch, 3):
+        raise ConfigError(f"xi must have shape (3,) or ({batch}, 3), got {xi.shape}")
+    for row in xi:
+        check_xi(row, sc.xi_bounds)
+    schedules = [episode_schedule(sc, row[2], rng) for row, rng in zip(xi, rngs)]
+    n_steps = np.array([s.n_steps for s in schedules])
+    bursts = np.stack([s.bursts for s in schedules])
+    p_theta_start = state.P_theta()
+    v = np.array([burst_direction(p) if not d else np.array([1.0, 0.0, 0.0])
+                  for p, d in zip(p_theta_start, state.diverged)])
+    new_state, trace = run_segment(sc, state, n_steps, bursts, xi, v, rngs)
+    p_theta_end = new_state.P_theta()
+    theta_hat = new_state.theta_hat()
+    errors = relative_error(new_state.inertia_hat(), sc.inertia_true_array)
+    results = []
+    for r in range(batch):
+        diverged = bool(new_state.diverged[r])
+        eig_end = np.linalg.eigvalsh(p_theta_end[r]) if not diverged else np.full(6, np.nan)
+        if diverged:
+            j_info, alpha, lam, post = np.inf, 0.0, np.zeros(0), np.inf
+        else:
+            n = n_steps[r]
+            j_info, alpha, lam = information_cost(
+                sc, trace.w_hat[r, :n], trace.w_dot_hat[r, :n], bursts[r], xi[r, 2]
+            )
+            post = float(np.linalg.slogdet(p_theta_end[r])[1]
+                         - np.linalg.slogdet(p_theta_start[r])[1])
+        results.append(EpisodeResult(
+            cost=j_info if cost == "info" else post, info_cost=j_info, posterior_cost=post,
+            alpha=alpha, lambda_min=lam, duration=n_steps[r] * sc.dt, v=v[r],
+            theta_hat=theta_hat[r], p_theta_eigvals=eig_end, rel_error=float(errors[r]),
+            diverged=diverged,
+        ))
+    return new_state, results
