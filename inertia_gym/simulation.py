@@ -209,15 +209,9 @@ def _segment_one(
             ekf.ekf_predict_step(x, tau, dt, phi_top, work7, psi_work, x_next)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
             if status == 0:
-                P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
-                phi_top[:, :] = 0.0
-                for i in range(7):
-                    phi_top[i, i] = 1.0
-                _measure(y_true, z_noise[meas_i], cfg, z)
-                log_nis[meas_i] = ekf.ekf_update(x, P, z, cfg)
+                status = _filter_update(x, P, phi_top, n_updates, y_true, z_noise[meas_i], cfg, z,
+                                        log_nis, meas_i)
                 n_updates += 1
-                if not ekf.state_is_sane(x, P):
-                    status = 1
             log_theta[meas_i] = theta_from_phi(x[7:13])
             d = dtheta_dphi(x[7:13])
             p_th = d @ P[7:13, 7:13] @ d.T
@@ -227,6 +221,23 @@ def _segment_one(
             log_w_est[meas_i] = x[4:7]
             meas_i += 1
     return status, meas_i, n_updates
+
+
+@nb.njit(cache=True)
+def _filter_update(x, P, phi_top, n_updates, y_true, noise, cfg, z, log_nis, meas_i):
+    """Covariance propagation + measurement update; returns STATUS_DIVERGED instead of raising."""
+    if not ekf.state_is_sane(x, P):
+        return 1
+    try:
+        P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
+        phi_top[:, :] = 0.0
+        for i in range(7):
+            phi_top[i, i] = 1.0
+        _measure(y_true, noise, cfg, z)
+        log_nis[meas_i] = ekf.ekf_update(x, P, z, cfg)
+    except Exception:  # a failed factorisation: the estimate has left its domain
+        return 1
+    return 0 if ekf.state_is_sane(x, P) else 1
 
 
 @nb.njit(cache=True)

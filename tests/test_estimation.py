@@ -1,0 +1,145 @@
+import numpy as np
+import pytest
+
+from inertia_gym.dynamics import euler_to_quat, quat_to_rotation
+from inertia_gym.estimation import ekf
+from inertia_gym.estimation.inertia_param import (
+    dtheta_dphi,
+    inertia_from_phi,
+    phi_from_inertia,
+    theta_from_phi,
+)
+from inertia_gym.errors import ConfigError
+from inertia_gym.information import theta_from_inertia
+from inertia_gym.simulation import initial_state, pack_filter_config, run_segment
+
+J = np.array([[100.0, 6, -4], [6, 80, 3], [-4, 3, 70]])
+
+
+def test_log_cholesky_round_trip_and_positive_definite(rng):
+    assert np.allclose(inertia_from_phi(phi_from_inertia(J)), J)
+    for phi in rng.normal(0, 3, (200, 6)):
+        eig = np.linalg.eigvalsh(inertia_from_phi(phi))
+        assert eig.min() > 0
+    with pytest.raises(ConfigError):
+        phi_from_inertia(np.diag([1.0, -1.0, 1.0]))
+
+
+def test_scale_coordinate_is_pure_scale():
+    phi = phi_from_inertia(J)
+    shifted = phi.copy()
+    shifted[0] += np.log(3.0)
+    assert np.allclose(inertia_from_phi(shifted), 3.0 * J)
+    assert np.allclose(dtheta_dphi(phi)[:, 0], theta_from_inertia(J))
+
+
+def test_dtheta_dphi_matches_finite_differences(rng):
+    for phi in rng.normal(0, 1, (5, 6)):
+        num = np.empty((6, 6))
+        for j in range(6):
+            e = np.zeros(6)
+            e[j] = 1e-6
+            num[:, j] = (theta_from_phi(phi + e) - theta_from_phi(phi - e)) / 2e-6
+        assert np.allclose(dtheta_dphi(phi), num, rtol=1e-6, atol=1e-6)
+
+
+def _predict(x, tau, n, dt=0.01):
+    x = x.copy()
+    phi_top = np.zeros((7, 13))
+    phi_top[:, :7] = np.eye(7)
+    for _ in range(n):
+        ekf.ekf_predict_step(x, tau, dt, phi_top, np.empty((5, 7)), np.empty((3, 6)), np.empty(7))
+    return x, phi_top
+
+
+def test_rate_rows_of_transition_match_finite_differences():
+    """The accumulated analytic transition matches the numerical sensitivity of the mean."""
+    x0 = np.r_[euler_to_quat([10, 20, 30]), 0.5, 10.0, 0.45, phi_from_inertia(J)]
+    tau = np.array([3.0, -2.0, 4.0])
+    _, phi_top = _predict(x0, tau, 15)
+    analytic = phi_top[4:7].copy()
+    analytic[:, 7:] = phi_top[4:7, 7:] @ dtheta_dphi(x0[7:])
+    numeric = np.empty((3, 13))
+    for j in range(13):
+        e = np.zeros(13)
+        e[j] = 1e-6
+        numeric[:, j] = (_predict(x0 + e, tau, 15)[0][4:7] - _predict(x0 - e, tau, 15)[0][4:7]) / 2e-6
+    # F = I + dt A per step is first order: a few percent over an interval of |w| dt = 1.5 rad.
+    assert np.abs(analytic[:, 4:] - numeric[:, 4:]).max() < 0.06 * np.abs(numeric[:, 4:]).max()
+    # The scale column is exactly -integral of J^-1 tau: zero without torque.
+    _, phi_free = _predict(x0, np.zeros(3), 15)
+    assert np.allclose(phi_free[4:7, 7:] @ dtheta_dphi(x0[7:])[:, 0], 0.0, atol=1e-9)
+
+
+def test_vector_sensor_jacobian_matches_finite_differences(rng):
+    q = euler_to_quat([40, -10, 70])
+    v = np.array([0.2, 0.0, 0.45])
+    out, jac = ekf.body_vector_and_jacobian(q, v)
+    assert np.allclose(out, quat_to_rotation(q).T @ v)
+    num = np.empty((3, 4))
+    for j in range(4):
+        e = np.zeros(4)
+        e[j] = 1e-7
+        num[:, j] = (ekf.body_vector_and_jacobian(q + e, v)[0]
+                     - ekf.body_vector_and_jacobian(q - e, v)[0]) / 2e-7
+    assert np.allclose(jac, num, atol=1e-6)
+
+
+def test_update_keeps_covariance_symmetric_positive_definite(paper, rng):
+    state = initial_state(paper, [rng])
+    x, P = state.x[0].copy(), state.P[0].copy()
+    cfg = pack_filter_config(paper)
+    z = np.r_[x[4:7] + 0.05, x[0:4]]
+    ekf.ekf_update(x, P, z, cfg)
+    assert np.allclose(P, P.T)
+    assert np.linalg.eigvalsh(P).min() > 0
+    assert np.linalg.norm(x[0:4]) == pytest.approx(1.0)
+
+
+def test_quaternion_sign_flip_is_the_same_measurement(paper, rng):
+    state = initial_state(paper, [rng])
+    cfg = pack_filter_config(paper)
+    z = np.r_[state.x[0, 4:7] + 0.01, state.x[0, 0:4]]
+    results = []
+    for sign in (1.0, -1.0):
+        x, P = state.x[0].copy(), state.P[0].copy()
+        zz = z.copy()
+        zz[3:] *= sign
+        ekf.ekf_update(x, P, zz, cfg)
+        results.append(x)
+    assert np.allclose(results[0], results[1])
+
+
+def test_zero_torque_never_moves_the_scale(paper):
+    rngs = [np.random.default_rng(s) for s in range(2)]
+    state = initial_state(paper, rngs)
+    s0 = state.x[:, 7].copy()
+    state, _ = run_segment(paper, state, 3000, np.zeros((2, 0, 2)), np.zeros(3), np.eye(3)[0],
+                           rngs, record_steps=False)
+    assert np.allclose(state.x[:, 7], s0)
+    assert not state.diverged.any()
+
+
+def test_divergence_is_reported_not_raised(paper):
+    rngs = [np.random.default_rng(0)]
+    state = initial_state(paper, rngs)
+    bad_p = state.P.copy()
+    bad_p[0, 5, 5] = np.nan
+    state = type(state)(state.y_true, state.x, bad_p, state.n_updates, state.steps_to_meas,
+                        state.step, state.diverged)
+    new, trace = run_segment(paper, state, 100, np.zeros((1, 0, 2)), np.zeros(3), np.eye(3)[0],
+                             rngs, record_steps=False)
+    assert new.diverged[0]
+    assert np.all(np.isfinite(new.y_true))
+
+
+def test_vector_sensors_run_and_converge_ratios(paper):
+    sc = paper.replace(use_vector_sensors=True)
+    rngs = [np.random.default_rng(3)]
+    state = initial_state(sc, rngs)
+    state, trace = run_segment(sc, state, 20000, np.zeros((1, 0, 2)), np.zeros(3), np.eye(3)[0],
+                               rngs, record_steps=False)
+    j_hat = state.inertia_hat()[0]
+    err = np.linalg.norm(j_hat / np.trace(j_hat) - J / np.trace(J)) / np.linalg.norm(J / np.trace(J))
+    assert not state.diverged[0]
+    assert err < 0.02
