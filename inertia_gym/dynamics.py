@@ -5,9 +5,12 @@ inertial frame (v_I = R(q) v_B); omega is the body rate in the body frame, rad/s
 
     J w_dot = tau - w x (J w + h) + tau_dist,     q_dot = 1/2 q (x) (0, w)
 
-The truth integrator is the 2-stage Gauss-Legendre collocation method (order 4). Gauss methods
-conserve every quadratic invariant exactly, so torque-free energy 1/2 w'Jw, |Jw|^2 and |q|^2 are
-kept to round-off without a projection step. All kernels are numba-compiled; ``propagate_batch``
+The closed-loop truth and the estimators integrate with classical RK4 at dt (quaternion
+renormalised each step): at the paper's rate (|w| = 10 rad/s, dt = 0.01 s) its torque-free energy
+drift is about 5e-8 over 1000 s, and it is three times cheaper than the alternative. That
+alternative, ``method="gauss"``, is the 2-stage Gauss-Legendre collocation method (order 4),
+which conserves every quadratic invariant (energy, |J w|^2, |q|^2) exactly: use it for long
+torque-free runs or fast spins (|w| dt > 0.2), where RK4's drift grows as (|w| dt)^4. All kernels are numba-compiled; ``propagate_batch``
 advances many trajectories in one call (parallel over the batch).
 
 Extra torques enter through a :class:`Disturbance` (the "hook"): a frozen dataclass packed into a
@@ -222,8 +225,9 @@ def _state_rate_into(y, inertia, inertia_inv, tau, dist, out):
     hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz + dist[3]
     hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz + dist[4]
     hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz + dist[5]
-    speed = math.sqrt(wx * wx + wy * wy + wz * wz)
-    c = dist[15] * speed
+    c = 0.0
+    if dist[15] != 0.0:
+        c = dist[15] * math.sqrt(wx * wx + wy * wy + wz * wz)
     mx = tau[0] + dist[0] - (wy * hz - wz * hy) - c * wx
     my = tau[1] + dist[1] - (wz * hx - wx * hz) - c * wy
     mz = tau[2] + dist[2] - (wx * hy - wy * hx) - c * wz
@@ -260,24 +264,35 @@ def _normalize_quat(y):
 
 
 @nb.njit(cache=True)
-def gauss_legendre_step_into(y, dt, inertia, inertia_inv, tau, dist, out, work):
+def gauss_legendre_step_into(y, dt, inertia, inertia_inv, tau, dist, out, work, warm=False):
     """One order-4 Gauss-Legendre step of y = (q, w), shape (7,), into out (torque held).
 
     The implicit stages are solved by fixed-point iteration to round-off (|h w| < 1 makes it a
     contraction); the result keeps quadratic invariants (energy, |J w|, |q|) exactly.
-    ``work`` is scratch of shape (4, 7).
+    ``work`` is scratch of shape (4, 7); with ``warm`` its first two rows hold the previous
+    step's stage slopes, extrapolated along the collocation polynomial as the first guess
+    (saves about two iterations per step on a smooth trajectory).
     """
     a11, a12 = 0.25, 0.25 - SQRT3_6
     a21, a22 = 0.25 + SQRT3_6, 0.25
     k1, k2, ys = work[0], work[1], work[2]
-    # Explicit predictor: stage slopes from Euler steps to the stage times.
-    _state_rate_into(y, inertia, inertia_inv, tau, dist, k1)
-    for i in range(7):
-        ys[i] = y[i] + (0.5 + SQRT3_6) * dt * k1[i]
-    _state_rate_into(ys, inertia, inertia_inv, tau, dist, k2)
-    for i in range(7):
-        ys[i] = y[i] + (0.5 - SQRT3_6) * dt * k1[i]
-    _state_rate_into(ys, inertia, inertia_inv, tau, dist, k1)
+    if warm:
+        # Stage times c1, c2 = 1/2 -+ sqrt(3)/6; slope line through (c1, k1), (c2, k2)
+        # evaluated at 1 + c1 and 1 + c2 (the next step's stages).
+        e1 = 1.0 / (2.0 * SQRT3_6)
+        for i in range(7):
+            slope = (k2[i] - k1[i]) * e1
+            k1[i] = k1[i] + slope
+            k2[i] = k2[i] + slope
+    else:
+        # Explicit predictor: stage slopes from Euler steps to the stage times.
+        _state_rate_into(y, inertia, inertia_inv, tau, dist, k1)
+        for i in range(7):
+            ys[i] = y[i] + (0.5 + SQRT3_6) * dt * k1[i]
+        _state_rate_into(ys, inertia, inertia_inv, tau, dist, k2)
+        for i in range(7):
+            ys[i] = y[i] + (0.5 - SQRT3_6) * dt * k1[i]
+        _state_rate_into(ys, inertia, inertia_inv, tau, dist, k1)
     scale = 1e-13 * (1.0 + abs(y[4]) + abs(y[5]) + abs(y[6]))
     for _ in range(60):
         change = 0.0
@@ -329,21 +344,28 @@ def rk4_step_into(y, dt, inertia, inertia_inv, tau, dist, out, work):
 
 
 @nb.njit(cache=True)
-def _propagate_into(y0, torque, dt, inertia, dist, out):
+def _propagate_into(y0, torque, dt, inertia, dist, gauss, out):
     inertia_inv = inv3(inertia)
-    work = np.empty((4, 7))
+    work = np.empty((5, 7))
     out[0] = y0
     for k in range(torque.shape[0]):
-        gauss_legendre_step_into(out[k], dt, inertia, inertia_inv, torque[k], dist, out[k + 1], work)
+        if gauss:
+            gauss_legendre_step_into(out[k], dt, inertia, inertia_inv, torque[k], dist,
+                                     out[k + 1], work[0:4], k > 0)
+        else:
+            rk4_step_into(out[k], dt, inertia, inertia_inv, torque[k], dist, out[k + 1], work)
 
 
 @nb.njit(cache=True, parallel=True)
-def _propagate_batch(y0, torque, dt, inertia, dist, out):
+def _propagate_batch(y0, torque, dt, inertia, dist, gauss, out):
     for b in nb.prange(y0.shape[0]):
-        _propagate_into(y0[b], torque[b], dt, inertia[b], dist[b], out[b])
+        _propagate_into(y0[b], torque[b], dt, inertia[b], dist[b], gauss, out[b])
 
 
-def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None):
+INTEGRATORS = ("rk4", "gauss")
+
+
+def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None, method="rk4"):
     """Integrate many trajectories at once.
 
     Parameters
@@ -351,6 +373,8 @@ def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None):
     q0 : (B, 4) initial unit quaternions.  omega0 : (B, 3) rad/s.
     inertia : (B, 3, 3) or (3, 3) kg·m².  torque : (B, n, 3) N·m, held over each step.
     dt : step, s.  disturbance : Disturbance, (B, 20) packed vectors, or None.
+    method : "rk4" (the closed-loop truth's integrator) or "gauss" (order-4 Gauss-Legendre,
+    which keeps energy and momentum exactly: for long torque-free runs or fast spins).
 
     Returns
     -------
@@ -364,6 +388,8 @@ def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None):
         raise ConfigError(f"torque must have shape (B={batch}, n, 3), got {torque.shape}")
     if q0.shape != (batch, 4) or omega0.shape != (batch, 3):
         raise ConfigError(f"q0 must be (B, 4) and omega0 (B, 3), got {q0.shape}, {omega0.shape}")
+    if method not in INTEGRATORS:
+        raise ConfigError(f"method must be one of {INTEGRATORS}, got {method!r}")
     if not (np.isfinite(dt) and dt > 0):
         raise ConfigError(f"dt must be a positive finite number of seconds, got {dt}")
     inertia = np.broadcast_to(np.asarray(inertia, dtype=float), (batch, 3, 3)).copy()
@@ -378,16 +404,17 @@ def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None):
             raise ConfigError(f"{name} must be finite")
     y0 = np.concatenate([q0 / np.linalg.norm(q0, axis=1, keepdims=True), omega0], axis=1)
     out = np.empty((batch, torque.shape[1] + 1, 7))
-    _propagate_batch(y0, torque, float(dt), inertia, dist, out)
+    _propagate_batch(y0, torque, float(dt), inertia, dist, method == "gauss", out)
     return out[..., :4], out[..., 4:]
 
 
-def propagate(q0, omega0, inertia, torque, dt, disturbance=None):
+def propagate(q0, omega0, inertia, torque, dt, disturbance=None, method="rk4"):
     """Integrate one trajectory: torque (n, 3) -> q (n+1, 4), omega (n+1, 3). See propagate_batch."""
     q, w = propagate_batch(
         np.asarray(q0, float)[None], np.asarray(omega0, float)[None], inertia,
         np.asarray(torque, float)[None], dt,
         disturbance if disturbance is None or isinstance(disturbance, Disturbance)
         else np.asarray(disturbance)[None],
+        method,
     )
     return q[0], w[0]

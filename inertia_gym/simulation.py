@@ -1,7 +1,7 @@
 """Closed loop of truth, sensors, estimator and burst law, compiled and batched over runs.
 
 One call to :func:`run_segment` advances B independent runs (seeds) by a segment of time steps:
-truth (Gauss-Legendre, dynamics.py) -> intermittent noisy sensors -> EKF (estimation/ekf.py), with
+truth (RK4 at dt, dynamics.py) -> intermittent noisy sensors -> EKF (estimation/ekf.py), with
 the torque of eq. (18) computed from the filter's rate at each burst start and held over the
 burst. All randomness is drawn beforehand from explicit numpy Generators, so a run is a pure
 function of its inputs. Per step it records w_hat and w_dot_hat of eq. (12) for the information
@@ -16,7 +16,7 @@ import math
 import numba as nb
 import numpy as np
 
-from inertia_gym.dynamics import NO_DISTURBANCE, euler_to_quat, gauss_legendre_step_into, inv3
+from inertia_gym.dynamics import NO_DISTURBANCE, euler_to_quat, inv3, rk4_step_into
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf
 from inertia_gym.estimation.inertia_param import (
@@ -165,7 +165,9 @@ def _segment_one(
     work7 = np.empty((5, 7))
     y_next = np.empty(7)
     x_next = np.empty(7)
-    psi_work = np.empty((3, 6))
+    jac_work = np.empty((24, 13))
+    inertia_hat = inertia_from_phi(x[7:13])
+    inertia_hat_inv = inv3(inertia_hat)
     phi_top = np.zeros((7, 13))
     for i in range(7):
         phi_top[i, i] = 1.0
@@ -191,27 +193,21 @@ def _segment_one(
                 for i in range(3):
                     tau[i] *= tau_max / peak
         if record_steps:
-            inertia_hat = inertia_from_phi(x[7:13])
-            w_h = x[4:7]
-            hx = inertia_hat @ w_h
-            rhs = tau - np.array(
-                (w_h[1] * hx[2] - w_h[2] * hx[1], w_h[2] * hx[0] - w_h[0] * hx[2],
-                 w_h[0] * hx[1] - w_h[1] * hx[0])
-            )
-            out_w_dot_hat[k] = np.linalg.solve(inertia_hat, rhs)  # eq. (12)
-            out_w_hat[k] = w_h
+            _record_step(x, tau, inertia_hat, inertia_hat_inv, out_w_hat[k], out_w_dot_hat[k])
             out_tau[k] = tau
-        gauss_legendre_step_into(
-            y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_next, work7[0:4]
-        )
+        rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_next, work7)
         y_true[:] = y_next
         if status == 0:
-            ekf.ekf_predict_step(x, tau, dt, phi_top, work7, psi_work, x_next)
+            ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, work7,
+                                 jac_work, x_next)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
             if status == 0:
                 status = _filter_update(x, P, phi_top, n_updates, y_true, z_noise[meas_i], cfg, z,
                                         log_nis, meas_i)
                 n_updates += 1
+                if status == 0:
+                    inertia_hat = inertia_from_phi(x[7:13])
+                    inertia_hat_inv = inv3(inertia_hat)
             log_theta[meas_i] = theta_from_phi(x[7:13])
             d = dtheta_dphi(x[7:13])
             p_th = d @ P[7:13, 7:13] @ d.T
@@ -221,6 +217,22 @@ def _segment_one(
             log_w_est[meas_i] = x[4:7]
             meas_i += 1
     return status, meas_i, n_updates
+
+
+@nb.njit(cache=True)
+def _record_step(x, tau, inertia_hat, inertia_hat_inv, w_hat, w_dot_hat):
+    """w_hat and w_dot_hat = J_hat^-1 (tau - w_hat x J_hat w_hat) of eq. (12) into the outputs."""
+    wx, wy, wz = x[4], x[5], x[6]
+    hx = inertia_hat[0, 0] * wx + inertia_hat[0, 1] * wy + inertia_hat[0, 2] * wz
+    hy = inertia_hat[1, 0] * wx + inertia_hat[1, 1] * wy + inertia_hat[1, 2] * wz
+    hz = inertia_hat[2, 0] * wx + inertia_hat[2, 1] * wy + inertia_hat[2, 2] * wz
+    rx = tau[0] - (wy * hz - wz * hy)
+    ry = tau[1] - (wz * hx - wx * hz)
+    rz = tau[2] - (wx * hy - wy * hx)
+    for i in range(3):
+        w_hat[i] = x[4 + i]
+        w_dot_hat[i] = inertia_hat_inv[i, 0] * rx + inertia_hat_inv[i, 1] * ry \
+            + inertia_hat_inv[i, 2] * rz
 
 
 @nb.njit(cache=True)

@@ -47,8 +47,10 @@ def _predict(x, tau, n, dt=0.01):
     x = x.copy()
     phi_top = np.zeros((7, 13))
     phi_top[:, :7] = np.eye(7)
+    inertia = inertia_from_phi(x[7:])
     for _ in range(n):
-        ekf.ekf_predict_step(x, tau, dt, phi_top, np.empty((5, 7)), np.empty((3, 6)), np.empty(7))
+        ekf.ekf_predict_step(x, tau, dt, inertia, np.linalg.inv(inertia), phi_top,
+                             np.empty((5, 7)), np.empty((24, 13)), np.empty(7))
     return x, phi_top
 
 
