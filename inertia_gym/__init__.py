@@ -7,6 +7,7 @@ excitation, simulation), thin shells over them (envs, cli) and the sim-vs-real d
 
 from inertia_gym.errors import ConfigError, EstimatorDivergedError, InertiaGymError, RecordingError
 from inertia_gym.scenario import Scenario
+import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
 
 __all__ = [
     "ConfigError",

@@ -1,0 +1,200 @@
+"""`InertiaGym/Excitation-v0`: one step is one excitation episode of Algorithm 1.
+
+A thin Gymnasium shell over :func:`inertia_gym.episode.run_episode`; all physics, estimation
+and the cost live there.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from inertia_gym.episode import COSTS, EpisodeResult, run_episode
+from inertia_gym.errors import ConfigError, InertiaGymError
+from inertia_gym.scenario import Scenario
+from inertia_gym.simulation import SimState, initial_state
+from inertia_gym.validation import relative_error
+
+OBS_SIZE = 16
+# Finite observation bounds (observations are clipped into them): rates / |w0|, theta / s,
+# log10 eigenvalues of P_theta / s², progress.
+OBS_LOW = np.array([-100.0] * 3 + [-1000.0] * 6 + [-40.0] * 6 + [0.0], dtype=np.float32)
+OBS_HIGH = np.array([100.0] * 3 + [1000.0] * 6 + [40.0] * 6 + [10.0], dtype=np.float32)
+
+
+class ResetNeededError(InertiaGymError, gym.error.ResetNeeded):
+    """`step` was called before `reset` (or after the run ended)."""
+
+
+def check_seed(seed: Any) -> int | None:
+    """Return seed as an int; None passes; anything but an integer >= 0 raises ConfigError."""
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be None or an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
+def divergence_cost(sc: Scenario, cost: str) -> float:
+    """Finite cost charged for an episode in which the estimator diverged.
+
+    info: -log(epsilon_lambda), the cost of an episode without any information (alpha = 0).
+    posterior: 0, an episode that did not shrink the inertia posterior at all.
+    """
+    return float(-np.log(sc.epsilon_lambda)) if cost == "info" else 0.0
+
+
+def action_to_xi(sc: Scenario, action) -> np.ndarray:
+    """Map an action u in [-1, 1]^3 to xi = lo + (u + 1)/2 (hi - lo) (3,), checking u.
+
+    Raises ConfigError for a wrong shape, NaN/inf, or a component outside [-1, 1] (beyond a
+    float32 rounding tolerance of 1e-6).
+    """
+    u = np.asarray(action, dtype=float)
+    if u.shape != (3,):
+        raise ConfigError(f"action must have shape (3,), got {u.shape}")
+    if not np.all(np.isfinite(u)):
+        raise ConfigError(f"action must be finite, got {u.tolist()}")
+    if np.any(np.abs(u) > 1.0 + 1e-6):
+        raise ConfigError(f"action must lie in [-1, 1]^3 (a, b, T_on rescaled), got {u.tolist()}")
+    lo, hi = sc.xi_bounds
+    return lo + 0.5 * (np.clip(u, -1.0, 1.0) + 1.0) * (hi - lo)
+
+
+def xi_to_action(sc: Scenario, xi) -> np.ndarray:
+    """Inverse of :func:`action_to_xi`: xi (3,) -> u (3,) float32 in [-1, 1]."""
+    lo, hi = sc.xi_bounds
+    span = np.where(hi > lo, hi - lo, 1.0)
+    return np.clip(2.0 * (np.asarray(xi, dtype=float) - lo) / span - 1.0, -1, 1).astype(np.float32)
+
+
+class ExcitationEnv(gym.Env):
+    """Informative torque excitation of a tumbling rigid body (Basu & Sanfelice, Algorithm 1).
+
+    **Step.** One step is one excitation episode: N = ``scenario.bursts_per_episode`` bursts of
+    the law tau = a (w_hat x v) + b v (eq. 18) of T_on seconds each, each followed by a dwell
+    drawn from ``scenario.dwell`` (about 50 s of simulated time for the paper's scenario), while
+    the truth, the noisy sensors and the EKF run. The estimator's state carries over to the next
+    step (k0 advances), so a run of M steps is one run of Algorithm 1. With
+    ``carry_over=False`` every step instead starts from the scenario's start (fresh noise from
+    the same generator): a stationary noisy objective, the one ``evaluate_xi`` scores.
+
+    **Action.** ``Box(-1, 1, (3,), float32)``, rescaled linearly to xi = (a, b, T_on) inside
+    ``scenario.xi_bounds`` (paper: a in [0, tau_max/|w0|] N·m·s, b in [0, tau_max] N·m, T_on in
+    [0.05, 1] s). NaN, inf or a component outside [-1, 1] raise ConfigError (no silent clip).
+
+    **Observation.** ``Box(OBS_LOW, OBS_HIGH, (16,), float32)`` (clipped into it): w_hat / |w0| (3); theta_hat / s (6),
+    with s = trace(inertia_guess)/3 and theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz); log10 of the
+    eigenvalues of P_theta / s² in ascending order (6); progress = steps taken / budget (1).
+    All are scale-free, so a 1 kg·m² CubeSat and a 10⁴ kg·m² stage look alike.
+
+    **Reward.** −cost of the episode. ``cost="info"``: the paper's J = −log(alpha + eps_lambda)
+    with alpha the soft-min (eq. 24) over windows of lambda_min of the windowed Gram of
+    Psi(w_hat, w_dot_hat). ``cost="posterior"``: the change of log det P_theta over the episode.
+    If the estimator diverges the episode ends (terminated) with ``divergence_cost``.
+
+    **Start state.** The scenario's initial attitude and rate; the filter starts at
+    ``inertia_guess`` with covariance ``P0_theta`` after a first noisy measurement.
+
+    **Termination.** Only on divergence; truncation at the evaluation budget M comes from
+    ``TimeLimit`` (``max_episode_steps``, 100 when registered). Pass the same number as
+    ``budget`` so that the progress feature reaches 1.
+
+    **info.** cost, info_cost, posterior_cost, alpha, lambda_min (smallest over windows),
+    theta_hat (6,), p_theta_eigvals (6,) ascending, rel_error (||J_hat − J||_F / ||J||_F, the
+    simulation knows the truth), xi (3,), duration (s), time (s since reset), diverged.
+
+    **Seeding.** ``reset(seed=...)`` seeds ``self.np_random``, which alone draws dwell times,
+    measurement times and noise: a seed and an action sequence fix the run.
+
+    Version history: v0 (first release).
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, scenario: Scenario | None = None, cost: str = "info", budget: int = 100,
+                 carry_over: bool = True):
+        """scenario: the experiment (paper's by default); cost: "info" or "posterior";
+        budget: the evaluation budget M the progress feature is measured against;
+        carry_over: keep the estimator's state from step to step (Algorithm 1).
+        """
+        if cost not in COSTS:
+            raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+            raise ConfigError(f"budget must be an integer >= 1, got {budget!r}")
+        self.scenario = Scenario() if scenario is None else scenario
+        if not isinstance(self.scenario, Scenario):
+            raise ConfigError(f"scenario must be a Scenario, got {type(scenario).__name__}")
+        self.cost = cost
+        self.budget = int(budget)
+        self.carry_over = bool(carry_over)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.observation_space = spaces.Box(OBS_LOW, OBS_HIGH, dtype=np.float32)
+        self._scale = float(np.trace(self.scenario.inertia_guess_array) / 3.0)
+        self._state: SimState | None = None
+        self._steps = 0
+        self._time = 0.0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start a new run of Algorithm 1 at the scenario's start; returns (obs, info)."""
+        super().reset(seed=check_seed(seed))
+        self._state = initial_state(self.scenario, [self.np_random])
+        self._steps, self._time = 0, 0.0
+        info = {
+            "theta_hat": self._state.theta_hat()[0],
+            "p_theta_eigvals": np.linalg.eigvalsh(self._state.P_theta()[0]),
+            "rel_error": float(relative_error(self._state.inertia_hat()[0],
+                                              self.scenario.inertia_true_array)),
+            "time": 0.0,
+        }
+        return self._observation(), info
+
+    def step(self, action):
+        """Run one excitation episode with xi from `action`; returns the Gymnasium 5-tuple."""
+        if self._state is None:
+            raise ResetNeededError("call reset() before step() (and after a diverged run)")
+        xi = action_to_xi(self.scenario, action)
+        if not self.carry_over:
+            self._state = initial_state(self.scenario, [self.np_random])
+        self._state, (res,) = run_episode(self.scenario, self._state, xi, [self.np_random],
+                                          cost=self.cost)
+        self._steps += 1
+        self._time += float(res.duration)
+        cost = divergence_cost(self.scenario, self.cost) if res.diverged else float(res.cost)
+        obs = self._observation()
+        info = self._info(res, xi, cost)
+        if res.diverged:
+            self._state = None
+        return obs, -cost, bool(res.diverged), False, info
+
+    def _observation(self) -> np.ndarray:
+        st = self._state
+        if st.diverged[0]:
+            return np.zeros(OBS_SIZE, dtype=np.float32)
+        eig = np.linalg.eigvalsh(st.P_theta()[0]) / self._scale**2
+        obs = np.concatenate([
+            st.x[0, 4:7] / self.scenario.omega_ref,
+            st.theta_hat()[0] / self._scale,
+            np.log10(np.clip(eig, 1e-300, None)),
+            [self._steps / self.budget],
+        ])
+        return np.clip(np.nan_to_num(obs), OBS_LOW, OBS_HIGH).astype(np.float32)
+
+    def _info(self, res: EpisodeResult, xi: np.ndarray, cost: float) -> dict:
+        return {
+            "cost": cost,
+            "info_cost": float(res.info_cost),
+            "posterior_cost": float(res.posterior_cost),
+            "alpha": float(res.alpha),
+            "lambda_min": float(res.lambda_min.min()) if res.lambda_min.size else 0.0,
+            "theta_hat": res.theta_hat,
+            "p_theta_eigvals": res.p_theta_eigvals,
+            "rel_error": float(res.rel_error),
+            "xi": xi,
+            "duration": float(res.duration),
+            "time": self._time,
+            "diverged": bool(res.diverged),
+        }
