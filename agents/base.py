@@ -25,8 +25,9 @@ class Agent(abc.ABC):
 
     @abc.abstractmethod
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:
-        """Take exactly `budget` steps in `env` (reset with ``seed`` first, again after a
-        terminated or truncated run).
+        """Take exactly `budget` steps in `env`.
+
+        The env is reset with ``seed`` first, and again after a terminated or truncated run.
         """
 
 

@@ -35,8 +35,10 @@ _UNIT = torch.tensor([[0.0] * 3, [1.0] * 3], dtype=torch.double)
 
 def fit_gp(x: torch.Tensor, y: torch.Tensor, hyper: dict | None = None,
            refit: bool = True) -> SingleTaskGP:
-    """GP on x (n, 3) in the unit cube and costs y (n, 1); hyperparameters from `hyper` (a
-    state dict subset) if given, then maximum-likelihood refit if `refit`. Returned in eval mode.
+    """Build a GP on x (n, 3) in the unit cube and costs y (n, 1), in eval mode.
+
+    Hyperparameters come from `hyper` (a state-dict subset) if given, then a maximum-likelihood
+    refit (starting from them) if `refit`.
     """
     model = SingleTaskGP(x, y, input_transform=Normalize(d=x.shape[-1], bounds=_UNIT),
                          outcome_transform=Standardize(m=1))
@@ -48,13 +50,13 @@ def fit_gp(x: torch.Tensor, y: torch.Tensor, hyper: dict | None = None,
 
 
 def hyperparameters(model: SingleTaskGP) -> dict:
-    """The warm-startable part of a GP's state dict (kernel, mean, noise)."""
+    """Return the warm-startable part of a GP's state dict (kernel, mean, noise)."""
     return {k: v.detach().clone() for k, v in model.state_dict().items()
             if k.startswith(_HYPER_PREFIXES)}
 
 
 def posterior_best(actions, costs, seed: int = 0) -> np.ndarray:
-    """The evaluated action (3,) whose GP posterior mean cost is lowest.
+    """Return the evaluated action (3,) whose GP posterior mean cost is lowest.
 
     A recommendation that does not chase one lucky noisy evaluation; it depends only on the
     history, so it can score any agent's evaluations the same way. actions (n, 3) in [-1, 1].

@@ -17,7 +17,7 @@ class RandomAgent(AskTellAgent):
         self._rng = np.random.default_rng([self.seed, 7])
 
     def ask(self) -> np.ndarray:
-        """A uniform draw, shape (3,)."""
+        """Draw uniformly from [-1, 1]^3, shape (3,)."""
         return self._rng.uniform(-1.0, 1.0, size=3)
 
     def tell(self, action: np.ndarray, cost: float) -> None:

@@ -26,7 +26,7 @@ _NET = {"net_arch": [64, 64]}
 
 
 def sb3_settings(name: str, budget: int) -> dict:
-    """Constructor keyword arguments of the SB3 algorithm `name` for a budget of env steps."""
+    """Return constructor keyword arguments of SB3 algorithm `name` for a budget of steps."""
     start = min(10, max(1, budget // 4))
     if name == "sac":
         return dict(learning_rate=1e-3, buffer_size=max(budget, 1), learning_starts=start,

@@ -47,7 +47,7 @@ class OptimizationResult:
     xi_recommended: np.ndarray | None = None
 
     def to_json(self) -> dict:
-        """The keys of DESIGN.md section 3 (optimize's result.json), plain JSON types."""
+        """Return the keys of DESIGN.md section 3 (optimize's result.json) as plain JSON."""
         out = {
             "agent": self.agent,
             "budget": int(self.budget),
@@ -105,8 +105,8 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = "info
     agent : one of AGENTS.  budget : M >= 1 evaluations.  seed : integer >= 0; it seeds the env
     (dwell times, measurement times and noise) and the agent.  cost : "info" (the paper's J) or
     "posterior" (change of log det P_theta).  carry_over : False restarts the estimator at
-    every evaluation (a stationary objective) instead of Algorithm 1's carry-over.  agent_options : passed to the agent's constructor
-    (e.g. ``kappa`` or ``refit_every`` for BO).
+    every evaluation (a stationary objective) instead of Algorithm 1's carry-over.
+    agent_options : passed to the agent's constructor (e.g. ``kappa`` or ``refit_every``).
     """
     from agents import make_agent
     from agents.bo import posterior_best

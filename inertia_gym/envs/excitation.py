@@ -86,9 +86,10 @@ class ExcitationEnv(gym.Env):
     ``scenario.xi_bounds`` (paper: a in [0, tau_max/|w0|] N·m·s, b in [0, tau_max] N·m, T_on in
     [0.05, 1] s). NaN, inf or a component outside [-1, 1] raise ConfigError (no silent clip).
 
-    **Observation.** ``Box(OBS_LOW, OBS_HIGH, (16,), float32)`` (clipped into it): w_hat / |w0| (3); theta_hat / s (6),
-    with s = trace(inertia_guess)/3 and theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz); log10 of the
-    eigenvalues of P_theta / s² in ascending order (6); progress = steps taken / budget (1).
+    **Observation.** ``Box(OBS_LOW, OBS_HIGH, (16,), float32)`` (clipped into it):
+    w_hat / |w0| (3); theta_hat / s (6), with s = trace(inertia_guess)/3 and
+    theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz); log10 of the eigenvalues of P_theta / s² in ascending
+    order (6); progress = steps taken / budget (1).
     All are scale-free, so a 1 kg·m² CubeSat and a 10⁴ kg·m² stage look alike.
 
     **Reward.** −cost of the episode. ``cost="info"``: the paper's J = −log(alpha + eps_lambda)
@@ -117,9 +118,11 @@ class ExcitationEnv(gym.Env):
 
     def __init__(self, scenario: Scenario | None = None, cost: str = "info", budget: int = 100,
                  carry_over: bool = True):
-        """scenario: the experiment (paper's by default); cost: "info" or "posterior";
-        budget: the evaluation budget M the progress feature is measured against;
-        carry_over: keep the estimator's state from step to step (Algorithm 1).
+        """Build the env.
+
+        scenario: the experiment (paper's by default); cost: "info" or "posterior"; budget: the
+        evaluation budget M the progress feature is measured against; carry_over: keep the
+        estimator's state from step to step (Algorithm 1).
         """
         if cost not in COSTS:
             raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
