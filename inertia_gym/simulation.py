@@ -18,7 +18,7 @@ import numpy as np
 
 from inertia_gym.dynamics import NO_DISTURBANCE, euler_to_quat, inv3, rk4_step_into
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation import ekf
+from inertia_gym.estimation import ekf, ukf
 from inertia_gym.estimation.inertia_param import (
     decouple_scale,
     dtheta_dphi,
@@ -50,6 +50,7 @@ def pack_filter_config(sc: Scenario) -> np.ndarray:
     cfg[ekf.C_MAGREF] = sc.mag_inertial
     cfg[ekf.C_NIS_GATE] = sc.nis_gate
     cfg[ekf.C_STEP_LIMIT] = sc.inertia_step_limit
+    cfg[ekf.C_UKF] = 1.0 if sc.estimator == "ukf" else 0.0
     return cfg
 
 
@@ -168,6 +169,13 @@ def _segment_one(
     jac_work = np.empty((24, 13))
     inertia_hat = inertia_from_phi(x[7:13])
     inertia_hat_inv = inv3(inertia_hat)
+    use_ukf = cfg[ekf.C_UKF] > 0
+    n_sigma = ukf.N_SIGMA if use_ukf else 0
+    sigma = np.empty((n_sigma, 13))
+    sigma_inertia = np.empty((n_sigma, 3, 3))
+    sigma_inertia_inv = np.empty((n_sigma, 3, 3))
+    if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia, sigma_inertia_inv):
+        return 1, 0, n_updates
     phi_top = np.zeros((7, 13))
     for i in range(7):
         phi_top[i, i] = 1.0
@@ -198,16 +206,24 @@ def _segment_one(
         rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_next, work7)
         y_true[:] = y_next
         if status == 0:
-            ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, work7,
-                                 jac_work, x_next)
+            if use_ukf:
+                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt, work7,
+                                         x_next)
+                ukf.sigma_mean(sigma, x)
+            else:
+                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, work7,
+                                     jac_work, x_next)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
             if status == 0:
-                status = _filter_update(x, P, phi_top, n_updates, y_true, z_noise[meas_i], cfg, z,
-                                        log_nis, meas_i)
+                status = _filter_update(x, P, phi_top, sigma, n_updates, y_true, z_noise[meas_i],
+                                        cfg, z, log_nis, meas_i)
                 n_updates += 1
                 if status == 0:
                     inertia_hat = inertia_from_phi(x[7:13])
                     inertia_hat_inv = inv3(inertia_hat)
+                    if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia,
+                                                             sigma_inertia_inv):
+                        status = 1
             log_theta[meas_i] = theta_from_phi(x[7:13])
             d = dtheta_dphi(x[7:13])
             p_th = d @ P[7:13, 7:13] @ d.T
@@ -236,12 +252,18 @@ def _record_step(x, tau, inertia_hat, inertia_hat_inv, w_hat, w_dot_hat):
 
 
 @nb.njit(cache=True)
-def _filter_update(x, P, phi_top, n_updates, y_true, noise, cfg, z, log_nis, meas_i):
-    """Covariance propagation + measurement update; returns STATUS_DIVERGED instead of raising."""
+def _filter_update(x, P, phi_top, sigma, n_updates, y_true, noise, cfg, z, log_nis, meas_i):
+    """Covariance prediction + measurement update; returns STATUS_DIVERGED instead of raising.
+
+    EKF: P^- from the accumulated transition; UKF: from the propagated sigma points.
+    """
+    if cfg[ekf.C_UKF] > 0:
+        P[:, :] = ukf.sigma_covariance(sigma, x, n_updates, cfg)
     if not ekf.state_is_sane(x, P):
         return 1
     try:
-        P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
+        if cfg[ekf.C_UKF] == 0:
+            P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
         phi_top[:, :] = 0.0
         for i in range(7):
             phi_top[i, i] = 1.0

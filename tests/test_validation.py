@@ -58,3 +58,12 @@ def test_validate_cli_rejects_bad_xi(tmp_path, xi, message):
     )
     assert proc.returncode == 2
     assert message in proc.stderr
+
+
+@pytest.mark.slow
+def test_ukf_identifies_inertia_from_paper_start(paper):
+    summary = validate(paper.replace(estimator="ukf"), (0.4, 4.0, 1.0), 1000.0, range(4),
+                       record_torque=False).summary()
+    assert summary["diverged"] == 0
+    assert summary["median_rel_error"] <= 0.01
+    assert summary["ci95_coverage"] >= 0.85

@@ -31,7 +31,8 @@ C_GRAV = slice(12, 15)
 C_MAGREF = slice(15, 18)
 C_NIS_GATE = 18
 C_STEP_LIMIT = 19
-CONFIG_SIZE = 20
+C_UKF = 20
+CONFIG_SIZE = 21
 
 
 @nb.njit(cache=True)
@@ -142,6 +143,26 @@ def small_inverse(a):
 
 
 @nb.njit(cache=True)
+def add_process_noise(P, x, n_updates, cfg):
+    """P += Q_k = alpha_k blkdiag(Q_q I4, Q_w I3, Q_phi), Q_phi = D^-1 Q_theta D^-T (in place)."""
+    alpha = alpha_schedule(n_updates, cfg[C_GAMMA], cfg[C_QMIN])
+    for i in range(4):
+        P[i, i] += alpha * cfg[C_QQ]
+    for i in range(4, 7):
+        P[i, i] += alpha * cfg[C_QW]
+    if cfg[C_QTH] > 0.0:
+        d_inv = small_inverse(dtheta_dphi(x[7:13]))
+        for i in range(6):
+            for j in range(6):
+                if (i == 0) != (j == 0):  # keep scale and shape uncorrelated (inertia_param.py)
+                    continue
+                acc = 0.0
+                for k in range(6):
+                    acc += d_inv[i, k] * d_inv[j, k]
+                P[7 + i, 7 + j] += alpha * cfg[C_QTH] * acc
+
+
+@nb.njit(cache=True)
 def propagate_covariance(P, phi_top, x, n_updates, cfg):
     """P^- = Phi P Phi^T + Q_k, with phi_top from :func:`accumulate_transition`. Returns P^-.
 
@@ -177,21 +198,7 @@ def propagate_covariance(P, phi_top, x, n_updates, cfg):
             p_new[i, j] = acc
         for j in range(7, N_STATE):
             p_new[i, j] = t[i, j]
-    alpha = alpha_schedule(n_updates, cfg[C_GAMMA], cfg[C_QMIN])
-    for i in range(4):
-        p_new[i, i] += alpha * cfg[C_QQ]
-    for i in range(4, 7):
-        p_new[i, i] += alpha * cfg[C_QW]
-    if cfg[C_QTH] > 0.0:
-        d_inv = small_inverse(d)
-        for i in range(6):
-            for j in range(6):
-                if (i == 0) != (j == 0):  # keep scale and shape uncorrelated (inertia_param.py)
-                    continue
-                acc = 0.0
-                for k in range(6):
-                    acc += d_inv[i, k] * d_inv[j, k]
-                p_new[7 + i, 7 + j] += alpha * cfg[C_QTH] * acc
+    add_process_noise(p_new, x, n_updates, cfg)
     for i in range(N_STATE):
         for j in range(i + 1, N_STATE):
             avg = 0.5 * (p_new[i, j] + p_new[j, i])
