@@ -9,7 +9,7 @@ import sys
 
 from inertia_gym.errors import InertiaGymError
 
-COMMANDS = ("validate",)
+COMMANDS = ("validate", "optimize")
 
 
 def build_parser() -> argparse.ArgumentParser:
