@@ -5,9 +5,9 @@ excitation, simulation), thin shells over them (envs, cli) and the sim-vs-real d
 (discrepancy). Importing it registers the Gymnasium environment "InertiaGym/Excitation-v0".
 """
 
+import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
 from inertia_gym.errors import ConfigError, EstimatorDivergedError, InertiaGymError, RecordingError
 from inertia_gym.scenario import Scenario
-import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
 
 __all__ = [
     "ConfigError",

@@ -1,5 +1,6 @@
 """The `inertia-gym` command. Each sub-command lives in inertia_gym/commands/<name>.py and
-exposes ``add_parser(subparsers)`` (which sets ``func``); this module only dispatches."""
+exposes ``add_parser(subparsers)`` (which sets ``func``); this module only dispatches.
+"""
 
 from __future__ import annotations
 

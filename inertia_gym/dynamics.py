@@ -10,7 +10,8 @@ renormalised each step): at the paper's rate (|w| = 10 rad/s, dt = 0.01 s) its t
 drift is about 5e-8 over 1000 s, and it is three times cheaper than the alternative. That
 alternative, ``method="gauss"``, is the 2-stage Gauss-Legendre collocation method (order 4),
 which conserves every quadratic invariant (energy, |J w|^2, |q|^2) exactly: use it for long
-torque-free runs or fast spins (|w| dt > 0.2), where RK4's drift grows as (|w| dt)^4. All kernels are numba-compiled; ``propagate_batch``
+torque-free runs or fast spins (|w| dt > 0.2), where RK4's drift grows as (|w| dt)^4.
+All kernels are numba-compiled; ``propagate_batch``
 advances many trajectories in one call (parallel over the batch).
 
 Extra torques enter through a :class:`Disturbance` (the "hook"): a frozen dataclass packed into a
@@ -51,6 +52,7 @@ class Disturbance:
     aero_drag : N·m·s², torque -c |w| w.
     orbit_rate : rad/s, gravity-gradient torque 3 n^2 (r x J r) with r the nadir in the body frame.
     nadir_inertial : (3,), nadir direction in the inertial frame (normalised internally).
+
     """
 
     constant_torque: tuple = (0.0, 0.0, 0.0)
@@ -379,6 +381,7 @@ def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None, method="r
     Returns
     -------
     q : (B, n+1, 4), omega : (B, n+1, 3) — the states at t = 0, dt, ..., n dt.
+
     """
     q0 = np.atleast_2d(np.asarray(q0, dtype=float))
     omega0 = np.atleast_2d(np.asarray(omega0, dtype=float))

@@ -21,6 +21,8 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.excitation import burst_direction, check_xi, episode_schedule
 from inertia_gym.information import (
     cost as info_cost,
+)
+from inertia_gym.information import (
     gram_prefix,
     soft_min,
     window_length,

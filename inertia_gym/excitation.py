@@ -49,7 +49,8 @@ def check_xi(xi, bounds) -> np.ndarray:
         raise ConfigError(f"T_on must be > 0 s, got {arr[2]}")
     lo, hi = np.asarray(bounds)[0], np.asarray(bounds)[1]
     tol = 1e-9 * np.maximum(1.0, np.abs(hi))
-    bad = [n for n, x, l, h, t in zip(("a", "b", "T_on"), arr, lo, hi, tol) if x < l - t or x > h + t]
+    names = ("a", "b", "T_on")
+    bad = [n for n, x, low, up, t in zip(names, arr, lo, hi, tol) if x < low - t or x > up + t]
     if bad:
         raise ConfigError(
             f"xi = {arr.tolist()} is outside the bounds {np.asarray(bounds).tolist()} in {bad}"

@@ -60,7 +60,7 @@ def psi(w, w_dot) -> np.ndarray:
 
 
 def theta_from_inertia(inertia) -> np.ndarray:
-    """theta (..., 6) of eq. (8) from symmetric inertia matrices (..., 3, 3)."""
+    """Theta (..., 6) of eq. (8) from symmetric inertia matrices (..., 3, 3)."""
     j = np.asarray(inertia, dtype=float)
     return np.stack(
         [j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1
@@ -129,7 +129,7 @@ def windowed_lambda_min(prefix, starts, n_window: int, epsilon: float) -> np.nda
 
 
 def soft_min(values, beta: float) -> float:
-    """alpha = -1/beta log(mean exp(-beta v)) (eq. 24), computed stably; -> min as beta -> inf."""
+    """Alpha = -1/beta log(mean exp(-beta v)) (eq. 24), computed stably; -> min as beta -> inf."""
     v = np.asarray(values, dtype=float)
     if v.size == 0:
         raise ConfigError("soft-min of an empty set of windows: the episode is shorter than N_T")

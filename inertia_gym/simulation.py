@@ -226,7 +226,7 @@ def _segment_one(
                         status = 1
             log_theta[meas_i] = theta_from_phi(x[7:13])
             d = dtheta_dphi(x[7:13])
-            p_th = d @ P[7:13, 7:13] @ d.T
+            p_th = d @ np.ascontiguousarray(P[7:13, 7:13]) @ d.T
             for i in range(6):
                 log_var[meas_i, i] = p_th[i, i]
             log_w_true[meas_i] = y_true[4:7]
@@ -332,7 +332,8 @@ def run_segment(
 ) -> tuple[SimState, Trace]:
     """Advance B runs by one segment.
 
-    n_steps : (B,) int steps per run (0 leaves a run as it is).  bursts : (B, nb, 2) int [start, stop) step indices from the
+    n_steps : (B,) int steps per run (0 leaves a run as it is).
+    bursts : (B, nb, 2) int [start, stop) step indices from the
     segment start (nb may be 0).  xi : (B, 3) (a, b, T_on); T_on only enters through bursts.
     v : (B, 3) unit burst directions.  rngs : one Generator per run (measurement times, noise).
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).

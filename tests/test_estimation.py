@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from inertia_gym.dynamics import euler_to_quat, quat_to_rotation
+from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf
 from inertia_gym.estimation.inertia_param import (
     dtheta_dphi,
@@ -9,7 +10,6 @@ from inertia_gym.estimation.inertia_param import (
     phi_from_inertia,
     theta_from_phi,
 )
-from inertia_gym.errors import ConfigError
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.simulation import initial_state, pack_filter_config, run_segment
 

@@ -4,8 +4,13 @@ import numpy as np
 import pytest
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.excitation import burst_direction, burst_torque, check_xi, episode_schedule
-from inertia_gym.excitation import validation_schedule
+from inertia_gym.excitation import (
+    burst_direction,
+    burst_torque,
+    check_xi,
+    episode_schedule,
+    validation_schedule,
+)
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.scenario import Scenario
 

@@ -50,7 +50,7 @@ def _to_builtin(obj):
 
 
 def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
+    """Argparse type: an integer >= 1."""
     try:
         value = int(text)
     except ValueError as exc:
@@ -61,7 +61,7 @@ def positive_int(text: str) -> int:
 
 
 def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (seeds)."""
+    """Argparse type: an integer >= 0 (seeds)."""
     try:
         value = int(text)
     except ValueError as exc:
@@ -72,7 +72,7 @@ def nonnegative_int(text: str) -> int:
 
 
 def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
+    """Argparse type: a finite number > 0."""
     try:
         value = float(text)
     except ValueError as exc:

@@ -6,8 +6,9 @@ H, K, S. Between measurements the mean is advanced with RK4 at the simulation st
 transition matrix is accumulated from the analytic Jacobian (F_k = I + dt A_k, exploiting its
 block structure); the covariance is propagated once per measurement interval:
 P^- = Phi P Phi^T + Q_k. The update uses the Joseph form
-P = (I - K H) P (I - K H)^T + K R K^T (written out so that it costs O(n^2 m)). Q_k = alpha_k blkdiag(Q_q I4, Q_w I3, Q_phi) with
-Q_phi = D^-1 (Q_theta I6) D^-T (scale-shape block kept zero), alpha_k = 0.999 gamma^k + q_min, k = number of updates so far.
+P = (I - K H) P (I - K H)^T + K R K^T (written out so that it costs O(n^2 m)).
+Q_k = alpha_k blkdiag(Q_q I4, Q_w I3, Q_phi) with Q_phi = D^-1 (Q_theta I6) D^-T (scale-shape
+block kept zero), alpha_k = 0.999 gamma^k + q_min, k = number of updates so far.
 
 Measurement vector z = (gyro w (3), [attitude q (4)], [gravity (3), magnetic field (3)]).
 """

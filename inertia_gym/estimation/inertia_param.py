@@ -24,7 +24,7 @@ from inertia_gym.errors import ConfigError
 
 @nb.njit(cache=True)
 def theta_from_phi(phi):
-    """theta (6,) of eq. (8) from phi (6,)."""
+    """Theta (6,) of eq. (8) from phi (6,)."""
     c, l10, e1, l20, l21, e2 = math.exp(phi[0]), phi[1], math.exp(phi[2]), phi[3], phi[4], \
         math.exp(phi[5])
     return c * np.array(
@@ -65,7 +65,7 @@ def inertia_from_phi(phi):
 
 
 def phi_from_inertia(inertia) -> np.ndarray:
-    """phi (6,) of a symmetric positive definite inertia (3, 3)."""
+    """Phi (6,) of a symmetric positive definite inertia (3, 3)."""
     j = np.asarray(inertia, dtype=float)
     try:
         low = np.linalg.cholesky(j / j[0, 0])
@@ -80,7 +80,8 @@ def phi_from_inertia(inertia) -> np.ndarray:
 
 def decouple_scale(cov_phi: np.ndarray) -> np.ndarray:
     """Zero the covariance between the scale s and the shape: a prior or process noise that
-    correlates them would let torque-free data move the unobservable scale."""
+    correlates them would let torque-free data move the unobservable scale.
+    """
     out = np.array(cov_phi, dtype=float, copy=True)
     out[..., 0, 1:] = 0.0
     out[..., 1:, 0] = 0.0
