@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from inertia_gym.errors import ConfigError
 from inertia_gym.excitation import burst_direction, validation_schedule
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.scenario import Scenario, steps
@@ -91,7 +92,15 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
              disturbance=None) -> ValidationResult:
     """Validate xi = (a, b, T_on) (or None: no torque at all) over `duration` s for each seed."""
     t0 = time.perf_counter()
+    if not (np.isfinite(duration) and duration > 0):
+        raise ConfigError(f"duration must be a positive number of seconds, got {duration}")
     seeds = tuple(int(s) for s in seeds)
+    if not seeds or min(seeds) < 0:
+        raise ConfigError(f"seeds must be a non-empty list of integers >= 0, got {list(seeds)}")
+    if xi is not None:
+        xi = np.asarray(xi, dtype=float)
+        if xi.shape != (3,) or not np.all(np.isfinite(xi)) or xi[2] <= 0:
+            raise ConfigError(f"xi must be finite (a, b, T_on) with T_on > 0, got {xi.tolist()}")
     sensor_rngs = [np.random.default_rng([s, 0]) for s in seeds]
     schedule_rngs = [np.random.default_rng([s, 1]) for s in seeds]
     t_on = None if xi is None else float(xi[2])

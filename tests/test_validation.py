@@ -67,3 +67,18 @@ def test_ukf_identifies_inertia_from_paper_start(paper):
     assert summary["diverged"] == 0
     assert summary["median_rel_error"] <= 0.01
     assert summary["ci95_coverage"] >= 0.85
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(duration=0.0), "duration"), (dict(duration=-5.0), "duration"),
+    (dict(duration=float("nan")), "duration"), (dict(seeds=[]), "seeds"),
+    (dict(seeds=[-1]), "seeds"), (dict(xi=(0.1, 1.0, 0.0)), "T_on"),
+    (dict(xi=(np.nan, 1.0, 0.5)), "finite"),
+])
+def test_validate_rejects_bad_arguments(paper, kwargs, message):
+    from inertia_gym.errors import ConfigError
+
+    args = dict(xi=(0.4, 4.0, 1.0), duration=10.0, seeds=[0])
+    args.update(kwargs)
+    with pytest.raises(ConfigError, match=message):
+        validate(paper, args["xi"], args["duration"], args["seeds"])
