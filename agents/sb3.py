@@ -22,7 +22,7 @@ from stable_baselines3.common.noise import NormalActionNoise
 from agents.base import Agent
 from inertia_gym.errors import ConfigError
 
-_NET = {"net_arch": [64, 64]}
+
 
 
 def sb3_settings(name: str, budget: int) -> dict:
@@ -31,16 +31,16 @@ def sb3_settings(name: str, budget: int) -> dict:
     if name == "sac":
         return dict(learning_rate=1e-3, buffer_size=max(budget, 1), learning_starts=start,
                     batch_size=32, gamma=0.5, train_freq=1, gradient_steps=1,
-                    policy_kwargs=_NET)
+                    policy_kwargs={"net_arch": [64, 64]})
     if name == "td3":
         return dict(learning_rate=1e-3, buffer_size=max(budget, 1), learning_starts=start,
                     batch_size=32, gamma=0.5, train_freq=1, gradient_steps=1,
                     action_noise=NormalActionNoise(np.zeros(3), 0.3 * np.ones(3)),
-                    policy_kwargs=_NET)
+                    policy_kwargs={"net_arch": [64, 64]})
     if name == "ppo":
         n_steps = min(16, max(2, budget))
         return dict(learning_rate=1e-3, n_steps=n_steps, batch_size=n_steps, n_epochs=10,
-                    gamma=0.5, gae_lambda=0.9, ent_coef=0.0, policy_kwargs=_NET)
+                    gamma=0.5, gae_lambda=0.9, ent_coef=0.0, policy_kwargs={"net_arch": [64, 64]})
     raise ConfigError(f"SB3 agent must be sac, td3 or ppo; got {name!r}")
 
 

@@ -6,6 +6,7 @@ fixed xi fairly (one episode from the scenario's start, averaged over fresh seed
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -84,6 +85,23 @@ class EvaluationLog(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+@contextlib.contextmanager
+def torch_threads(n: int = 1):
+    """Run torch (GP fits, SB3 networks) on `n` intra-op threads, restoring the count after.
+
+    The models here are tiny; on a shared machine several torch threads oversubscribe the cores
+    and one GP fit or SAC update can take 50x longer than on one thread.
+    """
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def make_env(sc: Scenario, budget: int, cost: str = "info", carry_over: bool = True) -> gym.Env:
     """``gym.make`` of the excitation env on `sc`, truncated after `budget` steps."""
     return gym.make(ENV_ID, scenario=sc, cost=cost, budget=budget, carry_over=carry_over,
@@ -122,12 +140,14 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = "info
         raise ConfigError("seed must be an integer >= 0, got None")
     t0 = time.perf_counter()
     env = EvaluationLog(make_env(sc, budget, cost, carry_over))
-    make_agent(agent, seed, budget, **agent_options).run(env, budget, progress=progress)
-    env.close()
-    costs, xis = np.array(env.costs[:budget]), np.array(env.xis[:budget])
+    with torch_threads(1):
+        make_agent(agent, seed, budget, **agent_options).run(env, budget, progress=progress)
+        env.close()
+        costs, xis = np.array(env.costs[:budget]), np.array(env.xis[:budget])
+        actions = np.array([xi_to_action(sc, x) for x in xis], dtype=float)
+        recommended = (action_to_xi(sc, posterior_best(actions, costs, seed)) if budget >= 2
+                       else None)
     best = int(np.argmin(costs))
-    actions = np.array([xi_to_action(sc, x) for x in xis], dtype=float)
-    recommended = action_to_xi(sc, posterior_best(actions, costs, seed)) if budget >= 2 else None
     return OptimizationResult(
         agent=agent, budget=int(budget), seed=seed, cost_kind=cost, xi_star=xis[best],
         cost_star=float(costs[best]), costs=costs, xis=xis,
