@@ -18,11 +18,10 @@ import torch
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
+from tqdm.auto import tqdm
 
 from agents.base import Agent
 from inertia_gym.errors import ConfigError
-
-
 
 
 def sb3_settings(name: str, budget: int) -> dict:
@@ -57,14 +56,19 @@ def _restore_global_rngs():
 
 
 class _StopAtBudget(BaseCallback):
-    """Stop training once `budget` env steps were taken."""
+    """Stop training once `budget` env steps were taken; optional tqdm progress bar."""
 
-    def __init__(self, budget: int):
+    def __init__(self, budget: int, name: str, progress: bool):
         super().__init__()
         self.budget = budget
+        self.bar = tqdm(total=budget, desc=name, disable=not progress, leave=False)
 
     def _on_step(self) -> bool:
+        self.bar.update(1)
         return self.num_timesteps < self.budget
+
+    def _on_training_end(self) -> None:
+        self.bar.close()
 
 
 class SB3Agent(Agent):
@@ -86,5 +90,5 @@ class SB3Agent(Agent):
         with _restore_global_rngs():
             self.model_ = self._CLASSES[self.name]("MlpPolicy", env, seed=self.seed,
                                                    device="cpu", verbose=0, **self.kwargs)
-            self.model_.learn(total_timesteps=budget, callback=_StopAtBudget(budget),
-                              progress_bar=progress)
+            self.model_.learn(total_timesteps=budget,
+                              callback=_StopAtBudget(budget, self.name, progress))
