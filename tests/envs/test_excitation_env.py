@@ -165,3 +165,26 @@ def test_observation_is_scale_free():
     b = rollout(ExcitationEnv(small), 0, [ACTION])
     np.testing.assert_allclose(a[0], b[0], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(a[1][:OBS_SIZE - 7], b[1][:OBS_SIZE - 7], rtol=1e-3, atol=1e-3)
+
+
+def test_divergence_terminates_with_finite_cost(monkeypatch):
+    import dataclasses
+
+    from inertia_gym.envs import excitation
+
+    real = excitation.run_episode
+
+    def diverging(sc, state, xi, rngs, cost):
+        new_state, (res,) = real(sc, state, xi, rngs, cost=cost)
+        new_state = dataclasses.replace(new_state, diverged=np.array([True]))
+        return new_state, [dataclasses.replace(res, diverged=True, cost=np.inf)]
+
+    monkeypatch.setattr(excitation, "run_episode", diverging)
+    env = ExcitationEnv()
+    env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(ACTION)
+    assert terminated and not truncated and info["diverged"]
+    assert reward == -excitation.divergence_cost(env.scenario, "info") == np.log(1e-8)
+    assert np.all(obs == 0)
+    with pytest.raises(ResetNeededError):
+        env.step(ACTION)
