@@ -7,7 +7,8 @@ xi maximizes PI(xi) = Phi((J_ref - kappa - mu(xi)) / sigma(xi)) (or its log, ``L
 
 Speed (DESIGN.md section 5): the GP hyperparameters are warm-started from the previous fit and
 refitted only every ``refit_every`` evaluations (in between the GP is only conditioned on the new
-data), and ``optimize_acqf`` uses few restarts, enough for a 3-D box. All randomness (Sobol
+data), and ``optimize_acqf`` uses 2 L-BFGS-B restarts from 256 raw samples (enough for a 3-D box) and
+does not retry a start that ends with a warning (the best point found is kept). All randomness (Sobol
 scrambling, restarts, the fit's retries) comes from the agent's seed, inside
 ``torch.random.fork_rng`` so the caller's global torch state is untouched.
 """
@@ -90,8 +91,8 @@ class BOAgent(AskTellAgent):
     name = "bo"
 
     def __init__(self, seed: int, *, n_init: int = 8, kappa: float = 0.01,
-                 acquisition: str = "logpi", incumbent: str = "observed", refit_every: int = 5,
-                 num_restarts: int = 4, raw_samples: int = 128, maxiter: int = 60):
+                 acquisition: str = "logpi", incumbent: str = "observed", refit_every: int = 10,
+                 num_restarts: int = 2, raw_samples: int = 256, maxiter: int = 30):
         super().__init__(seed)
         if acquisition not in ACQUISITIONS:
             raise ConfigError(f"acquisition must be one of {ACQUISITIONS}, got {acquisition!r}")
@@ -135,7 +136,8 @@ class BOAgent(AskTellAgent):
             cand, _ = optimize_acqf(acq, bounds=_UNIT, q=1, num_restarts=self.num_restarts,
                                     raw_samples=self.raw_samples,
                                     options={"seed": self.seed * 100_003 + n,
-                                             "maxiter": self.maxiter})
+                                             "maxiter": self.maxiter},
+                                    retry_on_optimization_warning=False)
         return 2.0 * cand.detach().numpy().reshape(3) - 1.0
 
     def tell(self, action: np.ndarray, cost: float) -> None:

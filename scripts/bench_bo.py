@@ -3,8 +3,8 @@
 Stock loop: the same GP (SingleTaskGP, Normalize, Standardize), the same acquisition (LogPI with
 kappa, eq. 23) and the same Sobol design, but the GP is refitted from scratch at every iteration
 and optimize_acqf uses the BoTorch tutorials' settings (num_restarts=10, raw_samples=512, default
-options). Project loop: agents.bo.BOAgent (warm-started hyperparameters, refit every 5
-evaluations, 4 restarts / 128 raw samples). Both run on one torch thread, through the same env
+options). Project loop: agents.bo.BOAgent with its defaults (warm-started hyperparameters,
+refit every 10 evaluations, 2 restarts / 256 raw samples, no retries). Both run on one torch thread, through the same env
 with the same seed, so only the BO machinery differs.
 
 Objective: the stationary variant (every evaluation starts from the scenario's start), where the
