@@ -8,8 +8,8 @@ xi maximizes PI(xi) = Phi((J_ref - kappa - mu(xi)) / sigma(xi)) (or its log, ``L
 Speed (DESIGN.md section 5): the GP hyperparameters are warm-started from the previous fit and
 refitted only every ``refit_every`` evaluations (in between the GP is only conditioned on the new
 data), and ``optimize_acqf`` uses 2 L-BFGS-B restarts from 256 raw samples (enough for a 3-D
-box) and does not retry a start that ends with a warning (the best point found is kept). All randomness (Sobol
-scrambling, restarts, the fit's retries) comes from the agent's seed, inside
+box) and does not retry a start that ends with a warning (the best point found is kept). All
+randomness (Sobol scrambling, restarts, the fit's retries) comes from the agent's seed, inside
 ``torch.random.fork_rng`` so the caller's global torch state is untouched.
 """
 
