@@ -103,12 +103,12 @@ def test_agents_tuple_is_the_contract():
 
 @pytest.mark.slow
 def test_bo_exploits_algorithm_1_objective_better_than_random():
-    """Fixed seeds, M = 40: BO's mean cost over its last 15 evaluations is lower than random
-    search's on every seed, by 1.3 on average (measured: 0.8, 0.4, 2.8)."""
+    """Fixed seeds, M = 50: BO's mean cost over its last 20 evaluations is lower than random
+    search's on every seed (measured gaps 0.51, 0.81, 2.35, 1.35)."""
     sc = Scenario()
     gaps = []
-    for seed in range(3):
-        bo = optimize("bo", sc, 40, seed)
-        rs = optimize("random", sc, 40, seed)
-        gaps.append(rs.costs[-15:].mean() - bo.costs[-15:].mean())
-    assert min(gaps) > 0 and np.mean(gaps) > 0.6
+    for seed in range(4):
+        bo = optimize("bo", sc, 50, seed)
+        rs = optimize("random", sc, 50, seed)
+        gaps.append(rs.costs[-20:].mean() - bo.costs[-20:].mean())
+    assert min(gaps) > 0.25 and np.mean(gaps) > 0.8
