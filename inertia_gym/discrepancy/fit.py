@@ -245,7 +245,11 @@ def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
         if name == "flexible_mode":  # cheap screen of each start before refining the best few
             sol = optimize.least_squares(_objective, x0, args=(name, d), max_nfev=30, x_scale="jac")
         else:
-            sol = optimize.least_squares(_objective, x0, args=(name, d), x_scale="jac")
+            lb = np.full(x0.size, -np.inf)
+            if name == "gyro_scale":
+                lb[6:] = -0.5  # a gyro reading at least half the true rate
+            sol = optimize.least_squares(_objective, x0, args=(name, d), x_scale="jac",
+                                         bounds=(lb, np.inf))
         if best is None or sol.cost < best.cost:
             best = sol
     x = best.x

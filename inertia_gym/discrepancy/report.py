@@ -1,0 +1,221 @@
+"""Diagnosis of one recording: fit, locate the mismatch (time, axis, frequency), check the
+invariants, rank the catalogue, and write report.json, plots and a markdown summary."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from scipy import signal, stats
+
+from inertia_gym.discrepancy.fit import (
+    AMBIGUOUS_DELTA_BIC, SIGNIFICANT_DELTA_BIC, Data, Fit, fit_all, prepare, sparse_terms,
+)
+from inertia_gym.discrepancy.effects import jsonable
+from inertia_gym.discrepancy.recordings import Recording
+
+STRUCTURAL_AMBIGUITIES = {
+    "actuator_scale": "actuator_scale cannot be told apart from a scale error of the nominal inertia "
+                      "(J/s fits the data as well as J with torque s*tau)",
+    "gyro_scale": "a common gyro scale is not identifiable without torque or attitude (only "
+                  "per-axis differences are)",
+}
+
+
+def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
+    """Windows where the rate residual r (K, 3) rad/s exceeds the noise sigma (3,): windowed
+    chi-square test per axis, Bonferroni over windows and axes; adjacent windows merged."""
+    k = r.shape[0]
+    size = max(5, k // 25)
+    starts = np.arange(0, k - size + 1, size)
+    crit = stats.chi2.ppf(1 - alpha / (3 * max(len(starts), 1)), size)
+    out = []
+    for s in starts:
+        chi = np.sum((r[s:s + size] / sigma) ** 2, 0)
+        axes = [a for a, c in zip("xyz", chi) if c > crit]
+        if not axes:
+            continue
+        stat = float(np.max(chi) / size)
+        t0, t1 = float(t_mid[s]), float(t_mid[min(s + size, k - 1)])
+        if out and abs(out[-1]["t_end"] - t0) < 1e-9:
+            out[-1]["t_end"] = t1
+            out[-1]["axes"] = sorted(set(out[-1]["axes"]) | set(axes))
+            out[-1]["statistic"] = max(out[-1]["statistic"], stat)
+        else:
+            out.append({"t_start": t0, "t_end": t1, "axes": axes, "statistic": stat})
+    return out
+
+
+def spectrum(r, dt_interval: float):
+    """Welch spectrum of the rate residual: frequencies (f,) Hz, power (f, 3) (rad/s)²/Hz."""
+    f, p = signal.welch(r, fs=1.0 / dt_interval, axis=0, nperseg=min(256, r.shape[0]))
+    return f, p
+
+
+def invariants(d: Data, fit: Fit) -> dict:
+    """Drift of |H| = |J w| and of E = w.J w / 2 (fitted J) over the recording, when torque-free.
+
+    An external torque changes |H|; an internal effect (dissipation) changes E but keeps |H|.
+    Drift is the fitted linear change over the recording relative to the mean, with a z-score.
+    """
+    if d.has_torque:
+        return {"applicable": False, "reason": "commanded torque acts"}
+    w = d.w
+    jw = w @ fit.inertia.T
+    series = {"momentum": np.linalg.norm(jw, axis=1), "energy": 0.5 * np.sum(w * jw, 1)}
+    out = {"applicable": True}
+    t = d.t - d.t[0]
+    for key, y in series.items():
+        a = np.vstack([t, np.ones_like(t)]).T
+        coef, res, *_ = np.linalg.lstsq(a, y, rcond=None)
+        resid = y - a @ coef
+        # noise of y is serially correlated; use the std of differences as a conservative scale
+        se = np.std(np.diff(resid)) / np.sqrt(2) / (np.std(t) * np.sqrt(len(t)))
+        rel = float(coef[0] * t[-1] / np.mean(y))
+        out[key] = {"relative_drift": rel, "z": float(coef[0] / se) if se > 0 else 0.0}
+    dm, de = abs(out["momentum"]["z"]) > 5, abs(out["energy"]["z"]) > 5
+    out["verdict"] = ("external (|H| drifts)" if dm else "internal (energy drifts, |H| kept)" if de
+                      else "no drift")
+    out["series"] = {k: v for k, v in series.items()}
+    return out
+
+
+def _fit_summary(fit: Fit, sigma) -> dict:
+    rms = np.sqrt(np.mean(fit.r ** 2, 0))
+    return {"rms": rms.tolist(), "rms_over_noise": (rms / sigma).tolist(),
+            "nis_mean": float(np.mean((fit.r / sigma) ** 2)), "inertia": fit.inertia.tolist()}
+
+
+def diagnose(rec: Recording) -> dict:
+    """The full diagnosis of one recording as a JSON-ready dict (DESIGN.md §3 keys, and more)."""
+    d = prepare(rec)
+    nominal, fits, skipped = fit_all(d)
+    ranked = []
+    for f in fits:
+        delta = float(nominal.bic - f.bic)
+        finite = bool(np.isfinite(delta))  # an indefinite fitted inertia gives -inf: no fit
+        ranked.append({"name": f.name, "params": jsonable(f.params) if finite else {},
+                       "delta_bic": delta if finite else None,
+                       "significant": finite and delta > SIGNIFICANT_DELTA_BIC})
+    sig = [e for e in ranked if e["significant"]]
+    best = fits[0] if sig else nominal
+    ambiguous = []
+    if sig:
+        top = sig[0]
+        for e in sig[1:]:
+            if top["delta_bic"] - e["delta_bic"] < AMBIGUOUS_DELTA_BIC:
+                ambiguous.append({"effects": [top["name"], e["name"]],
+                                  "reason": f"delta BIC differs by {top['delta_bic'] - e['delta_bic']:.1f}"
+                                            f" < {AMBIGUOUS_DELTA_BIC}"})
+        if top["name"] in STRUCTURAL_AMBIGUITIES:
+            ambiguous.append({"effects": [top["name"], "inertia"],
+                              "reason": STRUCTURAL_AMBIGUITIES[top["name"]]})
+    t_mid = 0.5 * (d.t[d.edges[1:]] + d.t[d.edges[:-1]])
+    locations = locate(nominal.r, t_mid, d.sigma)
+    after = _fit_summary(best, d.sigma)
+    unexplained = max(after["rms_over_noise"]) > 1.3
+    f, p = spectrum(nominal.r, float(np.median(np.diff(t_mid))))
+    inv = invariants(d, nominal)
+    report = {
+        "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
+        "mismatch_detected": bool(sig) or bool(locations) or unexplained,
+        "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
+        "ambiguous": ambiguous, "skipped_effects": skipped,
+        "fit_before": _fit_summary(nominal, d.sigma), "fit_after": after,
+        "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
+        "scale_identified": not d.scale_fixed or (d.has_torque and rec.inertia_nominal is not None),
+        "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
+        "invariants": {k: v for k, v in inv.items() if k != "series"},
+        "unexplained_residual": unexplained,
+        "sparse_terms": sparse_terms(d, best) if unexplained else [],
+    }
+    arrays = {"t_mid": t_mid, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
+              "inv": inv, "d": d, "best": best, "nominal": nominal}
+    return report, arrays
+
+
+def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[str]:
+    """residuals.png (located windows shaded), overlay.png, spectrum.png, invariants.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    t = arrays["t_mid"]
+    fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
+    for i, ax in enumerate(axs):
+        ax.plot(t, arrays["r_before"][:, i], lw=0.7, label="nominal")
+        ax.plot(t, arrays["r_after"][:, i], lw=0.7, label=f"+ {report['best_effect'] or 'nothing'}")
+        for loc in report["locations"]:
+            if "xyz"[i] in loc["axes"]:
+                ax.axvspan(loc["t_start"], loc["t_end"], color="red", alpha=0.15)
+        ax.set_ylabel(f"r_{'xyz'[i]} (rad/s)")
+    axs[0].legend(loc="upper right", fontsize=8)
+    axs[-1].set_xlabel("t (s)")
+    fig.suptitle("interval-prediction residuals (shaded: located mismatch)")
+    files.append(_save(fig, out / f"{stem}residuals.png"))
+    d, best, nominal = arrays["d"], arrays["best"], arrays["nominal"]
+    fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
+    for i, ax in enumerate(axs):
+        ax.plot(t, np.cumsum(arrays["r_before"][:, i]), label="nominal, accumulated miss")
+        ax.plot(t, np.cumsum(arrays["r_after"][:, i]), label="after fit, accumulated miss")
+        ax.set_ylabel(f"{'xyz'[i]} (rad/s)")
+    axs[0].legend(fontsize=8)
+    axs[-1].set_xlabel("t (s)")
+    fig.suptitle("before / after: accumulated interval residual (a random walk when explained)")
+    files.append(_save(fig, out / f"{stem}overlay.png"))
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i in range(3):
+        ax.semilogy(arrays["f"], arrays["p"][:, i] + 1e-30, label="xyz"[i])
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("PSD of nominal residual")
+    ax.legend()
+    files.append(_save(fig, out / f"{stem}spectrum.png"))
+    inv = arrays["inv"]
+    if inv.get("applicable"):
+        fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
+        for ax, key in zip(axs, ("momentum", "energy")):
+            y = inv["series"][key]
+            ax.plot(d.t, y / np.mean(y), lw=0.7)
+            ax.set_ylabel(f"{key} / mean")
+        axs[-1].set_xlabel("t (s)")
+        fig.suptitle(f"invariants (fitted J): {inv['verdict']}")
+        files.append(_save(fig, out / f"{stem}invariants.png"))
+    return files
+
+
+def _save(fig, path: Path) -> str:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path.name
+
+
+def markdown(report: dict, plots: list[str]) -> str:
+    """A readable summary of one report."""
+    lines = [f"# Diagnosis of {report['recording']}", "",
+             f"- samples: {report['samples']}, duration {report['duration_s']:.2f} s",
+             f"- gyro noise: {np.round(report['gyro_sigma'], 4).tolist()} rad/s ({report['gyro_sigma_source']})",
+             f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
+             f"**{report['best_effect'] or 'none significant'}**",
+             f"- fit rms / noise before: {np.round(report['fit_before']['rms_over_noise'], 2).tolist()}, "
+             f"after: {np.round(report['fit_after']['rms_over_noise'], 2).tolist()}", ""]
+    lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
+    for e in report["effects"]:
+        params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}
+        delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
+        lines.append(f"| {e['name']} | {delta} | {e['significant']} | {params} |")
+    for a in report["ambiguous"]:
+        lines.append(f"\n- cannot be told apart: {a['effects']}: {a['reason']}")
+    for name, why in report["skipped_effects"].items():
+        lines.append(f"- not tested: {name}: {why}")
+    lines.append(f"\nLocated windows: {report['locations'] or 'none'}")
+    lines.append(f"\nInvariants: {report['invariants']}")
+    if report["sparse_terms"]:
+        lines.append(f"\nUnexplained residual; sparse-regression terms: {report['sparse_terms']}")
+    lines += [""] + [f"![{p}]({p})" for p in plots]
+    return "\n".join(lines) + "\n"
