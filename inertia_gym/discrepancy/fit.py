@@ -173,7 +173,8 @@ def _finish(name, x, d: Data, k: int) -> Fit:
     r = _rates(x, name, e) if np.all(np.linalg.eigvalsh(inertia_from_theta(x[:6])) > 0) else e * np.inf
     z = r / d.sigma
     n = z.size
-    bic = n * np.log(max(np.mean(z ** 2), 1e-300)) + k * np.log(n)
+    mse = float(np.mean(z ** 2))
+    bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
     return Fit(name, x, e, r, float(bic), k)
 
 
