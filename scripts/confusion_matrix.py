@@ -59,7 +59,7 @@ def main() -> None:
                 perr.append(param_error(lab, side["effect"]["params"], fitted))
     cols = sorted({c for r in rows.values() for c in r}, key=lambda c: labels.index(c))
     short = {c: c[:9] for c in cols}
-    print(f"{'truth \\ top-ranked':24s}" + "".join(f"{short[c]:>10s}" for c in cols))
+    print(f"{'truth / top-ranked':24s}" + "".join(f"{short[c]:>10s}" for c in cols))
     for lab in labels:
         print(f"{lab:24s}" + "".join(f"{rows[lab].get(c, 0):10d}" for c in cols))
     perr = np.array(perr)
