@@ -102,11 +102,11 @@ def random_params(name: str, rng: np.random.Generator, inertia, omega_ref: float
     if name == "internal_dissipation":
         return {"d": rng.uniform(0.01, 0.04) * j}
     if name == "actuator_scale":
-        return {"scale": float(_signed(rng, 0.1, 0.3))}
+        return {"scale": float(_signed(rng, 0.2, 0.5))}
     if name == "actuator_misalignment":
-        return {"rotvec": _unit(rng) * np.deg2rad(rng.uniform(5.0, 15.0))}
+        return {"rotvec": _unit(rng) * np.deg2rad(rng.uniform(10.0, 25.0))}
     if name == "actuator_delay":
-        return {"delay": rng.uniform(0.1, 0.4)}
+        return {"delay": rng.uniform(0.2, 0.6)}
     if name == "gravity_gradient":
         spread = np.ptp(np.linalg.eigvalsh(inertia))
         n = np.sqrt(rng.uniform(0.03, 0.1) * tau_ref / (3.0 * max(spread, 1e-3 * j)))
@@ -117,6 +117,7 @@ def random_params(name: str, rng: np.random.Generator, inertia, omega_ref: float
     if name == "inertia_change":
         eig, vec = np.linalg.eigh(inertia)
         new = eig * (1 + _signed(rng, 0.05, 0.15, 3))
+        new *= eig.sum() / new.sum()  # a redistribution (deployment, fuel moving) at fixed trace
         return {"t_change": rng.uniform(0.3, 0.7) * duration,
                 "delta_inertia": (vec @ np.diag(new) @ vec.T - np.asarray(inertia)).tolist()}
     raise ConfigError(f"unknown effect {name!r}")

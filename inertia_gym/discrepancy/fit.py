@@ -35,8 +35,10 @@ class Data:
     """A recording prepared for the integral equation error.
 
     t, w (n, 3), tau (n, 3) N·m (zero-order hold, zeros when absent), rot (n, 3, 3) or None;
-    edges (K+1,) sample indices of the interval boundaries; sigma (3,) rad/s gyro noise;
-    scale_fixed: the inertia trace is pinned to trace0 (no torque, or a trusted nominal).
+    edges (K+1,) sample indices of the interval boundaries; phi, dphi (n,) the modulating
+    window sin^2 of each interval and its time derivative (1/s), both zero at the boundaries;
+    quad (n,) trapezoid weights (s); sigma (3,) rad/s gyro noise; scale_fixed: the inertia trace
+    is pinned to trace0 (no torque, or a trusted nominal).
     """
 
     t: np.ndarray
@@ -44,6 +46,9 @@ class Data:
     tau: np.ndarray
     rot: np.ndarray | None
     edges: np.ndarray
+    phi: np.ndarray
+    dphi: np.ndarray
+    quad: np.ndarray
     sigma: np.ndarray
     sigma_source: str
     has_torque: bool
@@ -61,7 +66,7 @@ def estimate_gyro_noise(w) -> np.ndarray:
 def prepare(rec: Recording) -> Data:
     """Intervals, noise level and scale handling for one recording."""
     n = rec.t.size
-    m = int(np.clip(n // 300, 4, 10))
+    m = int(np.clip(n // 150, 8, 40))
     edges = np.arange(0, n, m)
     if edges[-1] != n - 1:
         edges = np.append(edges, n - 1) if n - 1 - edges[-1] >= 2 else np.append(edges[:-1], n - 1)
@@ -72,14 +77,21 @@ def prepare(rec: Recording) -> Data:
     nominal = rec.inertia_nominal
     trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
     tau = rec.tau if rec.tau is not None else np.zeros_like(rec.w)
-    return Data(rec.t, rec.w, tau, quat_rotations(rec.q) if rec.q is not None else None, edges,
+    t = rec.t
+    k = np.clip(np.searchsorted(edges, np.arange(n), side="right") - 1, 0, edges.size - 2)
+    t_a, t_b = t[edges[k]], t[edges[k + 1]]
+    u = (t - t_a) / (t_b - t_a)
+    phi = np.sin(np.pi * u) ** 2
+    dphi = np.pi * np.sin(2 * np.pi * u) / (t_b - t_a)
+    quad = np.gradient(t)
+    return Data(t, rec.w, tau, quat_rotations(rec.q) if rec.q is not None else None, edges, phi, dphi, quad,
                 sigma, source, rec.has_torque, trace0, (not rec.has_torque) or nominal is not None)
 
 
-def _integrate(t, g, edges) -> np.ndarray:
-    """Trapezoid integrals of g (n, 3) over [t[edges[k]], t[edges[k+1]]] -> (K, 3)."""
-    c = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], 0)])
-    return c[edges[1:]] - c[edges[:-1]]
+def _modulated(d: "Data", mom, g) -> np.ndarray:
+    """Per interval: integral of (-phi' mom + phi g) dt = integral of phi (d mom/dt + g) dt."""
+    return np.add.reduceat((-d.dphi[:, None] * mom + d.phi[:, None] * g) * d.quad[:, None],
+                           d.edges[:-1], axis=0)
 
 
 def residual(x, name, d: Data) -> np.ndarray:
@@ -125,7 +137,7 @@ def residual(x, name, d: Data) -> np.ndarray:
         eta_d = -signal.lfilter(b2, a2, w - w[0], axis=0) @ p[2:5]  # s^2 H applied to w = s H w_dot
         mom = mom + np.outer(eta_d, p[2:5])
         g = g + np.cross(w, np.outer(eta_d, p[2:5]))
-    return mom[d.edges[1:]] - mom[d.edges[:-1]] + _integrate(t, g, d.edges)
+    return _modulated(d, mom, g)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,68 +163,91 @@ class Fit:
         return unpack(self.name, self.x[6:])
 
 
-def _rates(x, name, e) -> np.ndarray:
-    """Rate residual (K, 3), rad/s in gyro units: J^-1 e / sqrt(2) (times 1 + s for gyro_scale)."""
+def whitener(d: Data, x, name: str | None = None) -> np.ndarray:
+    """(K, 3, 3) inverse Cholesky factors of cov(e_k) under white gyro noise for x = [theta, p].
+
+    The noise is propagated through the rigid terms with the candidate's own inertia (J(t) for
+    inertia_change, the corrected rates for gyro_bias / gyro_scale), so the whitened residual
+    cannot shrink by shrinking J: it is measured in units of the gyro noise.
+    """
     jm = inertia_from_theta(x[:6])
-    r = np.linalg.solve(jm, e.T).T / np.sqrt(2.0)
-    if name == "gyro_scale":
-        r = r * (1.0 + x[6:9])
-    return r
+    w, gain = d.w, np.ones(3)
+    if name == "gyro_bias":
+        w = w - x[6:9]
+    elif name == "gyro_scale":
+        gain = 1.0 / (1.0 + x[6:9])
+        w = w * gain
+    jt = np.broadcast_to(jm, (w.shape[0], 3, 3))
+    if name == "inertia_change":
+        jt = jt + (d.t >= x[6])[:, None, None] * inertia_from_theta(x[7:13])
+    jw = np.einsum("nij,nj->ni", jt, w)
+    # d e_k / d w_raw,i = q_i (-phi'_i J_i + phi_i ([w_i]x J_i - [J_i w_i]x)) diag(gain)
+    a = d.quad[:, None, None] * (-d.dphi[:, None, None] * jt
+                                 + d.phi[:, None, None] * (skew(w) @ jt - skew(jw))) * gain
+    cov = np.add.reduceat(np.einsum("nij,j,nkj->nik", a, d.sigma ** 2, a), d.edges[:-1], axis=0)
+    cov = cov + 1e-12 * np.trace(cov, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    try:
+        return np.linalg.inv(np.linalg.cholesky(cov))
+    except np.linalg.LinAlgError:
+        return np.full_like(cov, np.nan)
+
+
+def _z(d: Data, x, name, e) -> np.ndarray:
+    return np.einsum("kij,kj->ki", whitener(d, x, name), e)
 
 
 def _objective(x, name, d: Data):
-    res = (_rates(x, name, residual(x, name, d)) / d.sigma).ravel()
+    res = _z(d, x, name, residual(x, name, d)).ravel()
+    res = np.where(np.isfinite(res), res, 1e6)
     if d.scale_fixed:
         tr = x[0] + x[3] + x[5]
         res = np.append(res, 1e3 * (tr - d.trace0) / d.trace0 * np.sqrt(res.size))
+        if name == "inertia_change":  # the change is fitted as a redistribution at fixed trace
+            res = np.append(res, 1e3 * (x[7] + x[10] + x[12]) / d.trace0 * np.sqrt(res.size))
     return res
 
 
 def _finish(name, x, d: Data, k: int) -> Fit:
     e = residual(x, name, d)
-    r = _rates(x, name, e) if np.all(np.linalg.eigvalsh(inertia_from_theta(x[:6])) > 0) else e * np.inf
-    z = r / d.sigma
+    z = _z(d, x, name, e) if np.all(np.linalg.eigvalsh(inertia_from_theta(x[:6])) > 0) else e * np.inf
+    r = z * d.sigma
     n = z.size
     mse = float(np.mean(z ** 2))
     bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
     return Fit(name, x, e, r, float(bic), k)
 
 
-def _lin_objective(x, name, d: Data, jinv) -> np.ndarray:
-    """Like _objective with J^-1 frozen at jinv: affine in theta and in linear effect parameters."""
-    res = ((residual(x, name, d) @ jinv.T) / (np.sqrt(2.0) * d.sigma)).ravel()
-    if d.scale_fixed:
-        res = np.append(res, 1e3 * (x[0] + x[3] + x[5] - d.trace0) / d.trace0 * np.sqrt(res.size))
-    return res
-
-
-def _affine_solve(name, d: Data, x_fixed: np.ndarray, free: np.ndarray, jinv) -> np.ndarray:
-    """Least squares of _lin_objective over the free components (finite-difference columns)."""
-    base = _lin_objective(x_fixed, name, d, jinv)
+def _affine_solve(name, d: Data, x_fixed: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Exact least squares over the free components of x for models affine in them
+    (finite-difference columns of the whitened residual)."""
+    base = _objective(x_fixed, name, d)
     cols = []
     for i in np.flatnonzero(free):
         xi = x_fixed.copy()
         xi[i] += 1.0
-        cols.append(_lin_objective(xi, name, d, jinv) - base)
+        cols.append(_objective(xi, name, d) - base)
     sol = np.linalg.lstsq(np.stack(cols, 1), -base, rcond=None)[0]
     x = x_fixed.copy()
     x[free] += sol
     return x
 
 
-def fit_nominal(d: Data) -> Fit:
-    """The rigid model alone: inertia fitted (trace pinned when the scale is not identifiable)."""
+def fit_nominal(d: Data) -> tuple[Fit, Data]:
+    """The rigid model alone: inertia fitted (trace pinned when the scale is not identifiable).
+
+    Returns the fit and the data.
+    """
     x = theta_from_inertia(np.eye(3) * d.trace0 / 3)
-    for _ in range(3):  # re-linearise J^-1 at the current estimate
-        x = _affine_solve(None, d, x, np.ones(6, bool), np.linalg.inv(inertia_from_theta(x)))
-    return _finish(None, x, d, 6 - int(d.scale_fixed))
+    x = _affine_solve(None, d, x, np.ones(6, bool))  # exact for the frozen whitener, then refine
+    x = optimize.least_squares(_objective, x, args=(None, d), x_scale="jac").x
+    return _finish(None, x, d, 6 - int(d.scale_fixed)), d
 
 
 def _starts(name, d: Data, nominal: Fit) -> list[np.ndarray]:
     """Initial effect-parameter vectors (several where the fit is not convex)."""
     dur = d.t[-1] - d.t[0]
     if name == "actuator_delay":
-        return [np.array([v]) for v in (0.02, 0.1, 0.25, 0.5)]
+        return [np.array([v]) for v in np.arange(0.05, 1.0, 0.1)]
     if name == "flexible_mode":
         out = []
         for f in np.geomspace(0.3, min(5.0, 0.4 / np.median(np.diff(d.t))), 8):
@@ -226,7 +261,6 @@ def _starts(name, d: Data, nominal: Fit) -> list[np.ndarray]:
 
 def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
     """Fit one effect jointly with the inertia, starting from the nominal inertia."""
-    jinv = np.linalg.inv(nominal.inertia)
     k = 6 - int(d.scale_fixed) + n_params(name)
     if name == "inertia_change":
         best = None
@@ -235,11 +269,27 @@ def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
             x0 = np.concatenate([nominal.x[:6], [tc], np.zeros(6)])
             free = np.ones(13, bool)
             free[6] = False
-            x = _affine_solve(name, d, x0, free, jinv)
-            cost = np.sum(_lin_objective(x, name, d, jinv) ** 2)
+            x = _affine_solve(name, d, x0, free)
+            cost = np.sum(_objective(x, name, d) ** 2)
             if best is None or cost < best[0]:
                 best = (cost, x)
-        return _finish(name, best[1], d, k)
+        x = best[1]
+        step = max(1, (d.edges[1] - d.edges[0]) // 8)  # refine t_change on a finer grid
+        i0 = int(np.searchsorted(d.t, x[6]))
+        span = 2 * (d.edges[1] - d.edges[0])
+        for i in range(max(1, i0 - span), min(d.t.size - 1, i0 + span), step):
+            xi = _affine_solve(name, d, np.concatenate([x[:6], [d.t[i]], x[7:]]), free)
+            cost = np.sum(_objective(xi, name, d) ** 2)
+            if cost < best[0]:
+                best = (cost, xi)
+        x = best[1]
+        tc = x[6]
+
+        def fixed_tc(y):
+            return _objective(np.concatenate([y[:6], [tc], y[6:]]), name, d)
+
+        y = optimize.least_squares(fixed_tc, np.delete(x, 6), x_scale="jac").x
+        return _finish(name, np.concatenate([y[:6], [tc], y[6:]]), d, k)
     best = None
     for p0 in _starts(name, d, nominal):
         x0 = np.concatenate([nominal.x[:6], p0])
@@ -279,9 +329,10 @@ def candidates(d: Data) -> tuple[list[str], dict]:
     return names, skipped
 
 
-def fit_all(d: Data) -> tuple[Fit, list[Fit], dict]:
-    """Nominal fit, every testable effect's fit (ranked by delta BIC, best first), skipped ones."""
-    nominal = fit_nominal(d)
+def fit_all(d: Data) -> tuple[Fit, list[Fit], dict, Data]:
+    """Nominal fit, every testable effect's fit (ranked by delta BIC, best first), skipped ones,
+    and the data."""
+    nominal, d = fit_nominal(d)
     names, skipped = candidates(d)
     fits = []
     for name in names:
@@ -296,7 +347,7 @@ def fit_all(d: Data) -> tuple[Fit, list[Fit], dict]:
         else:
             fits.append(fit_effect(name, d, nominal))
     fits.sort(key=lambda f: f.bic)
-    return nominal, fits, skipped
+    return nominal, fits, skipped, d
 
 
 def sparse_terms(d: Data, fit: Fit, threshold: float = 0.1) -> list[dict]:
@@ -313,7 +364,8 @@ def sparse_terms(d: Data, fit: Fit, threshold: float = 0.1) -> list[dict]:
         for j in range(i, 3):
             lib[f"w{a}w{'xyz'[j]}"] = w[:, i] * w[:, j]
     names = list(lib)
-    theta = np.stack([_integrate(d.t, np.repeat(v[:, None], 3, 1), d.edges)[:, 0] for v in lib.values()], 1)
+    zero = np.zeros((len(w), 3))
+    theta = np.stack([_modulated(d, zero, np.repeat(v[:, None], 3, 1))[:, 0] for v in lib.values()], 1)
     scale = np.linalg.norm(theta, axis=0)
     a = theta / scale
     out = []

@@ -90,7 +90,7 @@ def _fit_summary(fit: Fit, sigma) -> dict:
 def diagnose(rec: Recording) -> dict:
     """The full diagnosis of one recording as a JSON-ready dict (DESIGN.md §3 keys, and more)."""
     d = prepare(rec)
-    nominal, fits, skipped = fit_all(d)
+    nominal, fits, skipped, d = fit_all(d)
     ranked = []
     for f in fits:
         delta = float(nominal.bic - f.bic)

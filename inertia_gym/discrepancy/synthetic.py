@@ -18,11 +18,11 @@ from inertia_gym.scenario import Scenario
 
 
 def burst_schedule(n: int, dt: float, tau_max: float, rng: np.random.Generator) -> np.ndarray:
-    """(n, 3) N·m: bursts of magnitude tau_max, random direction, 0.5-2 s on, 2-6 s off."""
+    """(n, 3) N·m: bursts of magnitude tau_max, random direction, 2-6 s on, 2-6 s off."""
     tau = np.zeros((n, 3))
     t = rng.uniform(1.0, 3.0)
     while t < n * dt:
-        on = rng.uniform(0.5, 2.0)
+        on = rng.uniform(2.0, 6.0)
         v = rng.normal(size=3)
         a, b = int(t / dt), int(min(t + on, n * dt) / dt)
         tau[a:b] = tau_max * v / np.linalg.norm(v)
