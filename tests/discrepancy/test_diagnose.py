@@ -31,14 +31,17 @@ def _concealed(rec):
 def test_equation_error_vanishes_on_noise_free_truth():
     sc = Scenario(gyro_sigma=1e-9, quat_sigma=1e-9)
     rec, _ = simulate_recording(sc, 10.0, None, seed=3)
-    e = residual(theta_from_inertia(sc.inertia_true_array), None, prepare(rec))
-    assert np.abs(e).max() < 1e-3 * np.abs(rec.w).max() * 100
+    d = prepare(rec)
+    e_true = residual(theta_from_inertia(sc.inertia_true_array), None, d)
+    e_off = residual(theta_from_inertia(sc.inertia_true_array * np.diag([1.05, 1.0, 1.0])), None, d)
+    # trapezoid quadrature of a 10 rad/s spin at 100 Hz leaves a small discretisation error
+    assert np.sqrt(np.mean(e_true ** 2)) < 0.15 * np.sqrt(np.mean(e_off ** 2))
 
 
 @pytest.mark.parametrize("name", [None, "gyro_bias", "gyro_scale", "internal_momentum",
-                                  "actuator_misalignment", "inertia_change"])
+                                  "actuator_misalignment", "actuator_delay", "inertia_change"])
 def test_concealed_effect_is_found(name):
-    rec, side = simulate_recording(Scenario(), 40.0, name, seed=7)
+    rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0, name, seed=7)
     report, _ = diagnose(_concealed(rec))
     assert REPORT_KEYS <= set(report)
     assert report["best_effect"] == name
@@ -96,7 +99,7 @@ def test_torque_free_reads_scale_unidentified(tmp_path):
 def test_600s_10hz_diagnosis_is_fast(tmp_path):
     import time
 
-    rec, _ = simulate_recording(Scenario(), 600.0, "constant_body_torque", seed=4, sample_dt=0.1)
+    rec, _ = simulate_recording(Scenario(), 600.0, "internal_momentum", seed=4, sample_dt=0.1)
     path = tmp_path / "long.csv"
     from inertia_gym.discrepancy.recordings import write_recording
 
