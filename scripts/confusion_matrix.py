@@ -51,7 +51,7 @@ def main() -> None:
             report, _ = diagnose(rec)
             got = report["best_effect"] or "none"
             rows[lab][got] = rows[lab].get(got, 0) + 1
-            ratios.append(max(report["fit_after"]["rms_over_noise"]))
+            ratios.append(max(report["fit_after"]["rms_over_noise"] or [np.inf]))
             if lab == "none":
                 control_fp += got != "none"
                 continue

@@ -83,8 +83,12 @@ def invariants(d: Data, fit: Fit) -> dict:
 
 def _fit_summary(fit: Fit, sigma) -> dict:
     rms = np.sqrt(np.mean(fit.r ** 2, 0))
+    if not np.all(np.isfinite(rms)):  # no positive-definite inertia fits: JSON has no Infinity
+        return {"rms": None, "rms_over_noise": None, "nis_mean": None, "inertia": fit.inertia.tolist(),
+                "valid": False}
     return {"rms": rms.tolist(), "rms_over_noise": (rms / sigma).tolist(),
-            "nis_mean": float(np.mean((fit.r / sigma) ** 2)), "inertia": fit.inertia.tolist()}
+            "nis_mean": float(np.mean((fit.r / sigma) ** 2)), "inertia": fit.inertia.tolist(),
+            "valid": True}
 
 
 def diagnose(rec: Recording) -> dict:
@@ -114,7 +118,7 @@ def diagnose(rec: Recording) -> dict:
     t_mid = 0.5 * (d.t[d.edges[1:]] + d.t[d.edges[:-1]])
     locations = locate(nominal.r, t_mid, d.sigma)
     after = _fit_summary(best, d.sigma)
-    unexplained = max(after["rms_over_noise"]) > 1.3
+    unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_mid))))
     inv = invariants(d, nominal)
     report = {
@@ -195,6 +199,10 @@ def _save(fig, path: Path) -> str:
     return path.name
 
 
+def _fmt(values) -> str:
+    return "no valid fit" if values is None else str(np.round(values, 2).tolist())
+
+
 def markdown(report: dict, plots: list[str]) -> str:
     """A readable summary of one report."""
     lines = [f"# Diagnosis of {report['recording']}", "",
@@ -202,8 +210,8 @@ def markdown(report: dict, plots: list[str]) -> str:
              f"- gyro noise: {np.round(report['gyro_sigma'], 4).tolist()} rad/s ({report['gyro_sigma_source']})",
              f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
              f"**{report['best_effect'] or 'none significant'}**",
-             f"- fit rms / noise before: {np.round(report['fit_before']['rms_over_noise'], 2).tolist()}, "
-             f"after: {np.round(report['fit_after']['rms_over_noise'], 2).tolist()}", ""]
+             f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
+             f"after: {_fmt(report['fit_after']['rms_over_noise'])}", ""]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
     for e in report["effects"]:
         params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}

@@ -99,7 +99,9 @@ def test_torque_free_reads_scale_unidentified(tmp_path):
 def test_600s_10hz_diagnosis_is_fast(tmp_path):
     import time
 
-    rec, _ = simulate_recording(Scenario(), 600.0, "internal_momentum", seed=4, sample_dt=0.1)
+    # 10 Hz resolves a 1 rad/s tumble; the paper's 10 rad/s spin needs faster sampling
+    rec, _ = simulate_recording(Scenario(omega0=(0.05, 1.0, 0.045)), 600.0, "internal_momentum",
+                                seed=4, sample_dt=0.1)
     path = tmp_path / "long.csv"
     from inertia_gym.discrepancy.recordings import write_recording
 
@@ -108,4 +110,4 @@ def test_600s_10hz_diagnosis_is_fast(tmp_path):
     (loaded,) = read_recordings(path)
     report, _ = diagnose(loaded)
     assert time.perf_counter() - t0 < 30.0
-    assert report["mismatch_detected"]
+    assert report["best_effect"] == "internal_momentum"
