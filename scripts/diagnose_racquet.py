@@ -19,6 +19,10 @@ from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
 
 
+def _round(values):
+    return None if values is None else np.round(values, 2).tolist()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"))
@@ -38,8 +42,9 @@ def main() -> None:
             inertia = np.array(report["fit_after"]["inertia"])
             eig = np.sort(np.linalg.eigvalsh(inertia))[::-1]
             rows.append({"toss": sub.name, "best": report["best_effect"], "top3": top,
-                         "before": np.round(report["fit_before"]["rms_over_noise"], 2).tolist(),
-                         "after": np.round(report["fit_after"]["rms_over_noise"], 2).tolist(),
+                         "before": _round(report["fit_before"]["rms_over_noise"]),
+                         "after": _round(report["fit_after"]["rms_over_noise"]),
+                         "max_abs_rate": float(np.abs(rec.w).max()),
                          "principal_ratios": np.round(eig / eig[0], 3).tolist(),
                          "invariants": report["invariants"].get("verdict"),
                          "locations": len(report["locations"]),
