@@ -1,12 +1,14 @@
 """Fit the nominal rigid model and every catalogue effect jointly with the inertia; rank by BIC.
 
-Integral equation error: over consecutive intervals [a_k, b_k] of m samples,
-    e_k = J w(b_k) - J w(a_k) + integral_a^b ( w x (J w + h) - tau_applied - tau_ext ) dt   (N·m·s)
-(with the flexible-mode and inertia-change terms where they apply). Integrating instead of
-differentiating keeps the gyro noise white in e_k; the intervals do not overlap, so the e_k are
-independent and the BIC of a Gaussian fit is honest. e_k mapped through J^-1 / sqrt(2) is the
-rate (rad/s) by which the model, run over one interval, misses the gyro: its rms equals the gyro
-noise when the model explains the data, and is the fit's `rms`.
+Modulating-function equation error: over consecutive intervals [a_k, b_k] of m samples, with a
+window phi = sin^2 that vanishes at both ends,
+    e_k = integral phi (d(J w)/dt + w x (J w + h) - tau_applied - tau_ext) dt
+        = integral (-phi' J w + phi (w x (J w + h) - tau_applied - tau_ext)) dt      (N·m·s)
+(with the flexible-mode and inertia-change terms where they apply): no derivative of the noisy
+gyro is taken. The intervals do not overlap, so the e_k are independent; each is whitened by the
+covariance of the gyro noise propagated through the candidate's own rigid terms, so z_k is
+unit white noise when the model explains the data, the BIC of a Gaussian fit is honest, and
+sigma * rms(z) (rad/s) is the fit's `rms` (equal to the gyro noise for a correct model).
 """
 
 from __future__ import annotations
@@ -17,8 +19,15 @@ import numpy as np
 from scipy import optimize, signal
 
 from inertia_gym.discrepancy.effects import (
-    EFFECTS, NEEDS_ATTITUDE, NEEDS_TORQUE, n_params, quat_rotations, rotvec_matrix, skew, unpack,
+    EFFECTS,
+    NEEDS_ATTITUDE,
+    NEEDS_TORQUE,
     _flex_filters,
+    n_params,
+    quat_rotations,
+    rotvec_matrix,
+    skew,
+    unpack,
 )
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
@@ -27,7 +36,7 @@ SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
 #: Effects the simulator supports but the fit does not test yet, with the reason.
 NOT_FITTED = {"flexible_mode": "not fitted in this version: the modal filter driven by the noisy "
-                               "gyro fits the noise (errors in variables); see the spectrum plot"}  # two significant effects closer than this cannot be told apart
+                               "gyro fits the noise (errors in variables); see the spectrum plot"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,7 +152,8 @@ def residual(x, name, d: Data) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class Fit:
     """One fitted model: name (None = nominal), x = [theta, params], residual e (K, 3) N·m·s,
-    rate residual r (K, 3) rad/s, bic, k (free parameters)."""
+    rate residual r (K, 3) rad/s, bic, k (free parameters).
+    """
 
     name: str | None
     x: np.ndarray
@@ -219,7 +229,8 @@ def _finish(name, x, d: Data, k: int) -> Fit:
 
 def _affine_solve(name, d: Data, x_fixed: np.ndarray, free: np.ndarray) -> np.ndarray:
     """Exact least squares over the free components of x for models affine in them
-    (finite-difference columns of the whitened residual)."""
+    (finite-difference columns of the whitened residual).
+    """
     base = _objective(x_fixed, name, d)
     cols = []
     for i in np.flatnonzero(free):
@@ -245,7 +256,6 @@ def fit_nominal(d: Data) -> tuple[Fit, Data]:
 
 def _starts(name, d: Data, nominal: Fit) -> list[np.ndarray]:
     """Initial effect-parameter vectors (several where the fit is not convex)."""
-    dur = d.t[-1] - d.t[0]
     if name == "actuator_delay":
         return [np.array([v]) for v in np.arange(0.05, 1.0, 0.1)]
     if name == "flexible_mode":
@@ -331,7 +341,8 @@ def candidates(d: Data) -> tuple[list[str], dict]:
 
 def fit_all(d: Data) -> tuple[Fit, list[Fit], dict, Data]:
     """Nominal fit, every testable effect's fit (ranked by delta BIC, best first), skipped ones,
-    and the data."""
+    and the data.
+    """
     nominal, d = fit_nominal(d)
     names, skipped = candidates(d)
     fits = []

@@ -1,18 +1,24 @@
 """Diagnosis of one recording: fit, locate the mismatch (time, axis, frequency), check the
-invariants, rank the catalogue, and write report.json, plots and a markdown summary."""
+invariants, rank the catalogue, and write report.json, plots and a markdown summary.
+"""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 from scipy import signal, stats
 
-from inertia_gym.discrepancy.fit import (
-    AMBIGUOUS_DELTA_BIC, SIGNIFICANT_DELTA_BIC, Data, Fit, fit_all, prepare, sparse_terms,
-)
 from inertia_gym.discrepancy.effects import jsonable
+from inertia_gym.discrepancy.fit import (
+    AMBIGUOUS_DELTA_BIC,
+    SIGNIFICANT_DELTA_BIC,
+    Data,
+    Fit,
+    fit_all,
+    prepare,
+    sparse_terms,
+)
 from inertia_gym.discrepancy.recordings import Recording
 
 STRUCTURAL_AMBIGUITIES = {
@@ -25,7 +31,8 @@ STRUCTURAL_AMBIGUITIES = {
 
 def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
     """Windows where the rate residual r (K, 3) rad/s exceeds the noise sigma (3,): windowed
-    chi-square test per axis, Bonferroni over windows and axes; adjacent windows merged."""
+    chi-square test per axis, Bonferroni over windows and axes; adjacent windows merged.
+    """
     k = r.shape[0]
     size = max(5, k // 25)
     starts = np.arange(0, k - size + 1, size)
@@ -160,7 +167,7 @@ def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[s
     axs[-1].set_xlabel("t (s)")
     fig.suptitle("interval-prediction residuals (shaded: located mismatch)")
     files.append(_save(fig, out / f"{stem}residuals.png"))
-    d, best, nominal = arrays["d"], arrays["best"], arrays["nominal"]
+    d = arrays["d"]
     fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
     for i, ax in enumerate(axs):
         ax.plot(t, np.cumsum(arrays["r_before"][:, i]), label="nominal, accumulated miss")

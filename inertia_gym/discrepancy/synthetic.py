@@ -9,7 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from inertia_gym.discrepancy.effects import (
-    EFFECTS, Effect, gyro_reading, jsonable, random_params, simulate_truth,
+    EFFECTS,
+    Effect,
+    gyro_reading,
+    jsonable,
+    random_params,
+    simulate_truth,
 )
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.dynamics import euler_to_quat

@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.discrepancy.recordings import (
-    Recording, read_recordings, write_recording,
+    Recording,
+    read_recordings,
+    write_recording,
 )
 from inertia_gym.errors import RecordingError
 
