@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 
 from inertia_gym.commands.common import (
-    add_scenario_option, load_scenario, nonnegative_int, positive_float,
+    add_scenario_option,
+    load_scenario,
+    nonnegative_int,
+    positive_float,
 )
 from inertia_gym.discrepancy.recordings import write_recording
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording

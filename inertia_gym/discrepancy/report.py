@@ -22,10 +22,14 @@ from inertia_gym.discrepancy.fit import (
 from inertia_gym.discrepancy.recordings import Recording
 
 STRUCTURAL_AMBIGUITIES = {
-    "actuator_scale": "actuator_scale cannot be told apart from a scale error of the nominal inertia "
-                      "(J/s fits the data as well as J with torque s*tau)",
-    "gyro_scale": "a common gyro scale is not identifiable without torque or attitude (only "
-                  "per-axis differences are)",
+    "actuator_scale": [("inertia", "actuator_scale cannot be told apart from a scale error of the "
+                        "nominal inertia (J/s fits the data as well as J with torque s*tau)")],
+    "gyro_scale": [("inertia", "a common gyro scale is not identifiable without torque or attitude "
+                    "(only per-axis differences are)"),
+                   ("actuator_scale", "a common gyro scale and a torque scale act alike on "
+                    "torque-driven data")],
+    "viscous_damping": [("aero_drag", "-C w and -c|w| w coincide while |w| stays nearly constant")],
+    "aero_drag": [("viscous_damping", "-C w and -c|w| w coincide while |w| stays nearly constant")],
 }
 
 
@@ -119,9 +123,8 @@ def diagnose(rec: Recording) -> dict:
                 ambiguous.append({"effects": [top["name"], e["name"]],
                                   "reason": f"delta BIC differs by {top['delta_bic'] - e['delta_bic']:.1f}"
                                             f" < {AMBIGUOUS_DELTA_BIC}"})
-        if top["name"] in STRUCTURAL_AMBIGUITIES:
-            ambiguous.append({"effects": [top["name"], "inertia"],
-                              "reason": STRUCTURAL_AMBIGUITIES[top["name"]]})
+        for other, reason in STRUCTURAL_AMBIGUITIES.get(top["name"], []):
+            ambiguous.append({"effects": [top["name"], other], "reason": reason})
     t_mid = 0.5 * (d.t[d.edges[1:]] + d.t[d.edges[:-1]])
     locations = locate(nominal.r, t_mid, d.sigma)
     after = _fit_summary(best, d.sigma)
