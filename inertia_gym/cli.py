@@ -10,7 +10,7 @@ import sys
 
 from inertia_gym.errors import InertiaGymError
 
-COMMANDS = ("validate", "optimize", "simulate", "diagnose")
+COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,284 @@
+"""Agents compared across seeds at equal budgets: the sweep behind `inertia-gym benchmark`.
+
+A sweep is a set of tasks, one per (agent, seed). A task runs the agent for M evaluations of the
+excitation env (:func:`inertia_gym.optimization.optimize`), then scores the xi it found the same
+way for every agent, so that agents are compared on what they found and not on the noise of
+their own runs:
+
+* **re-evaluated cost**: the mean cost of one episode from the scenario's start over fixed
+  evaluation seeds (common random numbers, :func:`~inertia_gym.optimization.evaluate_many`), for
+  xi* (Algorithm 1, line 24: the lowest observed cost) and for the GP-recommended xi (lowest GP
+  posterior mean over the evaluated points);
+* **validated inertia error**: median over fixed validation seeds of ||J_hat - J||_F / ||J||_F
+  after a long-horizon validation of xi* (:func:`~inertia_gym.validation.validate`).
+
+The dense-grid reference ``grid`` scores every point of an n x n x n grid over the bounds of xi
+the same way and keeps the best: the attainable optimum. An agent's **regret** is its re-evaluated
+cost minus the grid optimum's (negative when it found a better xi between the grid's points).
+
+Each finished task is one JSON record (:func:`run_task`); the sweep driver lives in
+``inertia_gym/commands/benchmark.py`` and the backends in :mod:`inertia_gym.executors`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+
+import numpy as np
+
+from inertia_gym.errors import ConfigError
+from inertia_gym.optimization import AGENTS as OPTIMIZER_AGENTS
+from inertia_gym.optimization import evaluate_many, optimize
+from inertia_gym.scenario import Scenario
+from inertia_gym.validation import validate
+
+GRID = "grid"
+AGENTS = (*OPTIMIZER_AGENTS, GRID)
+# Runs per batched call of evaluate_many when scoring many xi (bounds the memory of one batch).
+EVAL_CHUNK = 384
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSettings:
+    """Everything that changes the result of a task, apart from its agent and seed.
+
+    scenario : the experiment.  budget : M evaluations per agent run.  cost : "info" (the paper's
+    J) or "posterior".  carry_over : the estimator carries over from one evaluation to the next
+    (Algorithm 1) or every evaluation restarts from the scenario's start (a stationary
+    objective).  eval_seeds : seeds of the from-start re-evaluation (common to all agents).
+    val_seeds, val_duration (s) : the long-horizon validation of xi*.  grid_points : points per
+    axis of the dense-grid reference.
+    """
+
+    scenario: Scenario
+    budget: int
+    cost: str = "info"
+    carry_over: bool = True
+    eval_seeds: tuple = tuple(range(10_000, 10_008))
+    val_seeds: tuple = (0, 1, 2, 3)
+    val_duration: float = 1000.0
+    grid_points: int = 9
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scenario, Scenario):
+            raise ConfigError(f"scenario must be a Scenario, got {type(self.scenario).__name__}")
+        for name in ("budget", "grid_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.grid_points < 2:
+            raise ConfigError(f"grid_points must be >= 2, got {self.grid_points}")
+        for name in ("eval_seeds", "val_seeds"):
+            seeds = tuple(getattr(self, name))
+            if not seeds or any(isinstance(s, bool) or not isinstance(s, (int, np.integer))
+                                or s < 0 for s in seeds):
+                raise ConfigError(f"{name} must be a non-empty list of integers >= 0, got {seeds}")
+            object.__setattr__(self, name, tuple(int(s) for s in seeds))
+        if not (np.isfinite(self.val_duration) and self.val_duration > 0):
+            raise ConfigError(f"val_duration must be a positive number of seconds, "
+                              f"got {self.val_duration}")
+
+    def to_json(self) -> dict:
+        """Plain-JSON form (the scenario as its full field dict)."""
+        return {
+            "scenario": self.scenario.to_dict(), "budget": int(self.budget), "cost": self.cost,
+            "carry_over": bool(self.carry_over), "eval_seeds": list(self.eval_seeds),
+            "val_seeds": list(self.val_seeds), "val_duration": float(self.val_duration),
+            "grid_points": int(self.grid_points),
+        }
+
+    @classmethod
+    def from_json(cls, data: dict) -> "SweepSettings":
+        """Inverse of :meth:`to_json`."""
+        return cls(**{**data, "scenario": Scenario.from_mapping(data["scenario"])})
+
+    def key(self) -> str:
+        """A short hash of :meth:`to_json`: records made under other settings do not mix."""
+        text = json.dumps(self.to_json(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One unit of a sweep: `agent` run with `seed` (the grid reference has seed None)."""
+
+    agent: str
+    seed: int | None
+
+    def __post_init__(self) -> None:
+        if self.agent not in AGENTS:
+            raise ConfigError(f"agent must be one of {AGENTS}, got {self.agent!r}")
+        if (self.agent == GRID) != (self.seed is None):
+            raise ConfigError(f"the grid reference takes no seed and every other agent one; "
+                              f"got agent {self.agent!r} with seed {self.seed!r}")
+
+    @property
+    def name(self) -> str:
+        """File-name-safe identifier, e.g. ``bo-seed3`` or ``grid``."""
+        return self.agent if self.seed is None else f"{self.agent}-seed{self.seed}"
+
+
+def sweep_tasks(agents, n_seeds: int) -> list[Task]:
+    """The tasks of a sweep: each agent with seeds 0..n_seeds-1, the grid reference once.
+
+    The grid comes first: it is the longest task, so it starts while the agents run.
+    """
+    agents = list(dict.fromkeys(agents))
+    unknown = [a for a in agents if a not in AGENTS]
+    if unknown or not agents:
+        raise ConfigError(f"agents must be a non-empty list from {AGENTS}, got {agents}")
+    tasks = [Task(GRID, None)] if GRID in agents else []
+    return tasks + [Task(a, s) for s in range(n_seeds) for a in agents if a != GRID]
+
+
+def dense_grid(sc: Scenario, points_per_axis: int) -> np.ndarray:
+    """Every xi of a regular grid over ``sc.xi_bounds``, shape (n**3, 3), bounds included."""
+    lo, hi = sc.xi_bounds
+    g = np.linspace(0.0, 1.0, points_per_axis)
+    u = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
+    return lo + u * (hi - lo)
+
+
+def reevaluate(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndarray, np.ndarray]:
+    """From-start cost and final error of each xi (K, 3), averaged over `seeds` (common to all).
+
+    Returns (mean cost (K,), median final relative inertia error (K,)), computed in batches of
+    at most EVAL_CHUNK runs.
+    """
+    xis = np.atleast_2d(np.asarray(xis, dtype=float))
+    per_chunk = max(1, EVAL_CHUNK // len(seeds))
+    costs, errors = [], []
+    for i in range(0, len(xis), per_chunk):
+        c, e = evaluate_many(sc, xis[i:i + per_chunk], seeds, cost)
+        costs.append(c.mean(axis=1))
+        errors.append(np.median(e, axis=1))
+    return np.concatenate(costs), np.concatenate(errors)
+
+
+def validated_error(settings: SweepSettings, xi) -> dict:
+    """Long-horizon validation of xi (3,) over the settings' validation seeds.
+
+    Returns {"val_rel_error": median over the runs that did not diverge (None if all did),
+    "val_rel_errors": per seed (None where diverged), "val_diverged": count}.
+    """
+    res = validate(settings.scenario, np.asarray(xi, dtype=float), settings.val_duration,
+                   settings.val_seeds, record_torque=False)
+    ok = ~res.diverged
+    return {
+        "val_rel_error": float(np.median(res.rel_errors[ok])) if ok.any() else None,
+        "val_rel_errors": [float(e) if k else None for e, k in zip(res.rel_errors, ok)],
+        "val_diverged": int(res.diverged.sum()),
+    }
+
+
+def run_task(settings: SweepSettings, task: Task) -> dict:
+    """Run one task and score it; returns its JSON record (plain types only).
+
+    Agent record: agent, seed, budget, best_cost (lowest observed cost), costs (M,), xis (M, 3),
+    xi_star, xi_recommended, rel_errors (M,) (true inertia error after each evaluation),
+    reeval_cost and reeval_cost_recommended (from-start cost of xi* and of the GP-recommended
+    xi over the evaluation seeds), val_rel_error / val_rel_errors / val_diverged (validation of
+    xi*), wall_s (the optimisation), score_wall_s (re-evaluation and validation), settings_key.
+    Grid record: agent "grid", seed None, n_points, xi_star (the best grid point), reeval_cost,
+    top (the ten best points with their costs), the validation of xi*, wall_s.
+    """
+    t0 = time.perf_counter()
+    sc = settings.scenario
+    if task.agent == GRID:
+        xis = dense_grid(sc, settings.grid_points)
+        costs, _ = reevaluate(sc, xis, settings.eval_seeds, settings.cost)
+        order = np.argsort(costs, kind="stable")
+        record = {
+            "agent": GRID, "seed": None, "n_points": len(xis),
+            "xi_star": xis[order[0]].tolist(), "reeval_cost": float(costs[order[0]]),
+            "top": [[*xis[k].tolist(), float(costs[k])] for k in order[:10]],
+        }
+        record.update(validated_error(settings, xis[order[0]]))
+        record["wall_s"] = time.perf_counter() - t0
+    else:
+        result = optimize(task.agent, sc, settings.budget, task.seed, cost=settings.cost,
+                          carry_over=settings.carry_over)
+        t1 = time.perf_counter()
+        candidates = np.stack([result.xi_star, result.xi_recommended if
+                               result.xi_recommended is not None else result.xi_star])
+        reeval, _ = reevaluate(sc, candidates, settings.eval_seeds, settings.cost)
+        record = {
+            "agent": task.agent, "seed": task.seed, "budget": int(settings.budget),
+            "best_cost": float(result.cost_star), "costs": result.costs.tolist(),
+            "xis": result.xis.tolist(), "xi_star": result.xi_star.tolist(),
+            "xi_recommended": candidates[1].tolist(), "rel_errors": result.rel_errors.tolist(),
+            "reeval_cost": float(reeval[0]), "reeval_cost_recommended": float(reeval[1]),
+        }
+        record.update(validated_error(settings, result.xi_star))
+        record["wall_s"] = float(result.wall_s)
+        record["score_wall_s"] = time.perf_counter() - t1
+    record["settings_key"] = settings.key()
+    return record
+
+
+def _quartiles(values) -> dict | None:
+    """{"median", "q25", "q75", "n"} of the finite values, None if there are none."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return None
+    q25, med, q75 = np.quantile(v, [0.25, 0.5, 0.75])
+    return {"median": float(med), "q25": float(q25), "q75": float(q75), "n": int(v.size)}
+
+
+def win_rate(a: dict, b: dict, key: str = "reeval_cost") -> float | None:
+    """Share of the seeds both agents ran on which agent a's `key` is lower (ties count half).
+
+    a, b : {seed: record}. None when they share no seed.
+    """
+    common = sorted(set(a) & set(b))
+    if not common:
+        return None
+    wins = [1.0 if a[s][key] < b[s][key] else 0.5 if a[s][key] == b[s][key] else 0.0
+            for s in common]
+    return float(np.mean(wins))
+
+
+def summarize(records: list[dict]) -> dict:
+    """The results table of a sweep, from its task records (any order).
+
+    Returns {"grid": the grid record or None, "agents": {agent: {"runs", "best_cost",
+    "reeval_cost", "reeval_cost_recommended", "regret", "regret_recommended", "val_rel_error",
+    "wall_s"} each as median/q25/q75/n, "win_rate": {other agent: share of seeds won on the
+    re-evaluated cost of xi*}}}. Regrets are re-evaluated costs minus the grid optimum's; they
+    are None without a grid record.
+    """
+    grid = next((r for r in records if r["agent"] == GRID), None)
+    by_agent: dict[str, dict] = {}
+    for r in records:
+        if r["agent"] != GRID:
+            by_agent.setdefault(r["agent"], {})[r["seed"]] = r
+    ref = None if grid is None else grid["reeval_cost"]
+    agents = {}
+    for name, runs in by_agent.items():
+        rows = [runs[s] for s in sorted(runs)]
+
+        def stat(key, rows=rows):
+            return _quartiles([r.get(key) for r in rows])
+
+        def regret(key, rows=rows):
+            return None if ref is None else _quartiles([r[key] - ref for r in rows])
+
+        agents[name] = {
+            "runs": len(rows), "seeds": sorted(runs),
+            "best_cost": stat("best_cost"), "reeval_cost": stat("reeval_cost"),
+            "reeval_cost_recommended": stat("reeval_cost_recommended"),
+            "regret": regret("reeval_cost"), "regret_recommended": regret("reeval_cost_recommended"),
+            "val_rel_error": stat("val_rel_error"),
+            "val_diverged": int(sum(r["val_diverged"] for r in rows)),
+            "wall_s": stat("wall_s"),
+            "win_rate": {other: win_rate(runs, by_agent[other]) for other in by_agent
+                         if other != name},
+        }
+    return {"grid": grid, "reference_cost": ref, "agents": agents}
+
+
+__all__ = ["AGENTS", "GRID", "SweepSettings", "Task", "dense_grid", "reevaluate", "run_task",
+           "summarize", "sweep_tasks", "validated_error", "win_rate"]

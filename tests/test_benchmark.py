@@ -1,0 +1,139 @@
+import json
+
+import numpy as np
+import pytest
+
+from inertia_gym.benchmark import (
+    GRID,
+    SweepSettings,
+    Task,
+    dense_grid,
+    reevaluate,
+    run_task,
+    summarize,
+    sweep_tasks,
+    win_rate,
+)
+from inertia_gym.errors import ConfigError
+from inertia_gym.optimization import evaluate_many, optimize
+from inertia_gym.scenario import Scenario
+from inertia_gym.validation import validate
+
+TINY = dict(budget=10, eval_seeds=(10_000, 10_001), val_seeds=(0, 1), val_duration=150.0,
+            grid_points=2)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return SweepSettings(scenario=Scenario(), **TINY)
+
+
+def test_dense_grid_spans_the_bounds_of_xi(paper):
+    g = dense_grid(paper, 3)
+    lo, hi = paper.xi_bounds
+    assert g.shape == (27, 3)
+    assert np.all(g >= lo - 1e-12) and np.all(g <= hi + 1e-12)
+    for axis in range(3):
+        np.testing.assert_allclose(np.unique(g[:, axis]), np.linspace(lo[axis], hi[axis], 3))
+    assert len({tuple(x) for x in g}) == 27
+
+
+def test_reevaluate_is_the_mean_from_start_cost_in_any_chunking(paper):
+    xis = dense_grid(paper, 2)[:5]
+    seeds = [3, 4, 5]
+    costs, errors = evaluate_many(paper, xis, seeds)
+    got_cost, got_err = reevaluate(paper, xis, seeds)
+    np.testing.assert_allclose(got_cost, costs.mean(axis=1), rtol=1e-12)
+    np.testing.assert_allclose(got_err, np.median(errors, axis=1), rtol=1e-12)
+
+
+def test_sweep_tasks_put_the_grid_first_and_give_each_agent_every_seed():
+    tasks = sweep_tasks(["bo", "grid", "random", "bo"], 3)
+    assert tasks[0] == Task(GRID, None)
+    assert [t.name for t in tasks[1:]] == ["bo-seed0", "random-seed0", "bo-seed1",
+                                          "random-seed1", "bo-seed2", "random-seed2"]
+    with pytest.raises(ConfigError, match="agents"):
+        sweep_tasks(["bo", "cmaes"], 2)
+    with pytest.raises(ConfigError, match="agents"):
+        sweep_tasks([], 2)
+    with pytest.raises(ConfigError, match="seed"):
+        Task("bo", None)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("budget", 0), ("budget", 2.5), ("grid_points", 1), ("eval_seeds", ()),
+    ("val_seeds", (-1,)), ("val_duration", 0.0), ("val_duration", float("nan")),
+])
+def test_settings_reject_bad_values(field, value):
+    with pytest.raises(ConfigError, match=field):
+        SweepSettings(scenario=Scenario(), **{**TINY, field: value})
+
+
+def test_settings_key_changes_with_anything_that_changes_a_result(tiny):
+    assert SweepSettings.from_json(json.loads(json.dumps(tiny.to_json()))) == tiny
+    assert SweepSettings(scenario=Scenario(), **TINY).key() == tiny.key()
+    others = [SweepSettings(scenario=Scenario(), **{**TINY, "budget": 11}),
+              SweepSettings(scenario=Scenario(), **TINY, carry_over=False),
+              SweepSettings(scenario=Scenario(), **TINY, cost="posterior"),
+              SweepSettings(scenario=Scenario(tau_max=4.0), **TINY)]
+    assert len({tiny.key(), *(o.key() for o in others)}) == 5
+
+
+def test_agent_task_scores_its_xi_by_the_definitions(tiny):
+    rec = run_task(tiny, Task("random", 1))
+    again = optimize("random", tiny.scenario, tiny.budget, 1)
+    assert rec["costs"] == pytest.approx(list(again.costs), rel=1e-12)
+    assert rec["xi_star"] == pytest.approx(list(again.xi_star))
+    assert rec["best_cost"] == pytest.approx(min(rec["costs"]))
+    costs, _ = evaluate_many(tiny.scenario, np.array([rec["xi_star"], rec["xi_recommended"]]),
+                             tiny.eval_seeds)
+    assert rec["reeval_cost"] == pytest.approx(costs[0].mean(), rel=1e-12)
+    assert rec["reeval_cost_recommended"] == pytest.approx(costs[1].mean(), rel=1e-12)
+    val = validate(tiny.scenario, np.array(rec["xi_star"]), tiny.val_duration, tiny.val_seeds,
+                   record_torque=False)
+    assert rec["val_rel_error"] == pytest.approx(float(np.median(val.rel_errors)), rel=1e-12)
+    assert rec["val_diverged"] == 0 and rec["settings_key"] == tiny.key()
+    assert json.loads(json.dumps(rec)) == rec  # plain JSON types only
+
+
+def test_grid_task_keeps_the_best_grid_point(tiny):
+    rec = run_task(tiny, Task(GRID, None))
+    xis = dense_grid(tiny.scenario, tiny.grid_points)
+    costs, _ = evaluate_many(tiny.scenario, xis, tiny.eval_seeds)
+    best = int(np.argmin(costs.mean(axis=1)))
+    assert rec["n_points"] == 8
+    assert rec["xi_star"] == pytest.approx(list(xis[best]))
+    assert rec["reeval_cost"] == pytest.approx(costs.mean(axis=1)[best], rel=1e-12)
+    assert [t[3] for t in rec["top"]] == sorted(t[3] for t in rec["top"])
+
+
+def _rec(agent, seed, reeval, best=1.0, val=0.01):
+    return {"agent": agent, "seed": seed, "reeval_cost": reeval,
+            "reeval_cost_recommended": reeval + 0.5, "best_cost": best, "val_rel_error": val,
+            "val_diverged": 0, "wall_s": 1.0}
+
+
+def test_win_rate_counts_ties_half_and_only_shared_seeds():
+    a = {0: _rec("a", 0, 1.0), 1: _rec("a", 1, 2.0), 2: _rec("a", 2, 3.0), 5: _rec("a", 5, 0.0)}
+    b = {0: _rec("b", 0, 1.5), 1: _rec("b", 1, 2.0), 2: _rec("b", 2, 2.0)}
+    assert win_rate(a, b) == pytest.approx((1 + 0.5 + 0) / 3)
+    assert win_rate(b, a) == pytest.approx((0 + 0.5 + 1) / 3)
+    assert win_rate(a, {}) is None
+
+
+def test_summary_states_regret_against_the_grid_optimum():
+    grid = {"agent": GRID, "seed": None, "reeval_cost": 0.25, "n_points": 8}
+    recs = [_rec("bo", s, c) for s, c in enumerate([1.0, 2.0, 3.0, 4.0])]
+    recs += [_rec("random", s, c) for s, c in enumerate([2.0, 3.0, 4.0, 5.0])]
+    s = summarize([grid, *recs])
+    assert s["reference_cost"] == 0.25 and s["grid"] is grid
+    regret = s["agents"]["bo"]["regret"]
+    expected = np.array([1.0, 2.0, 3.0, 4.0]) - 0.25
+    assert regret["median"] == pytest.approx(np.median(expected))
+    assert regret["q25"] == pytest.approx(np.quantile(expected, 0.25))
+    assert regret["q75"] == pytest.approx(np.quantile(expected, 0.75))
+    assert s["agents"]["bo"]["regret_recommended"]["median"] == pytest.approx(np.median(expected) + 0.5)
+    assert s["agents"]["bo"]["win_rate"]["random"] == 1.0
+    assert s["agents"]["random"]["win_rate"]["bo"] == 0.0
+    no_grid = summarize(recs)
+    assert no_grid["reference_cost"] is None and no_grid["agents"]["bo"]["regret"] is None
