@@ -27,29 +27,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from inertia_gym.optimization import evaluate_many, optimize  # noqa: E402
+from inertia_gym.benchmark import dense_grid, reevaluate  # noqa: E402
+from inertia_gym.optimization import optimize  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
 from inertia_gym.validation import validate  # noqa: E402
 
 EVAL_SEEDS = list(range(10_000, 10_008))  # fresh: never used by an optimisation run
-CHUNK = 48
 
 
 def score(sc, xis):
     """Mean from-start cost of each xi (K, 3) over EVAL_SEEDS, and median final error."""
-    costs, errors = [], []
-    for i in range(0, len(xis), CHUNK):
-        c, e = evaluate_many(sc, xis[i:i + CHUNK], EVAL_SEEDS)
-        costs.append(c.mean(1))
-        errors.append(np.median(e, 1))
-    return np.concatenate(costs), np.concatenate(errors)
-
-
-def grid(sc, n):
-    lo, hi = sc.xi_bounds
-    g = np.linspace(0.0, 1.0, n)
-    u = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
-    return lo + u * (hi - lo)
+    return reevaluate(sc, xis, EVAL_SEEDS)
 
 
 def evals_to_within(true_costs, target):
@@ -69,7 +57,7 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     sc = Scenario()
     t0 = time.perf_counter()
-    gxi = grid(sc, args.grid)
+    gxi = dense_grid(sc, args.grid)
     gcost, gerr = score(sc, gxi)
     best = int(np.argmin(gcost))
     target = 1.05 * gcost[best] if gcost[best] > 0 else 0.95 * gcost[best]
