@@ -11,6 +11,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -50,8 +51,9 @@ def map_unordered(fn: Callable[[Any], Any], tasks: Iterable, *, backend: str = "
         in this process, one after the other). "ray" sends each task to a Ray cluster as a
         one-CPU task: `ray_address` names an existing cluster ("auto", "HOST:PORT" or
         "ray://HOST:PORT"); None starts a local one with `workers` CPUs (default: the cores
-        here), shut down afterwards. At most `workers` tasks are in flight (default: as many
-        as the cluster takes). The cluster's nodes must have inertia-gym installed.
+        here) on the loopback interface, shut down afterwards. At most `workers` tasks are in
+        flight (default: as many as the cluster takes). The cluster's nodes must have
+        inertia-gym installed.
     fn and the tasks must be picklable (a module-level function, e.g. a functools.partial).
     An exception in a task is raised here; tasks not yet started are then cancelled. Bad
     arguments raise ConfigError at the call, before any task starts.
@@ -86,7 +88,14 @@ def _map_local(fn, tasks, workers):
         pool.shutdown(wait=False, cancel_futures=True)
 
 
+# Ray's switch for single-machine clusters (read when ray is first imported): a cluster started
+# here keeps its traffic on the loopback interface instead of the machine's network address.
+_RAY_SINGLE_MACHINE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
 def _map_ray(fn, tasks, workers, address):
+    if address is None and "ray" not in sys.modules:
+        os.environ.setdefault(_RAY_SINGLE_MACHINE, "0")
     import ray
 
     started_here = not ray.is_initialized()

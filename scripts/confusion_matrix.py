@@ -46,7 +46,8 @@ def main() -> None:
     t0 = time.time()
     for lab in labels:
         for seed in range(args.seeds):
-            rec, side = simulate_recording(Scenario(tau_max=args.tau_max), args.duration, None if lab == "none" else lab,
+            effect = None if lab == "none" else lab
+            rec, side = simulate_recording(Scenario(tau_max=args.tau_max), args.duration, effect,
                                            seed=1000 + seed)
             report, _ = diagnose(rec)
             got = report["best_effect"] or "none"

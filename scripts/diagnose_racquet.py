@@ -25,7 +25,8 @@ def _round(values):
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"))
+    data = Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"
+    ap.add_argument("--data", default=str(data))
     ap.add_argument("--out", default="runs/racquet")
     args = ap.parse_args()
     out = Path(args.out)
@@ -38,7 +39,8 @@ def main() -> None:
             plots = write_plots(sub, report, arrays)
             write_json(sub / "report.json", report)
             (sub / "summary.md").write_text(markdown(report, plots))
-            top = [f"{e['name']}({e['delta_bic']:.0f})" for e in report["effects"][:3] if e["delta_bic"] is not None]
+            top = [f"{e['name']}({e['delta_bic']:.0f})" for e in report["effects"][:3]
+                   if e["delta_bic"] is not None]
             inertia = np.array(report["fit_after"]["inertia"])
             eig = np.sort(np.linalg.eigvalsh(inertia))[::-1]
             rows.append({"toss": sub.name, "best": report["best_effect"], "top3": top,

@@ -217,7 +217,8 @@ def markdown(report: dict, plots: list[str]) -> str:
     """A readable summary of one report."""
     lines = [f"# Diagnosis of {report['recording']}", "",
              f"- samples: {report['samples']}, duration {report['duration_s']:.2f} s",
-             f"- gyro noise: {np.round(report['gyro_sigma'], 4).tolist()} rad/s ({report['gyro_sigma_source']})",
+             f"- gyro noise: {np.round(report['gyro_sigma'], 4).tolist()} rad/s "
+             f"({report['gyro_sigma_source']})",
              f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
              f"**{report['best_effect'] or 'none significant'}**",
              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "

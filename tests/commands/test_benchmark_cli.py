@@ -73,10 +73,24 @@ def test_process_pool_gives_the_sequential_results(sequential, tmp_path):
 
 
 @pytest.mark.slow
-def test_ray_backend_on_a_local_cluster_gives_the_local_results(sequential, tmp_path):
+def test_ray_backend_gives_the_local_results(sequential, tmp_path, monkeypatch):
+    seq = without_wall_times(json.loads((sequential / "benchmark.json").read_text()))
+    # A local Ray cluster started for the sweep.
     on_ray = run_cli(tmp_path / "ray", "--backend", "ray", "--workers", "2")
-    seq = json.loads((sequential / "benchmark.json").read_text())
-    assert without_wall_times(on_ray) == without_wall_times(seq)
+    assert without_wall_times(on_ray) == seq
+    # An existing cluster reached by its address (kept on loopback like the one above).
+    monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(initialize_head=True,
+                      head_node_args={"num_cpus": 2, "include_dashboard": False})
+    try:
+        assert cluster.address.startswith("127.0.0.1:")
+        by_address = run_cli(tmp_path / "ray_address", "--backend", "ray",
+                             "--ray-address", cluster.address)
+    finally:
+        cluster.shutdown()
+    assert without_wall_times(by_address) == seq
 
 
 @pytest.mark.slow

@@ -86,7 +86,8 @@ def _phyphox(tmp_path, segments):
     folder = tmp_path / "Gyroscope rotation rate 1"
     (folder / "meta").mkdir(parents=True)
     t = np.arange(300) * 0.01
-    lines = ['"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)","Absolute (rad/s)"']
+    lines = ['"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)",'
+             '"Absolute (rad/s)"']
     lines += [f"{x:.5E},{np.sin(x):.5E},1.0E0,0.0E0,1.0E0" for x in t]
     (folder / "Raw Data.csv").write_text("\n".join(lines) + "\n")
     (folder / "meta" / "segments.csv").write_text(segments)
@@ -94,7 +95,8 @@ def _phyphox(tmp_path, segments):
 
 
 def test_phyphox_segments_kept_windows_only(tmp_path):
-    folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n0,0.2,1.0,,a\n1,1.2,2.0,false,b\n2,2.1,2.9,,c\n")
+    folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n"
+                                "0,0.2,1.0,,a\n1,1.2,2.0,false,b\n2,2.1,2.9,,c\n")
     recs = read_recordings(folder)
     assert [r.meta["segment"] for r in recs] == [0, 2]
     assert recs[0].t[0] >= 0.2 and recs[0].t[-1] <= 1.0
