@@ -239,7 +239,9 @@ def plot_cost_curves(runs: list[dict], summary: dict, settings: SweepSettings, p
         ax.fill_between(i, np.quantile(curves, 0.25, 0), np.quantile(curves, 0.75, 0),
                         color=f"C{k}", alpha=0.2)
     if summary["reference_cost"] is not None and not settings.carry_over:
-        ax.axhline(summary["reference_cost"], color="k", ls=":", label="grid optimum")
+        ax.axhline(summary["reference_cost"], color="k", ls=":",
+                   label=f"grid optimum (mean of {len(settings.eval_seeds)} episodes; the "
+                         "curves are single noisy draws)")
     ax.set_xlabel("evaluation i")
     ax.set_ylabel("running best of the observed cost")
     ax.set_title("cost curves (median, band: 25-75 %)"
