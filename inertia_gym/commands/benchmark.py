@@ -79,7 +79,7 @@ def add_parser(sub) -> None:
                    help="every evaluation starts from the scenario's start (a stationary "
                         "objective) instead of Algorithm 1's carry-over")
     p.add_argument("--backend", choices=BACKENDS, default="local",
-                   help="local: a process pool here; ray: a Ray cluster (local)")
+                   help="local (default): a process pool here; ray: a Ray cluster")
     p.add_argument("--workers", type=positive_int, default=None,
                    help="parallel runs (default: one per core here, or what the cluster takes)")
     p.add_argument("--ray-address", default=None,
