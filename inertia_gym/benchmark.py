@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 
+from inertia_gym.episode import COSTS
 from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import AGENTS as OPTIMIZER_AGENTS
 from inertia_gym.optimization import evaluate_many, optimize
@@ -69,6 +70,8 @@ class SweepSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.cost not in COSTS:
+            raise ConfigError(f"cost must be one of {COSTS}, got {self.cost!r}")
         if self.grid_points < 2:
             raise ConfigError(f"grid_points must be >= 2, got {self.grid_points}")
         for name in ("eval_seeds", "val_seeds"):

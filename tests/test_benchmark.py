@@ -63,6 +63,7 @@ def test_sweep_tasks_put_the_grid_first_and_give_each_agent_every_seed():
 @pytest.mark.parametrize("field, value", [
     ("budget", 0), ("budget", 2.5), ("grid_points", 1), ("eval_seeds", ()),
     ("val_seeds", (-1,)), ("val_duration", 0.0), ("val_duration", float("nan")),
+    ("cost", "fisher"),
 ])
 def test_settings_reject_bad_values(field, value):
     with pytest.raises(ConfigError, match=field):
