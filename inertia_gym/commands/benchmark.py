@@ -132,8 +132,10 @@ def open_sweep(out: Path, settings: SweepSettings) -> dict[str, dict]:
     if path.exists():
         try:
             saved = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ConfigError(f"{path} is not valid JSON ({exc}); choose another --out") from exc
+        if not isinstance(saved, dict):
+            raise ConfigError(f"{path} does not hold benchmark settings; choose another --out")
         diff = _settings_diff(saved, new)
         if diff:
             raise ConfigError(f"{out} holds a sweep made with other settings ({', '.join(diff)}); "

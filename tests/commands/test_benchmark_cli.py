@@ -160,6 +160,16 @@ def test_added_seeds_run_only_the_new_tasks_and_unreadable_runs_are_redone(seque
     assert "add `grid` to --agents" in (out / "summary.md").read_text()
 
 
+@pytest.mark.parametrize("content", ["[1, 2]", "{not json"])
+def test_foreign_settings_file_is_refused(tmp_path, capsys, content):
+    out = tmp_path / "foreign"
+    out.mkdir()
+    (out / "settings.json").write_text(content)
+    assert main(["benchmark", *SMALL, "--out", str(out)]) == 2
+    assert "settings.json" in capsys.readouterr().err
+    assert (out / "settings.json").read_text() == content
+
+
 @pytest.mark.parametrize("argv, match", [
     (["--agents", "bo,cmaes"], "--agents"),
     (["--agents", ""], "--agents"),
