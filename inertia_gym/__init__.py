@@ -5,9 +5,18 @@ excitation, simulation), thin shells over them (envs, cli) and the sim-vs-real d
 (discrepancy). Importing it registers the Gymnasium environment "InertiaGym/Excitation-v0".
 """
 
+from inertia_gym.kernel_cache import use_source_keyed_cache
+
+use_source_keyed_cache()  # before any kernel module is imported (see kernel_cache.py)
+
 import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
-from inertia_gym.errors import ConfigError, EstimatorDivergedError, InertiaGymError, RecordingError
-from inertia_gym.scenario import Scenario
+from inertia_gym.errors import (  # noqa: E402
+    ConfigError,
+    EstimatorDivergedError,
+    InertiaGymError,
+    RecordingError,
+)
+from inertia_gym.scenario import Scenario  # noqa: E402
 
 __all__ = [
     "ConfigError",

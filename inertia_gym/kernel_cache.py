@@ -1,0 +1,50 @@
+"""Key numba's on-disk cache of the compiled kernels by their sources.
+
+numba reuses a cached kernel while the kernel's own file is unchanged; it does not notice a
+change to a function it calls from another file. The simulation loop (simulation.py) compiles
+the EKF step (estimation/ekf.py) and the integrator (dynamics.py) into itself, so after an edit
+to either the cached loop would go on running the old code. Here the cache goes to a folder
+named by a hash of every source file of the package that defines kernels: any edit to one of
+them starts from an empty cache (one compile, 30-60 s) and nothing stale is ever run.
+
+:func:`use_source_keyed_cache` must run before the first kernel module is imported;
+``inertia_gym/__init__.py`` calls it. The folder is ``<package>/__pycache__/numba-<hash>`` (or
+``$NUMBA_CACHE_DIR/inertia_gym-<hash>`` when that is set); where it cannot be written, numba
+falls back to its default locations.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numba
+
+PACKAGE = Path(__file__).resolve().parent
+KERNEL_MARK = "nb.njit"
+
+
+def kernel_sources(root: Path = PACKAGE) -> list[Path]:
+    """The .py files under `root` that define numba kernels (contain ``nb.njit``), sorted."""
+    return sorted(p for p in root.rglob("*.py")
+                  if "__pycache__" not in p.parts and KERNEL_MARK in p.read_text(encoding="utf-8"))
+
+
+def sources_digest(root: Path = PACKAGE) -> str:
+    """16 hex digits of SHA-256 over the kernel sources' relative paths and contents."""
+    h = hashlib.sha256()
+    for path in kernel_sources(root):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0")
+        h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def use_source_keyed_cache() -> Path:
+    """Point numba's cache at the folder of this version of the kernels; return it."""
+    user_dir = numba.config.CACHE_DIR
+    if user_dir:
+        folder = Path(user_dir) / f"inertia_gym-{sources_digest()}"
+    else:
+        folder = PACKAGE / "__pycache__" / f"numba-{sources_digest()}"
+    numba.config.CACHE_DIR = str(folder)
+    return folder
