@@ -165,6 +165,9 @@ def run_sweep(out: Path, settings: SweepSettings, tasks: list[Task], *, backend:
     """
     done = open_sweep(out, settings)
     todo = [t for t in tasks if t.name not in done]
+    if len(todo) < len(tasks):
+        print(f"benchmark: resuming, {len(tasks) - len(todo)} of {len(tasks)} runs already saved "
+              f"in {out / RUNS_DIR}", file=sys.stderr)
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc="benchmark",
                unit="run", disable=not progress)
     try:

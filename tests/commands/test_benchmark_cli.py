@@ -94,7 +94,7 @@ def test_ray_backend_gives_the_local_results(sequential, tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_killed_sweep_resumes_to_the_uninterrupted_report(sequential, tmp_path):
+def test_killed_sweep_resumes_to_the_uninterrupted_report(sequential, tmp_path, capsys):
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "inertia_gym.cli", "benchmark", *SMALL, "--workers", "1",
            "--out", str(out)]
@@ -110,6 +110,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_report(sequential, tmp_path):
     assert 3 <= len(saved) < N_TASKS, "the kill did not land midway"
     assert not (out / "benchmark.json").exists()
     resumed = run_cli(out, "--workers", "1")
+    assert f"resuming, {len(saved)} of {N_TASKS} runs already saved" in capsys.readouterr().err
     # Finished runs were read back, not redone.
     assert all((runs / name).stat().st_mtime_ns == t for name, t in saved.items())
     seq = json.loads((sequential / "benchmark.json").read_text())
