@@ -34,9 +34,8 @@ from inertia_gym.information import inertia_from_theta, theta_from_inertia
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
-#: Effects the simulator supports but the fit does not test yet, with the reason.
-NOT_FITTED = {"flexible_mode": "not fitted in this version: the modal filter driven by the noisy "
-                               "gyro fits the noise (errors in variables); see the spectrum plot"}
+#: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
+FLEX_BAND = (0.2, 0.8)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,12 +140,21 @@ def residual(x, name, d: Data) -> np.ndarray:
         r = np.einsum("nji,j->ni", d.rot, p[:3])
         g = g - 3.0 * np.cross(r, r @ jm.T)
     elif name == "flexible_mode":
-        dt = float(np.median(np.diff(t)))
-        (_, _), (_, _), (b2, a2) = _flex_filters(abs(p[0]) + 1e-9, abs(p[1]), dt)
-        eta_d = -signal.lfilter(b2, a2, w - w[0], axis=0) @ p[2:5]  # s^2 H applied to w = s H w_dot
-        mom = mom + np.outer(eta_d, p[2:5])
-        g = g + np.cross(w, np.outer(eta_d, p[2:5]))
+        flex = _momentum(x, name, d, w, jw) - jw
+        mom = mom + flex
+        g = g + np.cross(w, flex)
     return _modulated(d, mom, g)
+
+
+def _momentum(x, name, d: Data, w, jw) -> np.ndarray:
+    """(n, 3) N·m·s: body momentum J w plus, for flexible_mode, the modal part delta eta_dot."""
+    if name != "flexible_mode":
+        return jw
+    p = x[6:]
+    dt = float(np.median(np.diff(d.t)))
+    (_, _), (_, _), (b2, a2) = _flex_filters(abs(p[0]) + 1e-9, abs(p[1]), dt)
+    eta_d = -signal.lfilter(b2, a2, w - w[0], axis=0) @ p[2:5]  # s^2 H applied to w = s H w_dot
+    return jw + np.outer(eta_d, p[2:5])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,6 +199,15 @@ def whitener(d: Data, x, name: str | None = None) -> np.ndarray:
     if name == "inertia_change":
         jt = jt + (d.t >= x[6])[:, None, None] * inertia_from_theta(x[7:13])
     jw = np.einsum("nij,nj->ni", jt, w)
+    if name == "flexible_mode":
+        # The modal momentum delta eta_dot = -delta s^2 H (delta . w) passes the gyro's white
+        # noise at gain 1 (s^2 H -> 1 above the mode): to the noise the body's inertia is
+        # J - delta delta^T. Without this the fit could "explain" noise by growing delta.
+        delta = x[8:11]
+        jw = _momentum(x, name, d, w, jw)
+        jt = jt - np.outer(delta, delta)
+        if np.linalg.eigvalsh(jt[0])[0] <= 0:  # the rigid part J - delta delta^T must be PD
+            return np.full((d.edges.size - 1, 3, 3), np.nan)
     # d e_k / d w_raw,i = q_i (-phi'_i J_i + phi_i ([w_i]x J_i - [J_i w_i]x)) diag(gain)
     a = d.quad[:, None, None] * (-d.dphi[:, None, None] * jt
                                  + d.phi[:, None, None] * (skew(w) @ jt - skew(jw))) * gain
@@ -259,14 +276,59 @@ def _starts(name, d: Data, nominal: Fit) -> list[np.ndarray]:
     if name == "actuator_delay":
         return [np.array([v]) for v in np.arange(0.05, 1.0, 0.1)]
     if name == "flexible_mode":
-        out = []
-        for f in np.geomspace(0.3, min(5.0, 0.4 / np.median(np.diff(d.t))), 8):
-            for c in np.eye(3):
-                out.append(np.concatenate([[2 * np.pi * f, 0.03], 0.1 * np.sqrt(d.trace0) * c]))
-        return out
+        return _flex_screen(d, nominal)
     if name == "gravity_gradient":
         return [0.02 * c for c in np.vstack([np.eye(3), -np.eye(3)])]
     return [np.zeros(n_params(name))]
+
+
+def _flex_screen(d: Data, nominal: Fit, keep: int = 3, zeta: float = 0.03) -> list[np.ndarray]:
+    """Starts of the flexible-mode fit from a linear screen over the modal frequency.
+
+    For a fixed frequency and damping the modal momentum delta eta_dot = -M s^2 H w is linear in
+    M = delta delta^T, so J and M (12 numbers) follow from one least-squares solve with the
+    nominal whitener. The `keep` best local minima over a geometric grid of frequencies (FLEX_BAND,
+    about 3 % apart, finer than a lightly damped resonance) give delta = sqrt(lambda) v from M's
+    leading eigenpair. A random or single start misses the resonance: the cost is flat away from it.
+    """
+    dt = float(np.median(np.diff(d.t)))
+    wmat = whitener(d, nominal.x, None)
+    if not np.all(np.isfinite(wmat)):
+        return []
+    z0 = np.einsum("kij,kj->ki", wmat, nominal.e).ravel()
+    w = d.w
+    basis = [inertia_from_theta(c) for c in np.eye(6)]
+
+    def column(mom):
+        return np.einsum("kij,kj->ki", wmat, _modulated(d, mom, np.cross(w, mom))).ravel()
+
+    jcols = np.stack([column(w @ b.T) for b in basis], 1)
+    f_hi = FLEX_BAND[1] * 0.5 / dt
+    freqs = np.geomspace(FLEX_BAND[0], f_hi, max(2, int(np.log(f_hi / FLEX_BAND[0]) / 0.03)))
+    costs, sols = [], []
+    for f in freqs:
+        (_, _), (_, _), (b2, a2) = _flex_filters(2 * np.pi * f, zeta, dt)
+        fw = signal.lfilter(b2, a2, w - w[0], axis=0)
+        a = np.hstack([jcols, np.stack([column(-fw @ b.T) for b in basis], 1)])
+        rhs = -z0
+        if d.scale_fixed:  # keep the trace of J
+            a = np.vstack([a, 1e3 * np.r_[1, 0, 0, 1, 0, 1, np.zeros(6)]])
+            rhs = np.append(rhs, 0.0)
+        sol = np.linalg.lstsq(a, rhs, rcond=None)[0]
+        costs.append(float(np.sum((a @ sol - rhs) ** 2)))
+        sols.append(sol)
+    costs = np.array(costs)
+    is_min = np.r_[True, costs[1:] < costs[:-1]] & np.r_[costs[:-1] < costs[1:], True]
+    out = []
+    room = 0.5 * np.linalg.eigvalsh(nominal.inertia)[0]  # keep J - delta delta^T positive definite
+    for i in np.flatnonzero(is_min)[np.argsort(costs[is_min])]:
+        lam, vec = np.linalg.eigh(inertia_from_theta(sols[i][6:]))
+        if lam[-1] > 0:  # M must be (close to) delta delta^T with a real delta
+            delta = np.sqrt(min(lam[-1], room)) * vec[:, -1]
+            out.append(np.concatenate([[2 * np.pi * freqs[i], zeta], delta]))
+        if len(out) == keep:
+            break
+    return out
 
 
 def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
@@ -303,29 +365,32 @@ def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
     best = None
     for p0 in _starts(name, d, nominal):
         x0 = np.concatenate([nominal.x[:6], p0])
-        if name == "flexible_mode":  # cheap screen of each start before refining the best few
-            sol = optimize.least_squares(_objective, x0, args=(name, d), max_nfev=30, x_scale="jac")
-        else:
-            lb = np.full(x0.size, -np.inf)
-            if name == "gyro_scale":
-                lb[6:] = -0.5  # a gyro reading at least half the true rate
-            sol = optimize.least_squares(_objective, x0, args=(name, d), x_scale="jac",
-                                         bounds=(lb, np.inf))
+        lb, ub = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+        if name == "gyro_scale":
+            lb[6:] = -0.5  # a gyro reading at least half the true rate
+        if name == "flexible_mode":  # a mode inside the sampled band, damping in [0, 1]
+            dt = float(np.median(np.diff(d.t)))
+            lb[6:8] = 2 * np.pi * 0.5 * FLEX_BAND[0], 0.0
+            ub[6:8] = 2 * np.pi * 0.5 / dt * 0.95, 1.0
+            x0[6:8] = np.clip(x0[6:8], lb[6:8] + 1e-9, ub[6:8] - 1e-9)
+        # flexible_mode: a short run from each screened start, then the best one to convergence
+        sol = optimize.least_squares(_objective, x0, args=(name, d), x_scale="jac", bounds=(lb, ub),
+                                     max_nfev=8 if name == "flexible_mode" else None)
         if best is None or sol.cost < best.cost:
             best = sol
-    x = best.x
-    if name == "flexible_mode":
-        x = optimize.least_squares(_objective, x, args=(name, d), x_scale="jac").x
-    return _finish(name, x, d, k)
+    if best is None:  # no start (e.g. no valid nominal whitener): the nominal inertia, no mode
+        return _finish(name, np.concatenate([nominal.x[:6], np.zeros(n_params(name))]), d, k)
+    if name == "flexible_mode" and best.status == 0:
+        best = optimize.least_squares(_objective, best.x, args=(name, d), x_scale="jac",
+                                      bounds=(lb, ub), max_nfev=200)
+    return _finish(name, best.x, d, k)
 
 
 def candidates(d: Data) -> tuple[list[str], dict]:
     """Effects the data can test, and why the others are skipped."""
     names, skipped = [], {}
     for name in EFFECTS:
-        if name in NOT_FITTED:
-            skipped[name] = NOT_FITTED[name]
-        elif name in NEEDS_TORQUE and not d.has_torque:
+        if name in NEEDS_TORQUE and not d.has_torque:
             skipped[name] = "no commanded torque in the recording"
         elif name == "actuator_scale" and not d.scale_fixed:
             skipped[name] = ("indistinguishable from the inertia's scale: no nominal inertia in the "
@@ -347,16 +412,11 @@ def fit_all(d: Data) -> tuple[Fit, list[Fit], dict, Data]:
     names, skipped = candidates(d)
     fits = []
     for name in names:
-        if name == "actuator_scale":
-            free = dataclasses.replace(d, scale_fixed=False)
-            f = fit_effect(name, free, nominal)
-            x = f.x.copy()  # J free and torque scale pinned at 1 = J pinned and torque scaled by s
-            s = d.trace0 / (x[0] + x[3] + x[5])
-            x[:6] *= s
-            x[6] = s - 1.0
-            fits.append(_finish(name, x, d, 6 - int(d.scale_fixed) + 1))
-        else:
-            fits.append(fit_effect(name, d, nominal))
+        # actuator_scale is only a candidate with the trace pinned to a trusted nominal
+        # (candidates()), so it is fitted like every other effect: J at the nominal trace, torque
+        # scaled by 1 + s. (Fitting J and s freely and rescaling afterwards is degenerate along
+        # (c J, c (1 + s)); the rescaled s must then be c (1 + s) - 1, not c - 1.)
+        fits.append(fit_effect(name, d, nominal))
     fits.sort(key=lambda f: f.bic)
     return nominal, fits, skipped, d
 

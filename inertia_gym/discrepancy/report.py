@@ -22,12 +22,14 @@ from inertia_gym.discrepancy.fit import (
 from inertia_gym.discrepancy.recordings import Recording
 
 STRUCTURAL_AMBIGUITIES = {
-    "actuator_scale": [("inertia", "actuator_scale cannot be told apart from a scale error of the "
-                        "nominal inertia (J/s fits the data as well as J with torque s*tau)")],
+    "actuator_scale": [("inertia", "the torque scale is measured against the sidecar's nominal "
+                        "inertia: J/s with torque tau fits as well as J with torque s*tau, so a "
+                        "wrong nominal trace reads as an actuator scale")],
+    # A common gyro scale s and a torque scale coincide only while the gyroscopic term w x Jw is
+    # negligible beside the torque (J w_dot / (1+s) vs w x Jw / (1+s)^2): on a spinning body they
+    # separate, and where they do not, their delta BICs are close and the gap rule reports it.
     "gyro_scale": [("inertia", "a common gyro scale is not identifiable without torque or attitude "
-                    "(only per-axis differences are)"),
-                   ("actuator_scale", "a common gyro scale and a torque scale act alike on "
-                    "torque-driven data")],
+                    "(only per-axis differences are)")],
     "viscous_damping": [("aero_drag", "-C w and -c|w| w coincide while |w| stays nearly constant")],
     "aero_drag": [("viscous_damping", "-C w and -c|w| w coincide while |w| stays nearly constant")],
 }
