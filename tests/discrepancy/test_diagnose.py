@@ -12,7 +12,15 @@ import numpy as np
 import pytest
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.fit import prepare, residual
+from inertia_gym.discrepancy.effects import random_params
+from inertia_gym.discrepancy.fit import (
+    AMBIGUOUS_DELTA_BIC,
+    SIGNIFICANT_DELTA_BIC,
+    fit_effect,
+    fit_nominal,
+    prepare,
+    residual,
+)
 from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
@@ -54,6 +62,50 @@ def test_concealed_effect_is_found(name):
         if name == "gyro_scale":  # the common mode trades off against the inertia: see report
             a, b = a - a.mean(), b - b.mean()
         assert np.linalg.norm(a - b) <= 0.2 * np.linalg.norm(a)
+
+
+def _param_error(name, truth, fitted):
+    key = next(iter(truth))  # scale, orbit_rate, omega_n
+    a, b = np.ravel(truth[key]), np.ravel(fitted[key])
+    return float(np.linalg.norm(a - b) / np.linalg.norm(a))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [11, 12, 13])
+@pytest.mark.parametrize("name", ["actuator_scale", "gravity_gradient", "flexible_mode"])
+def test_formerly_missed_effects_are_found_blind(name, seed):
+    """actuator_scale used to lose to gyro_scale (its s was mis-rescaled), gravity_gradient was
+    drawn below what a fast tumble lets the gyro see, and flexible_mode was never fitted."""
+    rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0, name, seed=seed)
+    report, _ = diagnose(_concealed(rec))
+    assert report["best_effect"] == name
+    assert max(report["fit_after"]["rms_over_noise"]) < 1.2
+    fitted = next(e for e in report["effects"] if e["name"] == name)["params"]
+    assert _param_error(name, side["effect"]["params"], fitted) <= 0.2
+    if name == "actuator_scale":  # separable from a gyro scale on a spinning body, and said so
+        delta = {e["name"]: e["delta_bic"] for e in report["effects"]}
+        assert delta["actuator_scale"] - delta["gyro_scale"] > 10 * AMBIGUOUS_DELTA_BIC
+        assert not any("gyro_scale" in a["effects"] for a in report["ambiguous"])
+
+
+def test_gravity_gradient_draw_is_visible_on_the_gyro():
+    """The drawn gradient torque, seen at twice the spin, moves the rates by >= one gyro sigma."""
+    inertia, sigma, omega = np.diag([70.0, 80.0, 100.0]), 0.03, 10.0
+    for seed in range(20):
+        p = random_params("gravity_gradient", np.random.default_rng(seed), inertia, omega, 50.0,
+                          sigma, 60.0)
+        torque = 3.0 * p["orbit_rate"] ** 2 * 30.0
+        assert torque / (np.trace(inertia) / 3 * 2 * omega) >= 0.99 * sigma
+        assert torque <= 0.1 * omega ** 2 * 30.0  # below a tenth of the gyroscopic torque
+
+
+def test_flexible_mode_fit_does_not_explain_noise():
+    """With the modal noise path in the whitener a no-effect recording gains nothing from a mode."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 30.0, None, seed=5)
+    d = prepare(rec)
+    nominal, _ = fit_nominal(d)
+    flex = fit_effect("flexible_mode", d, nominal)
+    assert nominal.bic - flex.bic < SIGNIFICANT_DELTA_BIC
 
 
 def test_simulate_then_diagnose_cli(tmp_path, capsys):
