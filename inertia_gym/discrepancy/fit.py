@@ -291,9 +291,10 @@ def _flex_screen(d: Data, nominal: Fit, keep: int = 3, zeta: float = 0.03) -> li
     about 3 % apart, finer than a lightly damped resonance) give delta = sqrt(lambda) v from M's
     leading eigenpair. A random or single start misses the resonance: the cost is flat away from it.
     """
+    room = 0.5 * np.linalg.eigvalsh(nominal.inertia)[0]  # keep J - delta delta^T positive definite
     dt = float(np.median(np.diff(d.t)))
     wmat = whitener(d, nominal.x, None)
-    if not np.all(np.isfinite(wmat)):
+    if room <= 0 or not np.all(np.isfinite(wmat)):  # no valid rigid body to add a mode to
         return []
     z0 = np.einsum("kij,kj->ki", wmat, nominal.e).ravel()
     w = d.w
@@ -320,7 +321,6 @@ def _flex_screen(d: Data, nominal: Fit, keep: int = 3, zeta: float = 0.03) -> li
     costs = np.array(costs)
     is_min = np.r_[True, costs[1:] < costs[:-1]] & np.r_[costs[:-1] < costs[1:], True]
     out = []
-    room = 0.5 * np.linalg.eigvalsh(nominal.inertia)[0]  # keep J - delta delta^T positive definite
     for i in np.flatnonzero(is_min)[np.argsort(costs[is_min])]:
         lam, vec = np.linalg.eigh(inertia_from_theta(sols[i][6:]))
         if lam[-1] > 0:  # M must be (close to) delta delta^T with a real delta

@@ -6,6 +6,7 @@ fixed seeds, thresholds with margin. The full matrix is scripts/confusion_matrix
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -106,6 +107,18 @@ def test_flexible_mode_fit_does_not_explain_noise():
     nominal, _ = fit_nominal(d)
     flex = fit_effect("flexible_mode", d, nominal)
     assert nominal.bic - flex.bic < SIGNIFICANT_DELTA_BIC
+
+
+def test_flexible_mode_fit_survives_an_indefinite_nominal_inertia():
+    """A real toss (phyphox, round 2) fits a nominal J that is not positive definite: the mode
+    then has no rigid body to attach to, and the fit must say so (no mode), not crash."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, None, seed=6)
+    d = prepare(rec)
+    nominal, _ = fit_nominal(d)
+    indefinite = dataclasses.replace(nominal, x=np.r_[100.0, 0.0, 0.0, -50.0, 0.0, 80.0])
+    assert np.linalg.eigvalsh(indefinite.inertia)[0] < 0
+    flex = fit_effect("flexible_mode", d, indefinite)
+    np.testing.assert_array_equal(flex.x[8:11], 0.0)
 
 
 def test_simulate_then_diagnose_cli(tmp_path, capsys):
