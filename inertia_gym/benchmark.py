@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 
+from inertia_gym.envs.excitation import check_seed
 from inertia_gym.episode import COSTS
 from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import AGENTS as OPTIMIZER_AGENTS
@@ -76,10 +77,13 @@ class SweepSettings:
             raise ConfigError(f"grid_points must be >= 2, got {self.grid_points}")
         for name in ("eval_seeds", "val_seeds"):
             seeds = tuple(getattr(self, name))
-            if not seeds or any(isinstance(s, bool) or not isinstance(s, (int, np.integer))
-                                or s < 0 for s in seeds):
+            try:
+                checked = tuple(check_seed(s) for s in seeds)
+            except ConfigError:
+                checked = ()
+            if not checked or None in checked:
                 raise ConfigError(f"{name} must be a non-empty list of integers >= 0, got {seeds}")
-            object.__setattr__(self, name, tuple(int(s) for s in seeds))
+            object.__setattr__(self, name, checked)
         if not (np.isfinite(self.val_duration) and self.val_duration > 0):
             raise ConfigError(f"val_duration must be a positive number of seconds, "
                               f"got {self.val_duration}")
@@ -132,7 +136,8 @@ def sweep_tasks(agents, n_seeds: int) -> list[Task]:
     agents = list(dict.fromkeys(agents))
     unknown = [a for a in agents if a not in AGENTS]
     if unknown or not agents:
-        raise ConfigError(f"agents must be a non-empty list from {AGENTS}, got {agents}")
+        raise ConfigError(f"agents (--agents) must be a non-empty list from {AGENTS}, "
+                          f"got {agents}")
     tasks = [Task(GRID, None)] if GRID in agents else []
     return tasks + [Task(a, s) for s in range(n_seeds) for a in agents if a != GRID]
 
@@ -245,42 +250,44 @@ def win_rate(a: dict, b: dict, key: str = "reeval_cost") -> float | None:
 
 
 def summarize(records: list[dict]) -> dict:
-    """The results table of a sweep, from its task records (any order).
+    """The results of a sweep, from its task records (any order).
 
-    Returns {"grid": the grid record or None, "agents": {agent: {"runs", "best_cost",
-    "reeval_cost", "reeval_cost_recommended", "regret", "regret_recommended", "val_rel_error",
-    "wall_s"} each as median/q25/q75/n, "win_rate": {other agent: share of seeds won on the
-    re-evaluated cost of xi*}}}. Regrets are re-evaluated costs minus the grid optimum's; they
-    are None without a grid record.
+    Returns {"grid": the grid record or None, "reference_cost": its re-evaluated cost or None,
+    "runs": the agent records (sorted by agent, then seed) with ``regret`` and
+    ``regret_recommended`` added (re-evaluated cost minus the grid optimum's; None without a
+    grid), "agents": {agent: {"runs", "seeds", "best_cost", "reeval_cost",
+    "reeval_cost_recommended", "regret", "regret_recommended", "val_rel_error", "wall_s" (each
+    median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of seeds won on the
+    re-evaluated cost of xi*}}}}.
     """
     grid = next((r for r in records if r["agent"] == GRID), None)
+    ref = None if grid is None else grid["reeval_cost"]
     by_agent: dict[str, dict] = {}
     for r in records:
         if r["agent"] != GRID:
-            by_agent.setdefault(r["agent"], {})[r["seed"]] = r
-    ref = None if grid is None else grid["reeval_cost"]
-    agents = {}
-    for name, runs in by_agent.items():
-        rows = [runs[s] for s in sorted(runs)]
+            by_agent.setdefault(r["agent"], {})[r["seed"]] = {
+                **r,
+                "regret": None if ref is None else r["reeval_cost"] - ref,
+                "regret_recommended": None if ref is None else r["reeval_cost_recommended"] - ref,
+            }
+    agents, runs = {}, []
+    for name, by_seed in by_agent.items():
+        rows = [by_seed[s] for s in sorted(by_seed)]
+        runs += rows
 
         def stat(key, rows=rows):
-            return _quartiles([r.get(key) for r in rows])
-
-        def regret(key, rows=rows):
-            return None if ref is None else _quartiles([r[key] - ref for r in rows])
+            return _quartiles([r[key] for r in rows])
 
         agents[name] = {
-            "runs": len(rows), "seeds": sorted(runs),
-            "best_cost": stat("best_cost"), "reeval_cost": stat("reeval_cost"),
-            "reeval_cost_recommended": stat("reeval_cost_recommended"),
-            "regret": regret("reeval_cost"), "regret_recommended": regret("reeval_cost_recommended"),
-            "val_rel_error": stat("val_rel_error"),
+            "runs": len(rows), "seeds": sorted(by_seed),
+            **{key: stat(key) for key in ("best_cost", "reeval_cost", "reeval_cost_recommended",
+                                          "regret", "regret_recommended", "val_rel_error",
+                                          "wall_s")},
             "val_diverged": int(sum(r["val_diverged"] for r in rows)),
-            "wall_s": stat("wall_s"),
-            "win_rate": {other: win_rate(runs, by_agent[other]) for other in by_agent
+            "win_rate": {other: win_rate(by_seed, by_agent[other]) for other in by_agent
                          if other != name},
         }
-    return {"grid": grid, "reference_cost": ref, "agents": agents}
+    return {"grid": grid, "reference_cost": ref, "runs": runs, "agents": agents}
 
 
 __all__ = ["AGENTS", "GRID", "SweepSettings", "Task", "dense_grid", "reevaluate", "run_task",
