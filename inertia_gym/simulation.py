@@ -163,9 +163,6 @@ def _segment_one(
     """Advance one run by n_steps; returns (status, number of measurements processed)."""
     dt = cfg[ekf.C_DT]
     inertia_true_inv = inv3(inertia_true)
-    work7 = np.empty((5, 7))
-    y_next = np.empty(7)
-    x_next = np.empty(7)
     jac_work = np.empty((24, 13))
     inertia_hat = inertia_from_phi(x[7:13])
     inertia_hat_inv = inv3(inertia_hat)
@@ -203,16 +200,13 @@ def _segment_one(
         if record_steps:
             _record_step(x, tau, inertia_hat, inertia_hat_inv, out_w_hat[k], out_w_dot_hat[k])
             out_tau[k] = tau
-        rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_next, work7)
-        y_true[:] = y_next
+        rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_true)
         if status == 0:
             if use_ukf:
-                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt, work7,
-                                         x_next)
+                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt)
                 ukf.sigma_mean(sigma, x)
             else:
-                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, work7,
-                                     jac_work, x_next)
+                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
             if status == 0:
                 status = _filter_update(x, P, phi_top, sigma, n_updates, y_true, z_noise[meas_i],

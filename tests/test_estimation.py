@@ -50,7 +50,7 @@ def _predict(x, tau, n, dt=0.01):
     inertia = inertia_from_phi(x[7:])
     for _ in range(n):
         ekf.ekf_predict_step(x, tau, dt, inertia, np.linalg.inv(inertia), phi_top,
-                             np.empty((5, 7)), np.empty((24, 13)), np.empty(7))
+                             np.empty((24, 13)))
     return x, phi_top
 
 

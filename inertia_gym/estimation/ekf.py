@@ -437,17 +437,15 @@ def ekf_update(x, P, z, cfg):
 
 
 @nb.njit(cache=True)
-def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_model, scratch_jac,
-                     y_new):
+def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_jac):
     """Advance the EKF mean by one dt (RK4) and accumulate the transition; x updated in place.
 
     inertia, inertia_inv : J(phi) and its inverse for the current x (phi is constant between
     updates, so the caller computes them once per measurement interval).
-    scratch_model : (5, 7); scratch_jac : (24, 13); y_new : (7,).
+    scratch_jac : (24, 13).
     """
     accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, scratch_jac)
-    rk4_step_into(x[0:7], dt, inertia, inertia_inv, tau, _NO_DIST, y_new, scratch_model)
-    x[0:7] = y_new
+    rk4_step_into(x, dt, inertia, inertia_inv, tau, _NO_DIST, x)
 
 
 _NO_DIST = np.zeros(20)

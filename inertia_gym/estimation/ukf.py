@@ -49,11 +49,10 @@ def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
 
 
 @nb.njit(cache=True)
-def predict_sigma_points(sigma, inertia, inertia_inv, tau, dt, work, y_new):
-    """Advance every sigma point's (q, w) by one dt with RK4."""
+def predict_sigma_points(sigma, inertia, inertia_inv, tau, dt):
+    """Advance every sigma point's (q, w) by one dt with RK4, in place."""
     for k in range(N_SIGMA):
-        rk4_step_into(sigma[k, 0:7], dt, inertia[k], inertia_inv[k], tau, _NO_DIST, y_new, work)
-        sigma[k, 0:7] = y_new
+        rk4_step_into(sigma[k], dt, inertia[k], inertia_inv[k], tau, _NO_DIST, sigma[k])
 
 
 @nb.njit(cache=True)
