@@ -98,9 +98,32 @@ class SimState:
         return SimState(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
 
 
-def _draw_meas_interval(sc: Scenario, rng: np.random.Generator) -> int:
+def _meas_interval_steps(sc: Scenario, rng: np.random.Generator, count: int) -> np.ndarray:
+    """``count`` intervals between measurements, in steps (>= 1), from U[meas_interval] s."""
     lo, hi = sc.meas_interval
-    return max(1, int(round(rng.uniform(lo, hi) / sc.dt)))
+    return np.maximum(1, np.rint(rng.uniform(lo, hi, size=count) / sc.dt)).astype(np.int64)
+
+
+def _measurement_schedule(
+    sc: Scenario, rng: np.random.Generator, first: int, n_steps: int
+) -> tuple[np.ndarray, int]:
+    """Steps (from the segment start) of the measurements in [first, n_steps], and the number
+    of steps from the segment's end to the next measurement after them.
+
+    One interval is drawn per measurement taken, exactly as drawing them one at a time would
+    (the generator ends in the same state); they are drawn as one vector, since a Python loop
+    over ~7k draws per 1000 s costs as much as a tenth of the compiled simulation.
+    """
+    if first > n_steps:
+        return np.zeros(0, dtype=np.int64), first - n_steps
+    shortest = max(1, int(round(sc.meas_interval[0] / sc.dt)))
+    at_most = (n_steps - first) // shortest + 1  # no more measurements fit in the segment
+    saved = rng.bit_generator.state
+    times = first + np.cumsum(np.r_[0, _meas_interval_steps(sc, rng, at_most)])
+    count = int(np.searchsorted(times, n_steps, side="right"))
+    rng.bit_generator.state = saved  # draw again, only the intervals actually used
+    times = first + np.cumsum(np.r_[0, _meas_interval_steps(sc, rng, count)])
+    return times[:count], int(times[count]) - n_steps
 
 
 def initial_state(sc: Scenario, rngs: list[np.random.Generator]) -> SimState:
@@ -125,7 +148,7 @@ def initial_state(sc: Scenario, rngs: list[np.random.Generator]) -> SimState:
         x=x,
         P=np.tile(p0, (batch, 1, 1)),
         n_updates=np.zeros(batch, dtype=np.int64),
-        steps_to_meas=np.array([_draw_meas_interval(sc, r) for r in rngs], dtype=np.int64),
+        steps_to_meas=np.array([_meas_interval_steps(sc, r, 1)[0] for r in rngs], dtype=np.int64),
         step=np.zeros(batch, dtype=np.int64),
         diverged=np.zeros(batch, dtype=bool),
     )
@@ -348,11 +371,8 @@ def run_segment(
     # Measurement schedule and noise, per run, from its own generator.
     schedules, steps_to_meas = [], state.steps_to_meas.copy()
     for r in range(batch):
-        at, nxt = [], int(steps_to_meas[r])
-        while nxt <= n_steps[r]:
-            at.append(nxt)
-            nxt += _draw_meas_interval(sc, rngs[r])
-        steps_to_meas[r] = nxt - n_steps[r]
+        at, steps_to_meas[r] = _measurement_schedule(
+            sc, rngs[r], int(steps_to_meas[r]), int(n_steps[r]))
         schedules.append(at)
     max_meas = max(1, max(len(s) for s in schedules))
     meas_at = np.zeros((batch, max_meas), dtype=np.int64)
