@@ -98,6 +98,48 @@ def test_update_keeps_covariance_symmetric_positive_definite(paper, rng):
     assert np.linalg.norm(x[0:4]) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("vector_sensors", [False, True])
+def test_update_equals_textbook_joseph_form(paper, rng, vector_sensors):
+    """With the NIS gate and the step limit off, the update is the textbook EKF update:
+    K = P H^T S^-1, x += K (z - h(x)), P = (I - K H) P (I - K H)^T + K R K^T (dense H)."""
+    sc = paper.replace(use_vector_sensors=vector_sensors, nis_gate=0.0, inertia_step_limit=0.0)
+    state = initial_state(sc, [rng])
+    cfg = pack_filter_config(sc)
+    a = rng.normal(size=(13, 13))
+    x, P = state.x[0].copy(), state.P[0] + 1e-3 * a @ a.T  # dense covariance: all H entries count
+    h, big_h = ekf.measurement_model(x, cfg)
+    z = h + 0.02 * rng.normal(size=h.shape)
+    r = np.diag(ekf.measurement_noise(cfg))
+    gain = P @ big_h.T @ np.linalg.inv(big_h @ P @ big_h.T + r)
+    i_kh = np.eye(13) - gain @ big_h
+    x_ref = x + gain @ (z - h)
+    x_ref[:4] /= np.linalg.norm(x_ref[:4])
+    p_ref = i_kh @ P @ i_kh.T + gain @ r @ gain.T
+    ekf.ekf_update(x, P, z, cfg)
+    assert np.allclose(x, x_ref, rtol=1e-10, atol=1e-12)
+    assert np.allclose(P, p_ref, rtol=1e-8, atol=1e-10 * np.abs(p_ref).max())
+
+
+def test_inertia_step_limit_bounds_the_change_of_j(rng):
+    """After limiting, ||J(phi + K_phi nu) - J(phi)||_F <= limit ||J(phi)||_F, only the inertia
+    rows of the gain are scaled (all by one factor), and a small step is left untouched."""
+    x = np.r_[1.0, 0, 0, 0, 0, 0, 0, phi_from_inertia(J)]
+    innov = rng.normal(size=7)
+    for size, limit in ((0.3, 0.05), (2.0, 0.05), (1e-4, 0.05), (0.3, 0.5)):
+        gain = size * rng.normal(size=(13, 7))
+        limited = gain.copy()
+        ekf.limit_inertia_step(x, limited, innov, limit)
+        step = limited[7:] @ innov
+        change = np.linalg.norm(inertia_from_phi(x[7:] + step) - J)
+        assert change <= limit * np.linalg.norm(J) * (1 + 1e-12)
+        assert np.array_equal(limited[:7], gain[:7])
+        factor = limited[7:] / gain[7:]
+        assert np.allclose(factor, factor[0, 0]) and 0 < factor[0, 0] <= 1
+        unlimited = np.linalg.norm(inertia_from_phi(x[7:] + gain[7:] @ innov) - J)
+        if unlimited <= limit * np.linalg.norm(J):
+            assert factor[0, 0] == 1.0
+
+
 def test_quaternion_sign_flip_is_the_same_measurement(paper, rng):
     state = initial_state(paper, [rng])
     cfg = pack_filter_config(paper)

@@ -21,7 +21,7 @@ import numba as nb
 import numpy as np
 
 from inertia_gym.dynamics import rk4_step_into
-from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_norm_sq, theta_into
 from inertia_gym.information import psi_into
 
 N_STATE = 13
@@ -297,17 +297,32 @@ def limit_inertia_step(x, gain, innov, limit):
     """
     if limit <= 0.0:
         return
-    d_phi = gain[7:13] @ innov
-    j_old = inertia_from_phi(x[7:13])
+    phi_new = np.empty(6)  # phi + d_phi
+    d_phi = np.empty(6)
+    theta_old = np.empty(6)
+    theta_new = np.empty(6)
+    for i in range(6):
+        acc = 0.0
+        for j in range(innov.shape[0]):
+            acc += gain[7 + i, j] * innov[j]
+        d_phi[i] = acc
+    theta_into(x[7:13], theta_old)
+    allowed = limit * math.sqrt(inertia_norm_sq(theta_old))
     for _ in range(60):
-        change = np.sqrt(np.sum((inertia_from_phi(x[7:13] + d_phi) - j_old) ** 2))
-        if change <= limit * np.sqrt(np.sum(j_old**2)):
+        for i in range(6):
+            phi_new[i] = x[7 + i] + d_phi[i]
+        theta_into(phi_new, theta_new)
+        for i in range(6):
+            theta_new[i] -= theta_old[i]
+        change = math.sqrt(inertia_norm_sq(theta_new))
+        if change <= allowed:
             return
-        scale = max(0.5, 0.9 * limit * np.sqrt(np.sum(j_old**2)) / change)
+        scale = max(0.5, 0.9 * allowed / change)
         for i in range(7, 13):
             for j in range(gain.shape[1]):
                 gain[i, j] *= scale
-        d_phi *= scale
+        for i in range(6):
+            d_phi[i] *= scale
 
 
 @nb.njit(cache=True)
@@ -351,6 +366,33 @@ def _solve_upper_t(low, b, out):
 
 
 @nb.njit(cache=True)
+def _innovation_covariance(P, big_h, r, pht, s):
+    """pht = P H^T (n, m) and S = H P H^T + diag(r) (m, m), into the given arrays.
+
+    Only H's non-zero entries are visited: rate and attitude rows select one state each, so
+    this costs O(n m) instead of O(n^2 m); the sums run in the same order as the dense product.
+    """
+    n, m = P.shape[0], big_h.shape[0]
+    for i in range(n):
+        for j in range(m):
+            pht[i, j] = 0.0
+    for j in range(m):
+        for k in range(n):
+            h_jk = big_h[j, k]
+            if h_jk != 0.0:
+                for i in range(n):
+                    pht[i, j] += P[i, k] * h_jk
+    for i in range(m):
+        for j in range(m):
+            s[i, j] = r[i] if i == j else 0.0
+        for k in range(n):
+            h_ik = big_h[i, k]
+            if h_ik != 0.0:
+                for j in range(m):
+                    s[i, j] += h_ik * pht[k, j]
+
+
+@nb.njit(cache=True)
 def ekf_update(x, P, z, cfg):
     """EKF update in place (Joseph form); returns the normalised innovation squared (NIS).
 
@@ -380,18 +422,7 @@ def ekf_update(x, P, z, cfg):
     y = np.empty(m)
     nis_raw = 0.0
     for attempt in range(40):
-        for i in range(N_STATE):
-            for j in range(m):
-                acc = 0.0
-                for k in range(N_STATE):
-                    acc += P[i, k] * big_h[j, k]
-                pht[i, j] = acc
-        for i in range(m):
-            for j in range(m):
-                acc = r[i] if i == j else 0.0
-                for k in range(N_STATE):
-                    acc += big_h[i, k] * pht[k, j]
-                s[i, j] = acc
+        _innovation_covariance(P, big_h, r, pht, s)
         if not _cholesky_into(s, low):
             raise ValueError("innovation covariance is not positive definite")
         _solve_lower(low, innov, y)
@@ -410,19 +441,22 @@ def ekf_update(x, P, z, cfg):
         add_q *= 2.0
     # K = P H^T S^-1: solve S k_i = (P H^T)_i for each row i.
     gain = np.empty((N_STATE, m))
-    tmp = np.empty(m)
-    row = np.empty(m)
     for i in range(N_STATE):
-        _solve_lower(low, pht[i], tmp)
-        _solve_upper_t(low, tmp, row)
-        gain[i] = row
+        _solve_lower(low, pht[i], y)
+        _solve_upper_t(low, y, gain[i])
     limit_inertia_step(x, gain, innov, cfg[C_STEP_LIMIT])
     for i in range(N_STATE):
         acc = 0.0
         for j in range(m):
             acc += gain[i, j] * innov[j]
         x[i] += acc
-    ks = gain @ s
+    ks = np.empty((N_STATE, m))  # K S
+    for i in range(N_STATE):
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += gain[i, k] * s[k, j]
+            ks[i, j] = acc
     for i in range(N_STATE):
         for j in range(i, N_STATE):
             acc = P[i, j]

@@ -23,13 +23,31 @@ from inertia_gym.errors import ConfigError
 
 
 @nb.njit(cache=True)
-def theta_from_phi(phi):
-    """Theta (6,) of eq. (8) from phi (6,)."""
+def theta_into(phi, out):
+    """Theta (6,) of eq. (8) from phi (6,) into out (6,); allocation-free."""
     c, l10, e1, l20, l21, e2 = math.exp(phi[0]), phi[1], math.exp(phi[2]), phi[3], phi[4], \
         math.exp(phi[5])
-    return c * np.array(
-        (1.0, l10, l20, l10 * l10 + e1 * e1, l10 * l20 + e1 * l21, l20 * l20 + l21 * l21 + e2 * e2)
-    )
+    out[0] = c
+    out[1] = c * l10
+    out[2] = c * l20
+    out[3] = c * (l10 * l10 + e1 * e1)
+    out[4] = c * (l10 * l20 + e1 * l21)
+    out[5] = c * (l20 * l20 + l21 * l21 + e2 * e2)
+
+
+@nb.njit(cache=True)
+def theta_from_phi(phi):
+    """Theta (6,) of eq. (8) from phi (6,)."""
+    out = np.empty(6)
+    theta_into(phi, out)
+    return out
+
+
+@nb.njit(cache=True)
+def inertia_norm_sq(theta):
+    """||J||_F^2 of the symmetric inertia with entries theta (6,): off-diagonals count twice."""
+    return theta[0] ** 2 + theta[3] ** 2 + theta[5] ** 2 \
+        + 2.0 * (theta[1] ** 2 + theta[2] ** 2 + theta[4] ** 2)
 
 
 @nb.njit(cache=True)
