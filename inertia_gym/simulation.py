@@ -25,6 +25,7 @@ from inertia_gym.estimation.inertia_param import (
     inertia_from_phi,
     phi_from_inertia,
     theta_from_phi,
+    theta_into,
 )
 from inertia_gym.scenario import Scenario
 
@@ -187,6 +188,7 @@ def _segment_one(
     dt = cfg[ekf.C_DT]
     inertia_true_inv = inv3(inertia_true)
     jac_work = np.empty((24, 13))
+    cov_work = np.empty((14, 13))
     inertia_hat = inertia_from_phi(x[7:13])
     inertia_hat_inv = inv3(inertia_hat)
     use_ukf = cfg[ekf.C_UKF] > 0
@@ -232,8 +234,8 @@ def _segment_one(
                 ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
             if status == 0:
-                status = _filter_update(x, P, phi_top, sigma, n_updates, y_true, z_noise[meas_i],
-                                        cfg, z, log_nis, meas_i)
+                status = _filter_update(x, P, phi_top, cov_work, sigma, n_updates, y_true,
+                                        z_noise[meas_i], cfg, z, log_nis, meas_i)
                 n_updates += 1
                 if status == 0:
                     inertia_hat = inertia_from_phi(x[7:13])
@@ -241,15 +243,25 @@ def _segment_one(
                     if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia,
                                                              sigma_inertia_inv):
                         status = 1
-            log_theta[meas_i] = theta_from_phi(x[7:13])
-            d = dtheta_dphi(x[7:13])
-            p_th = d @ np.ascontiguousarray(P[7:13, 7:13]) @ d.T
-            for i in range(6):
-                log_var[meas_i, i] = p_th[i, i]
+            _log_theta(x, P, log_theta[meas_i], log_var[meas_i])
             log_w_true[meas_i] = y_true[4:7]
             log_w_est[meas_i] = x[4:7]
             meas_i += 1
     return status, meas_i, n_updates
+
+
+@nb.njit(cache=True)
+def _log_theta(x, P, theta, var):
+    """theta of the estimate x (13,) and the diagonal of P_theta = D P_phi D^T (delta method,
+    D = dtheta/dphi) into theta (6,) and var (6,)."""
+    theta_into(x[7:13], theta)
+    d = dtheta_dphi(x[7:13])
+    for i in range(6):
+        acc = 0.0
+        for j in range(6):
+            for k in range(6):
+                acc += d[i, j] * P[7 + j, 7 + k] * d[i, k]
+        var[i] = acc
 
 
 @nb.njit(cache=True)
@@ -269,7 +281,8 @@ def _record_step(x, tau, inertia_hat, inertia_hat_inv, w_hat, w_dot_hat):
 
 
 @nb.njit(cache=True)
-def _filter_update(x, P, phi_top, sigma, n_updates, y_true, noise, cfg, z, log_nis, meas_i):
+def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, y_true, noise, cfg, z, log_nis,
+                   meas_i):
     """Covariance prediction + measurement update; returns STATUS_DIVERGED instead of raising.
 
     EKF: P^- from the accumulated transition; UKF: from the propagated sigma points.
@@ -280,7 +293,7 @@ def _filter_update(x, P, phi_top, sigma, n_updates, y_true, noise, cfg, z, log_n
         return 1
     try:
         if cfg[ekf.C_UKF] == 0:
-            P[:, :] = ekf.propagate_covariance(P, phi_top, x, n_updates, cfg)
+            ekf.propagate_covariance(P, phi_top, x, n_updates, cfg, cov_work)
         phi_top[:, :] = 0.0
         for i in range(7):
             phi_top[i, i] = 1.0

@@ -98,6 +98,36 @@ def test_update_keeps_covariance_symmetric_positive_definite(paper, rng):
     assert np.linalg.norm(x[0:4]) == pytest.approx(1.0)
 
 
+def test_covariance_prediction_equals_its_definition(paper, rng):
+    """P^- = Phi P Phi^T + Q_k with Phi = [[phi_top (theta columns times D)], [0, I6]] and
+    Q_k = alpha_k blkdiag(Q_q I4, Q_w I3, Q_phi), Q_phi = D^-1 Q_theta D^-T with the scale-shape
+    entries zero, alpha_k = 0.999 gamma^k + q_min (paper, simulation section)."""
+    state = initial_state(paper, [rng])
+    cfg = pack_filter_config(paper)
+    a = rng.normal(size=(13, 13))
+    spread = a @ a.T
+    x, P = state.x[0].copy(), state.P[0] + 1e-2 * (spread + spread.T)  # exactly symmetric
+    phi_top = np.eye(7, 13) + 0.1 * rng.normal(size=(7, 13))
+    phi_top[4:7, 0:4] = 0.0  # the rate rows do not depend on the attitude
+    n_updates = 7
+    d = dtheta_dphi(x[7:13])
+    big_phi = np.eye(13)
+    big_phi[:7, :7] = phi_top[:, :7]
+    big_phi[:7, 7:] = phi_top[:, 7:] @ d
+    d_inv = np.linalg.inv(d)
+    q_phi = paper.Q_theta * d_inv @ d_inv.T
+    q_phi[0, 1:] = q_phi[1:, 0] = 0.0
+    alpha = 0.999 * paper.alpha_gamma**n_updates + paper.alpha_qmin
+    q_k = alpha * np.block([
+        [np.diag([paper.Q_quat] * 4 + [paper.Q_omega] * 3), np.zeros((7, 6))],
+        [np.zeros((6, 7)), q_phi],
+    ])
+    expected = big_phi @ P @ big_phi.T + q_k
+    ekf.propagate_covariance(P, phi_top, x, n_updates, cfg, np.empty((14, 13)))
+    assert np.allclose(P, expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
+    assert np.array_equal(P, P.T)
+
+
 @pytest.mark.parametrize("vector_sensors", [False, True])
 def test_update_equals_textbook_joseph_form(paper, rng, vector_sensors):
     """With the NIS gate and the step limit off, the update is the textbook EKF update:

@@ -164,14 +164,16 @@ def add_process_noise(P, x, n_updates, cfg):
 
 
 @nb.njit(cache=True)
-def propagate_covariance(P, phi_top, x, n_updates, cfg):
-    """P^- = Phi P Phi^T + Q_k, with phi_top from :func:`accumulate_transition`. Returns P^-.
+def propagate_covariance(P, phi_top, x, n_updates, cfg, work):
+    """P <- P^- = Phi P Phi^T + Q_k in place (P symmetric, as the filter keeps it), with phi_top
+    from :func:`accumulate_transition`.
 
-    Phi = [[phi_top (q, w, theta D)], [0, 0, I6]]: the inertia rows are the identity, which the
-    loops exploit (about 2.4k multiply-adds instead of 4.4k).
+    Phi = [[phi_top (q, w, theta D)], [0, 0, I6]]: the inertia rows are the identity, so with
+    T = Phi_top P (7, 13) the prediction is [[T Phi_top^T, T_theta], [T_theta^T, P_theta]],
+    about 1.8k multiply-adds instead of 4.4k. work : (14, 13) scratch.
     """
     d = dtheta_dphi(x[7:13])
-    phi = np.empty((7, N_STATE))
+    phi = work[0:7]  # Phi_top with its theta columns in phi coordinates
     for i in range(7):
         for j in range(7):
             phi[i, j] = phi_top[i, j]
@@ -180,32 +182,28 @@ def propagate_covariance(P, phi_top, x, n_updates, cfg):
             for k in range(6):
                 acc += phi_top[i, 7 + k] * d[k, j]
             phi[i, 7 + j] = acc
-    t = np.empty((N_STATE, N_STATE))  # t = Phi P
+    t = work[7:14]  # T = Phi_top P
     for i in range(7):
         for j in range(N_STATE):
             acc = 0.0
             for k in range(N_STATE):
                 acc += phi[i, k] * P[k, j]
             t[i, j] = acc
-    for i in range(7, N_STATE):
-        for j in range(N_STATE):
-            t[i, j] = P[i, j]
-    p_new = np.empty((N_STATE, N_STATE))  # p_new = t Phi^T
-    for i in range(N_STATE):
+    for i in range(7):
         for j in range(7):
             acc = 0.0
             for k in range(N_STATE):
                 acc += t[i, k] * phi[j, k]
-            p_new[i, j] = acc
+            P[i, j] = acc
         for j in range(7, N_STATE):
-            p_new[i, j] = t[i, j]
-    add_process_noise(p_new, x, n_updates, cfg)
-    for i in range(N_STATE):
-        for j in range(i + 1, N_STATE):
-            avg = 0.5 * (p_new[i, j] + p_new[j, i])
-            p_new[i, j] = avg
-            p_new[j, i] = avg
-    return p_new
+            P[i, j] = t[i, j]
+            P[j, i] = t[i, j]
+    add_process_noise(P, x, n_updates, cfg)
+    for i in range(7):
+        for j in range(i + 1, 7):
+            avg = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = avg
+            P[j, i] = avg
 
 
 @nb.njit(cache=True)
