@@ -187,7 +187,7 @@ def _segment_one(
     """Advance one run by n_steps; returns (status, number of measurements processed)."""
     dt = cfg[ekf.C_DT]
     inertia_true_inv = inv3(inertia_true)
-    jac_work = np.empty((24, 13))
+    jac_work = np.empty((13, 13))
     cov_work = np.empty((14, 13))
     inertia_hat = inertia_from_phi(x[7:13])
     inertia_hat_inv = inv3(inertia_hat)

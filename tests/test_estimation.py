@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from inertia_gym.dynamics import euler_to_quat, quat_to_rotation
+from inertia_gym.dynamics import NO_DISTURBANCE, _state_rate_into, euler_to_quat, quat_to_rotation
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf
 from inertia_gym.estimation.inertia_param import (
@@ -50,7 +50,7 @@ def _predict(x, tau, n, dt=0.01):
     inertia = inertia_from_phi(x[7:])
     for _ in range(n):
         ekf.ekf_predict_step(x, tau, dt, inertia, np.linalg.inv(inertia), phi_top,
-                             np.empty((24, 13)))
+                             np.empty((13, 13)))
     return x, phi_top
 
 
@@ -71,6 +71,46 @@ def test_rate_rows_of_transition_match_finite_differences():
     # The scale column is exactly -integral of J^-1 tau: zero without torque.
     _, phi_free = _predict(x0, np.zeros(3), 15)
     assert np.allclose(phi_free[4:7, 7:] @ dtheta_dphi(x0[7:])[:, 0], 0.0, atol=1e-9)
+
+
+def _rate_of_theta(y, theta, tau):
+    """(q_dot, w_dot) of eq. (1) with the inertia given by theta (6,), unnormalised q."""
+    t = theta
+    inertia = np.array([[t[0], t[1], t[2]], [t[1], t[3], t[4]], [t[2], t[4], t[5]]])
+    out = np.empty(7)
+    _state_rate_into(y, inertia, np.linalg.inv(inertia), tau, NO_DISTURBANCE, out)
+    return out
+
+
+def test_transition_step_is_identity_plus_dt_jacobian_and_accumulates(rng):
+    """One step maps phi_top to (I + dt A) phi_top, A = d(q_dot, w_dot)/d(q, w, theta) of the
+    model (here by central differences, all 7 rows and 13 columns), and steps compose."""
+    dt = 0.01
+    theta = theta_from_phi(phi_from_inertia(J))
+    tau = np.array([3.0, -2.0, 4.0])
+    steps = []
+    for _ in range(2):
+        q = rng.normal(size=4)
+        y = np.r_[q / np.linalg.norm(q), rng.normal(0, 3, 3)]
+        jac = np.empty((7, 13))
+        for j in range(13):
+            e = np.zeros(13)
+            e[j] = 1e-6
+            plus, minus = np.r_[y, theta] + e, np.r_[y, theta] - e
+            jac[:, j] = (_rate_of_theta(plus[:7], plus[7:], tau)
+                         - _rate_of_theta(minus[:7], minus[7:], tau)) / 2e-6
+        big = np.eye(13)
+        big[:7] += dt * jac
+        steps.append((np.r_[y, phi_from_inertia(J)], big))
+    phi_top = np.eye(7, 13)
+    work = np.empty((13, 13))
+    inertia = inertia_from_phi(phi_from_inertia(J))
+    ekf.accumulate_transition(steps[0][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
+                              work)
+    assert np.allclose(phi_top, steps[0][1][:7], rtol=0, atol=1e-9)
+    ekf.accumulate_transition(steps[1][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
+                              work)
+    assert np.allclose(phi_top, (steps[1][1] @ steps[0][1])[:7], rtol=0, atol=1e-9)
 
 
 def test_vector_sensor_jacobian_matches_finite_differences(rng):

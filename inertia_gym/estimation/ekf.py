@@ -43,7 +43,7 @@ def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, work):
     phi_top : (7, 13) rows (q, w), columns (q, w, theta). A is the Jacobian of (q_dot, w_dot)
     at x: A_qq = 1/2 Omega(w), A_qw = 1/2 Xi(q), A_ww = J^-1 ([J w]x - [w]x J),
     A_wtheta = -J^-1 Psi(w, w_dot) (eq. 9 differentiated). The w rows have zero q columns, which
-    the loops skip. work : (24, 13) scratch; allocation-free.
+    the loops skip. work : (13, 13) scratch; allocation-free.
     """
     qw, qx, qy, qz = x[0], x[1], x[2], x[3]
     wx, wy, wz = x[4], x[5], x[6]
@@ -79,34 +79,35 @@ def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, work):
         for j in range(6):
             a_wth[i, j] = -(inertia_inv[i, 0] * psi[0, j] + inertia_inv[i, 1] * psi[1, j]
                             + inertia_inv[i, 2] * psi[2, j])
-    a_qq = work[13:17, 0:4]
-    a_qq[0, 0], a_qq[0, 1], a_qq[0, 2], a_qq[0, 3] = 0.0, -0.5 * wx, -0.5 * wy, -0.5 * wz
-    a_qq[1, 0], a_qq[1, 1], a_qq[1, 2], a_qq[1, 3] = 0.5 * wx, 0.0, 0.5 * wz, -0.5 * wy
-    a_qq[2, 0], a_qq[2, 1], a_qq[2, 2], a_qq[2, 3] = 0.5 * wy, -0.5 * wz, 0.0, 0.5 * wx
-    a_qq[3, 0], a_qq[3, 1], a_qq[3, 2], a_qq[3, 3] = 0.5 * wz, 0.5 * wy, -0.5 * wx, 0.0
-    a_qw = work[17:21, 0:3]
-    a_qw[0, 0], a_qw[0, 1], a_qw[0, 2] = -0.5 * qx, -0.5 * qy, -0.5 * qz
-    a_qw[1, 0], a_qw[1, 1], a_qw[1, 2] = 0.5 * qw, -0.5 * qz, 0.5 * qy
-    a_qw[2, 0], a_qw[2, 1], a_qw[2, 2] = 0.5 * qz, 0.5 * qw, -0.5 * qx
-    a_qw[3, 0], a_qw[3, 1], a_qw[3, 2] = -0.5 * qy, 0.5 * qx, 0.5 * qw
-    # q rows (uses the old w rows), then w rows in place (row by row from a copy).
-    old_w = work[21:24]
-    for i in range(3):
-        for j in range(4, 13):
-            old_w[i, j] = phi_top[4 + i, j]
-    for j in range(13):
+    # A_qq = 1/2 Omega(w) (zero diagonal), A_qw = 1/2 Xi(q) and A_ww (b), as scalars.
+    hwx, hwy, hwz = 0.5 * wx, 0.5 * wy, 0.5 * wz
+    hqw, hqx, hqy, hqz = 0.5 * qw, 0.5 * qx, 0.5 * qy, 0.5 * qz
+    b00, b01, b02 = a_ww[0, 0], a_ww[0, 1], a_ww[0, 2]
+    b10, b11, b12 = a_ww[1, 0], a_ww[1, 1], a_ww[1, 2]
+    b20, b21, b22 = a_ww[2, 0], a_ww[2, 1], a_ww[2, 2]
+    # Column by column: c <- c + dt A c, the column's old values held in scalars.
+    for j in range(N_STATE):
         c0, c1, c2, c3 = phi_top[0, j], phi_top[1, j], phi_top[2, j], phi_top[3, j]
-        for i in range(4):
-            d = a_qq[i, 0] * c0 + a_qq[i, 1] * c1 + a_qq[i, 2] * c2 + a_qq[i, 3] * c3
-            if j >= 4:
-                d += a_qw[i, 0] * old_w[0, j] + a_qw[i, 1] * old_w[1, j] + a_qw[i, 2] * old_w[2, j]
-            phi_top[i, j] += dt * d
-    for j in range(4, 13):
-        for i in range(3):
-            d = a_ww[i, 0] * old_w[0, j] + a_ww[i, 1] * old_w[1, j] + a_ww[i, 2] * old_w[2, j]
+        c4, c5, c6 = phi_top[4, j], phi_top[5, j], phi_top[6, j]
+        phi_top[0, j] = c0 + dt * ((-hwx * c1 - hwy * c2 - hwz * c3)
+                                   + (-hqx * c4 - hqy * c5 - hqz * c6))
+        phi_top[1, j] = c1 + dt * ((hwx * c0 + hwz * c2 - hwy * c3)
+                                   + (hqw * c4 - hqz * c5 + hqy * c6))
+        phi_top[2, j] = c2 + dt * ((hwy * c0 - hwz * c1 + hwx * c3)
+                                   + (hqz * c4 + hqw * c5 - hqx * c6))
+        phi_top[3, j] = c3 + dt * ((hwz * c0 + hwy * c1 - hwx * c2)
+                                   + (-hqy * c4 + hqx * c5 + hqw * c6))
+        if j >= 4:  # the rate rows have zero attitude columns
+            d4 = b00 * c4 + b01 * c5 + b02 * c6
+            d5 = b10 * c4 + b11 * c5 + b12 * c6
+            d6 = b20 * c4 + b21 * c5 + b22 * c6
             if j >= 7:
-                d += a_wth[i, j - 7]
-            phi_top[4 + i, j] += dt * d
+                d4 += a_wth[0, j - 7]
+                d5 += a_wth[1, j - 7]
+                d6 += a_wth[2, j - 7]
+            phi_top[4, j] = c4 + dt * d4
+            phi_top[5, j] = c5 + dt * d5
+            phi_top[6, j] = c6 + dt * d6
 
 
 @nb.njit(cache=True)
@@ -474,7 +475,7 @@ def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_jac):
 
     inertia, inertia_inv : J(phi) and its inverse for the current x (phi is constant between
     updates, so the caller computes them once per measurement interval).
-    scratch_jac : (24, 13).
+    scratch_jac : (13, 13).
     """
     accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, scratch_jac)
     rk4_step_into(x, dt, inertia, inertia_inv, tau, _NO_DIST, x)
