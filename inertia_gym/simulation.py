@@ -252,8 +252,9 @@ def _segment_one(
 
 @nb.njit(cache=True)
 def _log_theta(x, P, theta, var):
-    """theta of the estimate x (13,) and the diagonal of P_theta = D P_phi D^T (delta method,
-    D = dtheta/dphi) into theta (6,) and var (6,)."""
+    """Write theta of the estimate x (13,) and the diagonal of P_theta = D P_phi D^T (delta
+    method, D = dtheta/dphi) into theta (6,) and var (6,).
+    """
     theta_into(x[7:13], theta)
     d = dtheta_dphi(x[7:13])
     for i in range(6):

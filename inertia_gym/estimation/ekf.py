@@ -366,7 +366,7 @@ def _solve_upper_t(low, b, out):
 
 @nb.njit(cache=True)
 def _innovation_covariance(P, big_h, r, pht, s):
-    """pht = P H^T (n, m) and S = H P H^T + diag(r) (m, m), into the given arrays.
+    """Fill pht = P H^T (n, m) and S = H P H^T + diag(r) (m, m).
 
     Only H's non-zero entries are visited: rate and attitude rows select one state each, so
     this costs O(n m) instead of O(n^2 m); the sums run in the same order as the dense product.
