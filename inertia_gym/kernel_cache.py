@@ -10,18 +10,23 @@ them starts from an empty cache (one compile, 30-60 s) and nothing stale is ever
 :func:`use_source_keyed_cache` must run before the first kernel module is imported;
 ``inertia_gym/__init__.py`` calls it. The folder is ``<package>/__pycache__/numba-<hash>`` (or
 ``$NUMBA_CACHE_DIR/inertia_gym-<hash>`` when that is set); where it cannot be written, numba
-falls back to its default locations.
+falls back to its default locations. In the package's own ``__pycache__`` only the
+:data:`KEEP_VERSIONS` most recently used folders are kept (a day of editing kernels left
+14 folders, 75 MB); a folder named by ``$NUMBA_CACHE_DIR`` is the user's and never pruned.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
+import shutil
 from pathlib import Path
 
 import numba
 
 PACKAGE = Path(__file__).resolve().parent
 KERNEL_MARK = "nb.njit"
+KEEP_VERSIONS = 3
 
 
 def kernel_sources(root: Path = PACKAGE) -> list[Path]:
@@ -46,5 +51,24 @@ def use_source_keyed_cache() -> Path:
         folder = Path(user_dir) / f"inertia_gym-{sources_digest()}"
     else:
         folder = PACKAGE / "__pycache__" / f"numba-{sources_digest()}"
+        prune_stale_caches(folder)
     numba.config.CACHE_DIR = str(folder)
     return folder
+
+
+def prune_stale_caches(current: Path, keep: int = KEEP_VERSIONS) -> list[Path]:
+    """Mark `current` as used now and delete all but the `keep` most recently used sibling
+    ``numba-*`` folders (including `current`); return the deleted ones. Best effort: a folder
+    that cannot be touched or removed (read-only install, another process) is left alone.
+    """
+    try:
+        current.mkdir(parents=True, exist_ok=True)
+        os.utime(current)
+    except OSError:
+        return []
+    siblings = sorted((p for p in current.parent.glob("numba-*") if p.is_dir() and p != current),
+                      key=lambda p: p.stat().st_mtime, reverse=True)
+    stale = siblings[max(keep - 1, 0):]
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    return stale

@@ -37,3 +37,25 @@ def test_compiled_kernels_are_cached_under_the_source_keyed_folder():
     assert folder.name.endswith(kernel_cache.sources_digest())
     for kernel in (simulation._segment_batch, ekf.ekf_update):
         assert Path(kernel._cache._cache_path).is_relative_to(folder)
+
+
+def test_only_the_most_recently_used_cache_folders_are_kept(tmp_path):
+    import os
+
+    old = []
+    for age, name in enumerate(["numba-aaaa", "numba-bbbb", "numba-cccc", "numba-dddd"]):
+        folder = tmp_path / name
+        (folder / "sub").mkdir(parents=True)
+        (folder / "sub" / "k.nbc").write_bytes(b"x")
+        os.utime(folder, (1000.0 - age * 100, 1000.0 - age * 100))  # aaaa newest
+        old.append(folder)
+    other = tmp_path / "not-a-cache"
+    other.mkdir()
+    current = tmp_path / "numba-new0"
+    removed = kernel_cache.prune_stale_caches(current, keep=3)
+    assert sorted(p.name for p in removed) == ["numba-cccc", "numba-dddd"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "not-a-cache", "numba-aaaa", "numba-bbbb", "numba-new0"]
+    # Coming back to an older version marks it used: it now outlives the others.
+    kernel_cache.prune_stale_caches(tmp_path / "numba-bbbb", keep=2)
+    assert sorted(p.name for p in tmp_path.glob("numba-*")) == ["numba-bbbb", "numba-new0"]
