@@ -1,4 +1,4 @@
-"""Closed-loop simulation plumbing: the measurement schedule."""
+"""Closed-loop simulation plumbing: the measurement schedule and the per-measurement log."""
 
 import numpy as np
 import pytest
@@ -29,3 +29,29 @@ def test_schedule_equals_drawing_intervals_one_at_a_time(interval, first, n_step
         assert to_next == ref_to_next
         # The generator is left where the one-at-a-time draws leave it.
         assert rng_a.standard_normal() == rng_b.standard_normal()
+
+
+def test_logged_estimate_is_theta_and_delta_method_variance_at_the_last_update(paper):
+    """The per-measurement log holds theta(phi) and diag(D P_phi D^T), D = dtheta/dphi: at the
+    last measurement of a segment ending on it, they equal the final state's."""
+    from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
+    from inertia_gym.simulation import initial_state, run_segment
+
+    rngs = [np.random.default_rng(s) for s in range(2)]
+    state = initial_state(paper, rngs)
+    first = int(state.steps_to_meas.max())
+    bursts = np.array([[[0, 100]], [[0, 100]]])
+    end, trace = run_segment(paper, state, first + 30 * 20, bursts, (0.4, 4.0, 1.0),
+                             np.eye(3)[1], rngs)
+    for r in range(2):
+        last = trace.n_meas[r] - 1
+        stop = trace.meas_step[r, last]
+        # Re-run run r exactly up to its last measurement: the final state is the logged one.
+        rr = [np.random.default_rng(r)]
+        again, _ = run_segment(paper, initial_state(paper, rr), int(stop), bursts[r:r + 1],
+                               (0.4, 4.0, 1.0), np.eye(3)[1], rr)
+        x, P = again.x[0], again.P[0]
+        d = dtheta_dphi(x[7:13])
+        assert np.allclose(trace.theta_hat[r, last], theta_from_phi(x[7:13]), rtol=1e-12)
+        assert np.allclose(trace.theta_var[r, last], np.diag(d @ P[7:, 7:] @ d.T), rtol=1e-9)
+        assert np.allclose(trace.theta_var[r, last], np.diag(again.P_theta()[0]), rtol=1e-9)
