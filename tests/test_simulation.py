@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
+from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
 from inertia_gym.scenario import Scenario
-from inertia_gym.simulation import _measurement_schedule
+from inertia_gym.simulation import _measurement_schedule, initial_state, run_segment
 
 
 def _schedule_one_at_a_time(sc, rng, first, n_steps):
@@ -34,9 +35,6 @@ def test_schedule_equals_drawing_intervals_one_at_a_time(interval, first, n_step
 def test_logged_estimate_is_theta_and_delta_method_variance_at_the_last_update(paper):
     """The per-measurement log holds theta(phi) and diag(D P_phi D^T), D = dtheta/dphi: at the
     last measurement of a segment ending on it, they equal the final state's."""
-    from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
-    from inertia_gym.simulation import initial_state, run_segment
-
     rngs = [np.random.default_rng(s) for s in range(2)]
     state = initial_state(paper, rngs)
     first = int(state.steps_to_meas.max())
