@@ -92,16 +92,8 @@ NO_DISTURBANCE = Disturbance().pack()
 
 
 # ------------------------------------------------------------------------------------------
-# Small compiled building blocks (3-vectors, quaternions, 3x3 inverses)
+# Small compiled building blocks (quaternions, 3x3 inverses)
 # ------------------------------------------------------------------------------------------
-
-
-@nb.njit(cache=True, inline="always")
-def cross(a, b):
-    """Cross product of two 3-vectors."""
-    return np.array(
-        (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-    )
 
 
 @nb.njit(cache=True)
@@ -154,19 +146,6 @@ def quat_to_rotation(q):
     return r
 
 
-@nb.njit(cache=True)
-def quat_rate(q, w):
-    """q_dot = 1/2 q (x) (0, w), shape (4,)."""
-    return 0.5 * np.array(
-        (
-            -q[1] * w[0] - q[2] * w[1] - q[3] * w[2],
-            q[0] * w[0] + q[2] * w[2] - q[3] * w[1],
-            q[0] * w[1] - q[1] * w[2] + q[3] * w[0],
-            q[0] * w[2] + q[1] * w[1] - q[2] * w[0],
-        )
-    )
-
-
 def euler_to_quat(roll_pitch_yaw_deg) -> np.ndarray:
     """Quaternion (scalar first) of ZYX Euler angles in degrees: q = qz(yaw) qy(pitch) qx(roll)."""
     r, p, y = np.radians(np.asarray(roll_pitch_yaw_deg, dtype=float)) / 2
@@ -184,29 +163,6 @@ def euler_to_quat(roll_pitch_yaw_deg) -> np.ndarray:
 # ------------------------------------------------------------------------------------------
 # Right-hand side and integrators
 # ------------------------------------------------------------------------------------------
-
-
-@nb.njit(cache=True)
-def disturbance_torque(q, w, inertia, dist):
-    """Extra torque of the packed disturbance vector (excluding the momentum bias h), N·m."""
-    tau = dist[0:3].copy()
-    c = dist[6:15]
-    for i in range(3):
-        tau[i] -= c[3 * i] * w[0] + c[3 * i + 1] * w[1] + c[3 * i + 2] * w[2]
-    speed = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    tau -= dist[15] * speed * w
-    n = dist[16]
-    if n != 0.0:
-        r_body = quat_to_rotation(q).T @ dist[17:20]
-        tau += 3.0 * n * n * cross(r_body, inertia @ r_body)
-    return tau
-
-
-@nb.njit(cache=True)
-def angular_acceleration(q, w, inertia, inertia_inv, tau, dist):
-    """w_dot = J^-1 (tau + tau_dist - w x (J w + h)), rad/s²."""
-    momentum = inertia @ w + dist[3:6]
-    return inertia_inv @ (tau + disturbance_torque(q, w, inertia, dist) - cross(w, momentum))
 
 
 @nb.njit(cache=True, inline="always")
