@@ -66,9 +66,14 @@ def prune_stale_caches(current: Path, keep: int = KEEP_VERSIONS) -> list[Path]:
         os.utime(current)
     except OSError:
         return []
-    siblings = sorted((p for p in current.parent.glob("numba-*") if p.is_dir() and p != current),
-                      key=lambda p: p.stat().st_mtime, reverse=True)
-    stale = siblings[max(keep - 1, 0):]
+    used_at = {}
+    for folder in current.parent.glob("numba-*"):
+        try:  # another process (a test worker importing too) may delete it meanwhile
+            if folder != current and folder.is_dir():
+                used_at[folder] = folder.stat().st_mtime
+        except OSError:
+            continue
+    stale = sorted(used_at, key=used_at.get, reverse=True)[max(keep - 1, 0):]
     for folder in stale:
         shutil.rmtree(folder, ignore_errors=True)
     return stale

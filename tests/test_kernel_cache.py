@@ -59,3 +59,20 @@ def test_only_the_most_recently_used_cache_folders_are_kept(tmp_path):
     # Coming back to an older version marks it used: it now outlives the others.
     kernel_cache.prune_stale_caches(tmp_path / "numba-bbbb", keep=2)
     assert sorted(p.name for p in tmp_path.glob("numba-*")) == ["numba-bbbb", "numba-new0"]
+
+
+def test_a_folder_vanishing_during_the_prune_is_skipped(tmp_path, monkeypatch):
+    """Two processes importing at once (pytest workers) prune the same folder: one of them sees
+    a sibling disappear between listing and stat, and must carry on."""
+    for name in ("numba-aaaa", "numba-gone", "numba-cccc"):
+        (tmp_path / name).mkdir()
+    real_stat = Path.stat
+
+    def stat(self, *args, **kwargs):
+        if self.name == "numba-gone":
+            raise FileNotFoundError(self)
+        return real_stat(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "stat", stat)
+    removed = kernel_cache.prune_stale_caches(tmp_path / "numba-new0", keep=2)
+    assert len(removed) == 1 and removed[0].name in ("numba-aaaa", "numba-cccc")
