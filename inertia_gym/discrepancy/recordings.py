@@ -1,6 +1,21 @@
 """Recordings: the project's CSV (+ sidecar JSON), phyphox exports, Parquet.
 
-A recording holds gyro samples and, optionally, attitude and commanded torque (DESIGN.md §3).
+A recording holds gyro samples and, optionally, attitude, commanded torque and known internal
+angular momentum (DESIGN.md §3). Columns (one row per gyro sample):
+
+    t                    s, strictly increasing (required)
+    wx, wy, wz           rad/s, body-frame gyro (required)
+    qw, qx, qy, qz       body-to-inertial unit quaternion, scalar first (optional, all four)
+    tau_x, tau_y, tau_z  N·m, commanded body-frame torque held from each row on (optional, all three)
+    h_x, h_y, h_z        kg·m²/s, known internal angular momentum relative to the body (reaction
+                         wheels, a rotor), body frame, linearly interpolated between rows
+                         (optional, all three)
+
+The body then obeys J w_dot + h_dot + w x (J w + h) = tau: a known, changing h fixes the
+inertia's scale just as a known torque does. An optional group given in part (h_x, h_y without
+h_z) is refused. The JSON sidecar REC.json next to REC.csv holds metadata (inertia_nominal,
+gyro_sigma, quat_sigma, simulation truth ...); keys it does not know (provenance) are kept.
+
 Every reader validates its input and raises RecordingError naming the file, row and column;
 readers never write to the input.
 """
@@ -19,6 +34,7 @@ from inertia_gym.errors import RecordingError
 GYRO = ("wx", "wy", "wz")
 QUAT = ("qw", "qx", "qy", "qz")
 TORQUE = ("tau_x", "tau_y", "tau_z")
+MOMENTUM = ("h_x", "h_y", "h_z")
 PHYPHOX_COLUMNS = ("Time (s)", "Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")
 MAX_PLAUSIBLE_RATE = 200.0  # rad/s; larger gyro values almost surely are deg/s or mdps
 MIN_SAMPLES = 10
@@ -36,6 +52,13 @@ class Recording:
     tau : (n, 3) N·m commanded torque held from each row on, or None.
     meta : sidecar contents (inertia_nominal, gyro_sigma, quat_sigma, effect truth ...).
     name : label for reports (file name, plus the segment for phyphox windows).
+    h : (n, 3) kg·m²/s known internal angular momentum relative to the body (reaction wheels,
+        a rotor), body frame, sampled like the gyro and linearly interpolated between rows,
+        or None. Last so that positional construction (t, w, q, tau, meta, name) still works.
+
+    Properties: ``has_torque`` (a non-zero commanded torque), ``has_momentum`` (h present and
+    not constant: only a changing h carries information on the inertia's scale),
+    ``inertia_nominal`` (from the sidecar).
 
     """
 
@@ -45,11 +68,17 @@ class Recording:
     tau: np.ndarray | None = None
     meta: dict = dataclasses.field(default_factory=dict)
     name: str = "recording"
+    h: np.ndarray | None = None
 
     @property
     def has_torque(self) -> bool:
         """True when a commanded torque is present and not identically zero."""
         return self.tau is not None and bool(np.any(self.tau != 0.0))
+
+    @property
+    def has_momentum(self) -> bool:
+        """True when a known internal momentum h is present and not constant over the recording."""
+        return self.h is not None and bool(np.ptp(self.h, axis=0).max() > 0)
 
     @property
     def inertia_nominal(self) -> np.ndarray | None:
@@ -67,7 +96,7 @@ def _fail(path, message, row=None, column=None) -> RecordingError:
     return RecordingError(f"{where}: {message}")
 
 
-def _check_arrays(path, t, w, q, tau, columns, first_row=2) -> None:
+def _check_arrays(path, t, w, q, tau, columns, first_row=2, h=None) -> None:
     """Validate finiteness, time order, length and plausible units. Row numbers are file lines."""
     if t.size < MIN_SAMPLES:
         raise _fail(path, f"only {t.size} samples; at least {MIN_SAMPLES} are needed")
@@ -76,6 +105,8 @@ def _check_arrays(path, t, w, q, tau, columns, first_row=2) -> None:
         named.append(("q", q, QUAT))
     if tau is not None:
         named.append(("tau", tau, TORQUE))
+    if h is not None:
+        named.append(("h", h, MOMENTUM))
     for _, arr, cols in named:
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -131,10 +162,13 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
     return header, np.asarray(rows, dtype=float)
 
 
-def _columns(path, header, data, names, required):
+def _columns(path, header, data, names, required, label=None):
+    """(n, len(names)) columns, or None when an optional group is absent; a partial group fails."""
     missing = [n for n in names if n not in header]
     if missing and (required or len(missing) < len(names)):
-        raise _fail(path, f"missing column(s) {missing}; the header is {header}", 1, missing[0])
+        what = "" if required or label is None else \
+            f"{label} given in part ({', '.join(names)} go together): "
+        raise _fail(path, f"{what}missing column(s) {missing}; the header is {header}", 1, missing[0])
     if missing:
         return None
     return np.stack([data[:, header.index(n)] for n in names], axis=1)
@@ -181,12 +215,13 @@ def read_csv_recording(path: str | Path) -> Recording:
 def _from_columns(path, header, data, meta) -> Recording:
     t_col = _columns(path, header, data, ("t",), True)[:, 0]
     w = _columns(path, header, data, GYRO, True)
-    q = _columns(path, header, data, QUAT, False)
-    tau = _columns(path, header, data, TORQUE, False)
-    _check_arrays(path, t_col, w, q, tau, ("t",) + GYRO)
+    q = _columns(path, header, data, QUAT, False, "attitude quaternion")
+    tau = _columns(path, header, data, TORQUE, False, "commanded torque")
+    h = _columns(path, header, data, MOMENTUM, False, "internal angular momentum")
+    _check_arrays(path, t_col, w, q, tau, ("t",) + GYRO, h=h)
     if q is not None:
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return Recording(t_col, w, q, tau, meta, path.stem)
+    return Recording(t_col, w, q, tau, meta, path.stem, h=h)
 
 
 def read_parquet_recording(path: str | Path) -> Recording:
@@ -275,7 +310,10 @@ def read_recordings(path: str | Path) -> list[Recording]:
 
 
 def write_recording(path: str | Path, rec: Recording, sidecar: dict | None = None) -> None:
-    """Write rec as the project's CSV (and REC.json). Refuses to overwrite an existing file."""
+    """Write rec as the project's CSV (and REC.json). Refuses to overwrite an existing file.
+
+    Optional column groups (q, tau, h) are written when present; sidecar defaults to rec.meta.
+    """
     path = Path(path)
     side = path.with_suffix(".json")
     for target in (path, side):
@@ -289,6 +327,9 @@ def write_recording(path: str | Path, rec: Recording, sidecar: dict | None = Non
     if rec.tau is not None:
         cols.append(rec.tau)
         names += TORQUE
+    if rec.h is not None:
+        cols.append(rec.h)
+        names += MOMENTUM
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
     side.write_text(json.dumps(sidecar if sidecar is not None else rec.meta, indent=2) + "\n")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,6 +12,7 @@ from hypothesis import strategies as st
 from inertia_gym.discrepancy.recordings import (
     Recording,
     read_recordings,
+    read_sidecar,
     write_recording,
 )
 from inertia_gym.errors import RecordingError
@@ -80,6 +83,77 @@ def test_parquet(tmp_path):
     pq.write_table(pa.table({"t": t, "wx": np.sin(t), "wy": t, "wz": t}), tmp_path / "r.parquet")
     (rec,) = read_recordings(tmp_path / "r.parquet")
     assert rec.w.shape == (30, 3)
+
+
+def _momentum_recording(n=20):
+    t = np.arange(n) * 0.1
+    h = np.stack([0.5 * np.sin(t), 0.25 * t, np.full(n, -0.125)], axis=1)
+    return Recording(t, np.ones((n, 3)), None, np.zeros((n, 3)), {"gyro_sigma": 0.02}, "m", h=h)
+
+
+def test_momentum_columns_round_trip_csv(tmp_path):
+    rec = _momentum_recording()
+    assert rec.has_momentum
+    write_recording(tmp_path / "h.csv", rec)
+    assert (tmp_path / "h.csv").read_text().splitlines()[0] == "t,wx,wy,wz,tau_x,tau_y,tau_z,h_x,h_y,h_z"
+    (back,) = read_recordings(tmp_path / "h.csv")
+    assert back.h is not None and back.has_momentum and back.q is None
+    np.testing.assert_allclose(back.h, rec.h, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(back.tau, rec.tau)
+
+
+def test_recording_without_momentum_columns_has_none(tmp_path):
+    (rec,) = read_recordings(_write(tmp_path, GOOD))
+    assert rec.h is None and not rec.has_momentum
+    constant = Recording(rec.t, rec.w, h=np.tile([0.1, 0.0, 0.0], (rec.t.size, 1)))
+    assert not constant.has_momentum
+
+
+def test_positional_construction_unchanged():
+    t = np.arange(20) * 0.1
+    rec = Recording(t, np.ones((20, 3)), None, None, {"a": 1}, "pos")
+    assert rec.meta == {"a": 1} and rec.name == "pos" and rec.h is None
+
+
+def test_momentum_columns_parquet(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    t = np.arange(30) * 0.01
+    h = np.stack([np.cos(t), 2 * t, t ** 2], axis=1)
+    pq.write_table(pa.table({"t": t, "wx": np.sin(t), "wy": t, "wz": t,
+                             "h_x": h[:, 0], "h_y": h[:, 1], "h_z": h[:, 2]}), tmp_path / "h.parquet")
+    (rec,) = read_recordings(tmp_path / "h.parquet")
+    np.testing.assert_array_equal(rec.h, h)
+    assert rec.has_momentum and rec.tau is None
+
+
+def test_partial_momentum_columns_refused(tmp_path):
+    rows = "".join(f"{0.1 * i},0.1,0.2,0.3,{0.01 * i},0.5\n" for i in range(20))
+    path = _write(tmp_path, "t,wx,wy,wz,h_x,h_y\n" + rows)
+    with pytest.raises(RecordingError) as info:
+        read_recordings(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    assert "column 'h_z'" in message and "internal angular momentum" in message
+
+
+@pytest.mark.parametrize("bad, column", [("nan", "h_y"), ("inf", "h_y"), ("-inf", "h_y")])
+def test_non_finite_momentum_refused_with_row_and_column(tmp_path, bad, column):
+    rows = [f"{0.1 * i},0.1,0.2,0.3,{0.01 * i},0.5,0.0" for i in range(20)]
+    rows[4] = rows[4].replace(",0.5,", f",{bad},")
+    path = _write(tmp_path, "t,wx,wy,wz,h_x,h_y,h_z\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingError, match=f"row 6, column '{column}'.*NaN or infinite"):
+        read_recordings(path)
+
+
+def test_unknown_sidecar_keys_are_kept(tmp_path):
+    path = _write(tmp_path, GOOD)
+    provenance = {"git_commit": "abc123", "operator": "bench 2", "rig": {"wheels": [1, 2, 3]}}
+    (tmp_path / "rec.json").write_text(json.dumps({"gyro_sigma": 0.01, **provenance}))
+    (rec,) = read_recordings(path)
+    assert rec.meta == {"gyro_sigma": 0.01, **provenance}
+    assert read_sidecar(path) == rec.meta
 
 
 def _phyphox(tmp_path, segments):
