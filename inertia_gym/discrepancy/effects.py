@@ -155,10 +155,15 @@ def _truth_terms(effect: Effect | None):
     return name, p
 
 
-def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effect: Effect | None = None):
+def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effect: Effect | None = None,
+                   momentum=None):
     """Integrate the true body with one effect (RK4, step dt).
 
     q0 (4,), omega0 (3,) rad/s, inertia (3, 3), torque_cmd (n, 3) N·m held over each step.
+    momentum: None, or a known internal angular momentum relative to the body (reaction wheels,
+    a rotor) as a function t (s) -> (h (3,) kg·m²/s, h_dot (3,) N·m), body frame; the body then
+    obeys J w_dot = tau - h_dot - w x (J w + h) (plus the effect's terms), evaluated at each RK4
+    stage time.
     Returns q (n+1, 4), omega (n+1, 3) — the body's true rates (sensor effects not applied).
     """
     name, p = _truth_terms(effect)
@@ -198,9 +203,13 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effect: Effect | 
             return 3.0 * float(p["orbit_rate"]) ** 2 * np.cross(r, j @ r)
         return np.zeros(3)
 
-    def rate(y, tau, j):
+    def rate(y, tau, j, t):
         q, w, eta, eta_d = y[:4], y[4:7], y[7], y[8]
-        rhs_w = tau + ext(q, w, j) - np.cross(w, j @ w + h + delta * eta_d)
+        if momentum is None:
+            rhs_w = tau + ext(q, w, j) - np.cross(w, j @ w + h + delta * eta_d)
+        else:
+            h_known, h_known_dot = momentum(t)
+            rhs_w = tau + ext(q, w, j) - h_known_dot - np.cross(w, j @ w + h + h_known + delta * eta_d)
         if flex:
             m = np.zeros((4, 4))
             m[:3, :3], m[:3, 3], m[3, :3], m[3, 3] = j, delta, delta, 1.0
@@ -219,11 +228,11 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effect: Effect | 
         if k * dt >= t_change and j is inertia:
             j = j_after  # momentum kept through the change: J1 w1 = J2 w2
             y[4:7] = np.linalg.solve(j, inertia @ y[4:7])
-        tau = applied[k]
-        k1 = rate(y, tau, j)
-        k2 = rate(y + 0.5 * dt * k1, tau, j)
-        k3 = rate(y + 0.5 * dt * k2, tau, j)
-        k4 = rate(y + dt * k3, tau, j)
+        tau, t = applied[k], k * dt
+        k1 = rate(y, tau, j, t)
+        k2 = rate(y + 0.5 * dt * k1, tau, j, t + 0.5 * dt)
+        k3 = rate(y + 0.5 * dt * k2, tau, j, t + 0.5 * dt)
+        k4 = rate(y + dt * k3, tau, j, t + dt)
         y = y + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
         y[:4] /= np.linalg.norm(y[:4])
         out[k + 1] = y
