@@ -1,4 +1,7 @@
-"""`inertia-gym simulate`: write a synthetic recording (CSV + sidecar with the effect's truth)."""
+"""`inertia-gym simulate`: write a synthetic recording (CSV + sidecar with the effect's truth).
+
+With --rotor-momentum H_MAX the recording also carries a known internal momentum (h columns).
+"""
 
 from __future__ import annotations
 
@@ -26,6 +29,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--sample-dt", type=positive_float, default=None,
                    help="seconds between rows (default: the scenario's dt)")
     p.add_argument("--no-torque", action="store_true", help="torque-free (no commanded bursts)")
+    p.add_argument("--rotor-momentum", type=positive_float, default=None, metavar="H_MAX",
+                   help="kg·m²/s: add a rotor along a random body axis whose known momentum spins up "
+                        "to H_MAX and back (0.5 (1 - cos(2 pi t / duration))), written as the h_x, h_y, "
+                        "h_z columns (default: none)")
     p.add_argument("--out", required=True, metavar="REC.csv", help="output CSV (sidecar REC.json)")
     p.set_defaults(func=run)
 
@@ -34,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
     """Simulate and write; refuses to overwrite an existing file."""
     name, overrides = parse_effect(args.effect)
     rec, sidecar = simulate_recording(load_scenario(args), args.duration, name, overrides,
-                                      args.seed, not args.no_torque, args.sample_dt)
+                                      args.seed, not args.no_torque, args.sample_dt, args.rotor_momentum)
     write_recording(args.out, rec, sidecar)
-    print(f"wrote {args.out} ({rec.t.size} rows), effect: {name or 'none'}")
+    rotor = "" if args.rotor_momentum is None else f", rotor: h_max {args.rotor_momentum:g} kg·m²/s"
+    print(f"wrote {args.out} ({rec.t.size} rows), effect: {name or 'none'}{rotor}")
     return 0
