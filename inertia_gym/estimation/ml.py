@@ -1,0 +1,512 @@
+"""Batch maximum-likelihood (output-error) estimation of the inertia from a whole record.
+
+Model (body frame, known torque tau and known internal momentum h):
+
+    L = J w + h,    L_dot = tau - w x L,    w = J^-1 (L - h),    q_dot = 1/2 q (x) (0, w)
+
+The total body momentum L is integrated instead of w, so a sampled h enters only algebraically
+(linearly interpolated between rows) and is never differentiated. Measurements: gyro
+z_w = w + b + noise (sigma_w rad/s per axis) and, where recorded, attitude z_q = q (x) exp(n)
+(the sensor's sigma_q per quaternion component gives 2 sigma_q rad per axis of the rotation
+vector 2 vec(q_hat^* (x) z_q)). The residuals are the measurements minus the model's output:
+no differentiated gyro enters the cost.
+
+Unknowns p = [phi (6), w0 (3), dq0 (3) if attitude, b (3) if bias] with phi the positive-definite
+log-Cholesky parameters of estimation/inertia_param.py (J = e^s L L^T; s the pure scale), w0 the
+rate at the first grid point, dq0 a body-frame rotation vector correcting the initial attitude.
+Sensitivities come from the variational equations integrated beside the trajectory (RK4, one
+compiled kernel):
+
+    dS_L/dt = [L]x S_w - [w]x S_L,   S_w = J^-1 S_L - [J^-1 J_j w]_j (phi columns),
+    dS_att/dt = -[w]x S_att + S_w     (body-frame attitude error, q_true = q (x) exp(d/2))
+
+Long records: a single trajectory's phase is only locally linear in J (a 0.1 % inertia error
+turns a 10 rad/s tumble by 1 rad in 1000 s), so the fit grows its horizon from a window the
+start estimate can predict to the whole record, refitting at each step (progressive-horizon
+shooting, an equivalent of multiple shooting: every stage starts inside its basin). Stages
+before the last carry the start as a weak prior; the last is the pure likelihood.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numba as nb
+import numpy as np
+
+from inertia_gym.errors import ConfigError
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, theta_from_phi
+
+N_DYN = 12  # sensitivity columns integrated by the kernel: phi (6), w0 (3), dq0 (3)
+#: Largest rotation per integration sub-step, rad (RK4's phase error ~ (w h)^5 / 120 per step).
+MAX_ROTATION_PER_STEP = 0.1
+#: Largest change of the inertia's log-Cholesky parameters in one Levenberg-Marquardt step.
+MAX_PHI_STEP = 0.2
+
+
+# ------------------------------------------------------------------------------------------
+# Compiled trajectory with sensitivities
+# ------------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, nogil=True)
+def _rate(y, h, tau, jm, jinv, jj, with_sens, with_att, dy, s_w):
+    """Right-hand side of the augmented state y = [L (3), S_L (3x12), q (4), S_att (3x12)].
+
+    h, tau (3,) at the stage time; jm, jinv (3, 3); jj (6, 3, 3) dJ/dphi_j. Writes dy and the
+    rate sensitivity s_w (3, 12); returns nothing.
+    """
+    lx, ly, lz = y[0], y[1], y[2]
+    ax, ay, az = lx - h[0], ly - h[1], lz - h[2]
+    wx = jinv[0, 0] * ax + jinv[0, 1] * ay + jinv[0, 2] * az
+    wy = jinv[1, 0] * ax + jinv[1, 1] * ay + jinv[1, 2] * az
+    wz = jinv[2, 0] * ax + jinv[2, 1] * ay + jinv[2, 2] * az
+    dy[0] = tau[0] - (wy * lz - wz * ly)
+    dy[1] = tau[1] - (wz * lx - wx * lz)
+    dy[2] = tau[2] - (wx * ly - wy * lx)
+    if with_sens:
+        for p in range(N_DYN):
+            sx, sy, sz = y[3 + p], y[3 + N_DYN + p], y[3 + 2 * N_DYN + p]
+            vx = jinv[0, 0] * sx + jinv[0, 1] * sy + jinv[0, 2] * sz
+            vy = jinv[1, 0] * sx + jinv[1, 1] * sy + jinv[1, 2] * sz
+            vz = jinv[2, 0] * sx + jinv[2, 1] * sy + jinv[2, 2] * sz
+            if p < 6:  # - J^-1 (dJ/dphi_p) w
+                ux = jj[p, 0, 0] * wx + jj[p, 0, 1] * wy + jj[p, 0, 2] * wz
+                uy = jj[p, 1, 0] * wx + jj[p, 1, 1] * wy + jj[p, 1, 2] * wz
+                uz = jj[p, 2, 0] * wx + jj[p, 2, 1] * wy + jj[p, 2, 2] * wz
+                vx -= jinv[0, 0] * ux + jinv[0, 1] * uy + jinv[0, 2] * uz
+                vy -= jinv[1, 0] * ux + jinv[1, 1] * uy + jinv[1, 2] * uz
+                vz -= jinv[2, 0] * ux + jinv[2, 1] * uy + jinv[2, 2] * uz
+            s_w[0, p], s_w[1, p], s_w[2, p] = vx, vy, vz
+            # d/dp (-w x L) = L x S_w - w x S_L
+            dy[3 + p] = (ly * vz - lz * vy) - (wy * sz - wz * sy)
+            dy[3 + N_DYN + p] = (lz * vx - lx * vz) - (wz * sx - wx * sz)
+            dy[3 + 2 * N_DYN + p] = (lx * vy - ly * vx) - (wx * sy - wy * sx)
+    if with_att:
+        o = 3 + 3 * N_DYN
+        qw, qx, qy, qz = y[o], y[o + 1], y[o + 2], y[o + 3]
+        dy[o] = 0.5 * (-qx * wx - qy * wy - qz * wz)
+        dy[o + 1] = 0.5 * (qw * wx + qy * wz - qz * wy)
+        dy[o + 2] = 0.5 * (qw * wy - qx * wz + qz * wx)
+        dy[o + 3] = 0.5 * (qw * wz + qx * wy - qy * wx)
+        if with_sens:
+            a = o + 4
+            for p in range(N_DYN):
+                ex, ey, ez = y[a + p], y[a + N_DYN + p], y[a + 2 * N_DYN + p]
+                dy[a + p] = -(wy * ez - wz * ey) + s_w[0, p]
+                dy[a + N_DYN + p] = -(wz * ex - wx * ez) + s_w[1, p]
+                dy[a + 2 * N_DYN + p] = -(wx * ey - wy * ex) + s_w[2, p]
+    return wx, wy, wz
+
+
+@nb.njit(cache=True, nogil=True)
+def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens, with_att,
+               out_w, out_sw, out_q, out_sa):
+    """Integrate the model over the grid and write the outputs at the measurement points.
+
+    t_grid (G,) s increasing; tau_grid (G, 3) N·m held over [t_k, t_k+1); h_grid (G, 3) kg·m²/s,
+    linear between grid points; n_sub (G,) RK4 sub-steps per interval; meas_idx (M,) grid
+    indices (non-decreasing) of the measurements; phi (6,), w0 (3,) rad/s and q0 (4,) at t_grid[0].
+    Writes out_w (M, 3) rad/s, out_sw (M, 3, 12) d w / d [phi, w0, dq0], out_q (M, 4) and
+    out_sa (M, 3, 12) d(attitude error)/dp (rad). Returns False if the state became non-finite.
+    """
+    jm = inertia_from_phi(phi)
+    jinv = np.linalg.inv(jm)
+    d = dtheta_dphi(phi)
+    jj = np.empty((6, 3, 3))
+    for p in range(6):
+        jj[p, 0, 0], jj[p, 0, 1], jj[p, 0, 2] = d[0, p], d[1, p], d[2, p]
+        jj[p, 1, 0], jj[p, 1, 1], jj[p, 1, 2] = d[1, p], d[3, p], d[4, p]
+        jj[p, 2, 0], jj[p, 2, 1], jj[p, 2, 2] = d[2, p], d[4, p], d[5, p]
+    n_state = 3 + 3 * N_DYN + 4 + 3 * N_DYN
+    y = np.zeros(n_state)
+    for i in range(3):
+        y[i] = h_grid[0, i] + jm[i, 0] * w0[0] + jm[i, 1] * w0[1] + jm[i, 2] * w0[2]
+    for p in range(6):
+        for i in range(3):
+            y[3 + i * N_DYN + p] = jj[p, i, 0] * w0[0] + jj[p, i, 1] * w0[1] + jj[p, i, 2] * w0[2]
+    for c in range(3):
+        for i in range(3):
+            y[3 + i * N_DYN + 6 + c] = jm[i, c]
+    o = 3 + 3 * N_DYN
+    for i in range(4):
+        y[o + i] = q0[i]
+    for c in range(3):
+        y[o + 4 + c * N_DYN + 9 + c] = 1.0
+    k1, k2, k3, k4, tmp = (np.empty(n_state), np.empty(n_state), np.empty(n_state),
+                           np.empty(n_state), np.empty(n_state))
+    s_w = np.zeros((3, N_DYN))
+    h_a, h_m, h_b = np.empty(3), np.empty(3), np.empty(3)
+    tau = np.empty(3)
+    m = 0
+    n_meas = meas_idx.shape[0]
+    g_count = t_grid.shape[0]
+    for g in range(g_count):
+        while m < n_meas and meas_idx[m] == g:
+            for i in range(3):
+                h_a[i] = h_grid[g, i]
+            wx, wy, wz = _rate(y, h_a, tau_grid[g], jm, jinv, jj, with_sens, with_att, k1, s_w)
+            out_w[m, 0], out_w[m, 1], out_w[m, 2] = wx, wy, wz
+            if with_sens:
+                out_sw[m] = s_w
+            if with_att:
+                for i in range(4):
+                    out_q[m, i] = y[o + i]
+                if with_sens:
+                    for i in range(3):
+                        for p in range(N_DYN):
+                            out_sa[m, i, p] = y[o + 4 + i * N_DYN + p]
+            m += 1
+        if g == g_count - 1 or m == n_meas:
+            break
+        ns = n_sub[g]
+        hstep = (t_grid[g + 1] - t_grid[g]) / ns
+        for i in range(3):
+            tau[i] = tau_grid[g, i]
+        for s in range(ns):
+            fa, fb = s / ns, (s + 1) / ns
+            fm = 0.5 * (fa + fb)
+            for i in range(3):
+                dh = h_grid[g + 1, i] - h_grid[g, i]
+                h_a[i] = h_grid[g, i] + fa * dh
+                h_m[i] = h_grid[g, i] + fm * dh
+                h_b[i] = h_grid[g, i] + fb * dh
+            _rate(y, h_a, tau, jm, jinv, jj, with_sens, with_att, k1, s_w)
+            for i in range(n_state):
+                tmp[i] = y[i] + 0.5 * hstep * k1[i]
+            _rate(tmp, h_m, tau, jm, jinv, jj, with_sens, with_att, k2, s_w)
+            for i in range(n_state):
+                tmp[i] = y[i] + 0.5 * hstep * k2[i]
+            _rate(tmp, h_m, tau, jm, jinv, jj, with_sens, with_att, k3, s_w)
+            for i in range(n_state):
+                tmp[i] = y[i] + hstep * k3[i]
+            _rate(tmp, h_b, tau, jm, jinv, jj, with_sens, with_att, k4, s_w)
+            for i in range(n_state):
+                y[i] += hstep / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            if with_att:
+                nq = math.sqrt(y[o] ** 2 + y[o + 1] ** 2 + y[o + 2] ** 2 + y[o + 3] ** 2)
+                for i in range(4):
+                    y[o + i] /= nq
+        if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2])):
+            return False
+    return True
+
+
+# ------------------------------------------------------------------------------------------
+# Problem definition and residuals
+# ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """One record prepared for the output-error fit.
+
+    t_grid (G,) s; tau_grid (G, 3) N·m held from each grid point on; h_grid (G, 3) kg·m²/s;
+    n_sub (G,) integration sub-steps per interval; meas_idx (M,) grid index of each measurement;
+    z_w (M, 3) rad/s gyro; z_q (M, 4) unit quaternions or None; sigma_w (3,) rad/s;
+    sigma_att rad (per axis of the attitude error); fit_bias: estimate a constant gyro bias;
+    fix_scale: the scale s is not a free parameter (no torque and no changing h).
+    """
+
+    t_grid: np.ndarray
+    tau_grid: np.ndarray
+    h_grid: np.ndarray
+    n_sub: np.ndarray
+    meas_idx: np.ndarray
+    z_w: np.ndarray
+    z_q: np.ndarray | None
+    sigma_w: np.ndarray
+    sigma_att: float
+    fit_bias: bool
+    fix_scale: bool
+
+    @property
+    def with_att(self) -> bool:
+        """True when attitude measurements enter the fit."""
+        return self.z_q is not None
+
+    @property
+    def n_params(self) -> int:
+        """Length of p = [phi, w0, (dq0), (b)]."""
+        return 9 + (3 if self.with_att else 0) + (3 if self.fit_bias else 0)
+
+    def free(self) -> np.ndarray:
+        """Bool mask (n_params,) of the parameters the fit moves."""
+        mask = np.ones(self.n_params, dtype=bool)
+        mask[0] = not self.fix_scale
+        return mask
+
+    def window(self, n_meas: int) -> "Problem":
+        """The same problem restricted to its first n_meas measurements."""
+        g_end = int(self.meas_idx[n_meas - 1]) + 1
+        return dataclasses.replace(
+            self, t_grid=self.t_grid[:g_end], tau_grid=self.tau_grid[:g_end],
+            h_grid=self.h_grid[:g_end], n_sub=self.n_sub[:g_end], meas_idx=self.meas_idx[:n_meas],
+            z_w=self.z_w[:n_meas], z_q=None if self.z_q is None else self.z_q[:n_meas])
+
+
+def substeps(t_grid, w_scale) -> np.ndarray:
+    """(G,) RK4 sub-steps per grid interval so that |w| h <= MAX_ROTATION_PER_STEP.
+
+    w_scale (G,) or scalar rad/s: the rate magnitude to plan for (e.g. |gyro| of the row).
+    """
+    dt = np.diff(t_grid, append=t_grid[-1])
+    rot = np.abs(np.broadcast_to(w_scale, dt.shape)) * 1.5 * dt
+    return np.maximum(1, np.ceil(rot / MAX_ROTATION_PER_STEP)).astype(np.int64)
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """Model output at p: weighted residuals r (R,), their Jacobian dr/dp (R, n_params) or None,
+    gyro residual e_w (M, 3) rad/s and attitude residual e_att (M, 3) rad (or None).
+    """
+
+    r: np.ndarray
+    jac: np.ndarray | None
+    e_w: np.ndarray
+    e_att: np.ndarray | None
+    ok: bool
+
+
+def quat_mul(p, q) -> np.ndarray:
+    """Hamilton product of (..., 4) scalar-first quaternions."""
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw],
+                    axis=-1)
+
+
+def quat_exp(v) -> np.ndarray:
+    """Unit quaternion exp(v/2) of a rotation vector v (3,) rad."""
+    v = np.asarray(v, dtype=float)
+    a = np.linalg.norm(v)
+    if a < 1e-12:
+        return np.r_[1.0, 0.5 * v] / np.sqrt(1 + 0.25 * a * a)
+    return np.r_[np.cos(a / 2), np.sin(a / 2) * v / a]
+
+
+def attitude_error(q_model, z_q) -> np.ndarray:
+    """(M, 3) rad: 2 vec(q_model^* (x) z_q), sign-aligned (the measured minus the model)."""
+    conj = q_model * np.array([1.0, -1.0, -1.0, -1.0])
+    dq = quat_mul(conj, z_q)
+    dq *= np.where(dq[:, :1] < 0, -1.0, 1.0)
+    return 2.0 * dq[:, 1:]
+
+
+def evaluate(prob: Problem, p, q_ref, with_jac: bool) -> Evaluation:
+    """Weighted residuals (and Jacobian) of the problem at p; q_ref (4,) the attitude that dq0
+    perturbs (q0 = q_ref (x) exp(dq0/2)).
+    """
+    m = prob.meas_idx.size
+    out_w = np.zeros((m, 3))
+    out_sw = np.zeros((m, 3, N_DYN)) if with_jac else np.zeros((1, 3, N_DYN))
+    out_q = np.zeros((m, 4)) if prob.with_att else np.zeros((1, 4))
+    out_sa = np.zeros((m, 3, N_DYN)) if (with_jac and prob.with_att) else np.zeros((1, 3, N_DYN))
+    q0 = quat_mul(q_ref, quat_exp(p[9:12])) if prob.with_att else np.array([1.0, 0, 0, 0])
+    ok = trajectory(prob.t_grid, prob.tau_grid, prob.h_grid, prob.n_sub, prob.meas_idx,
+                    np.ascontiguousarray(p[:6]), np.ascontiguousarray(p[6:9]), q0, with_jac,
+                    prob.with_att, out_w, out_sw, out_q, out_sa)
+    bias = p[-3:] if prob.fit_bias else np.zeros(3)
+    e_w = prob.z_w - out_w - bias
+    parts = [(e_w / prob.sigma_w).ravel()]
+    e_att = None
+    if prob.with_att:
+        e_att = attitude_error(out_q, prob.z_q)
+        parts.append((e_att / prob.sigma_att).ravel())
+    r = np.concatenate(parts)
+    ok = ok and bool(np.all(np.isfinite(r)))
+    jac = None
+    if with_jac and ok:
+        n_p = prob.n_params
+        jw = np.zeros((m, 3, n_p))
+        jw[:, :, :9] = out_sw[:, :, :9]
+        if prob.fit_bias:
+            jw[:, :, -3:] = np.eye(3)
+        blocks = [(jw / prob.sigma_w[None, :, None]).reshape(-1, n_p)]
+        if prob.with_att:
+            ja = np.zeros((m, 3, n_p))
+            ja[:, :, :12] = out_sa
+            blocks.append((ja / prob.sigma_att).reshape(-1, n_p))
+        # r = z - model: dr/dp = -d model/dp
+        jac = -np.concatenate(blocks, axis=0)
+    return Evaluation(r, jac, e_w, e_att, ok)
+
+
+# ------------------------------------------------------------------------------------------
+# Levenberg-Marquardt with a progressive horizon
+# ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class MLFit:
+    """Result of the output-error fit.
+
+    p (n,) the estimate [phi, w0, (dq0 = 0), (b)] with q0 (4,) its initial attitude (or None);
+    cov (n, n) inverse Fisher information at p (white noise at sigma); cost = 0.5 |r|^2;
+    evaluation at p; n_stages horizons fitted; converged: the last stage met its tolerance.
+    """
+
+    p: np.ndarray
+    q0: np.ndarray | None
+    fisher: np.ndarray
+    evaluation: Evaluation
+    cost: float
+    n_iter: int
+    n_stages: int
+    converged: bool
+
+
+def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=None,
+                         max_iter: int = 40, tol: float = 1e-3):
+    """Minimise 0.5|r|^2 (+ 0.5 (p - mean)^T info (p - mean)) over the free parameters.
+
+    Converged when the last step's predicted decrease of |r|^2 is below tol (chi-square units:
+    1e-3 is a step of about 0.03 standard deviations).
+
+    Returns (p, q_ref, evaluation with Jacobian, cost, iterations, converged).
+    """
+    free = prob.free()
+    p = np.array(p, dtype=float)
+    q_ref = np.array(q_ref, dtype=float)
+
+    def total_cost(ev, p_):
+        c = 0.5 * float(ev.r @ ev.r)
+        if prior_info is not None:
+            dp = (p_ - prior_mean)[free]
+            c += 0.5 * float(dp @ prior_info[np.ix_(free, free)] @ dp)
+        return c
+
+    ev = evaluate(prob, p, q_ref, True)
+    if not ev.ok:
+        raise ConfigError("the model's trajectory is not finite at the start estimate")
+    cost = total_cost(ev, p)
+    # Damped at first, then quickly Gauss-Newton: Marquardt's damping along diag(A) crawls along
+    # the strongly correlated inertia-phase directions, so it falls tenfold per accepted step.
+    # A step may change the inertia's log-parameters by at most MAX_PHI_STEP (a trust region:
+    # on a short, poorly conditioned window an undamped step can leap to another basin).
+    lam = 1e-3
+    converged = False
+    iterations = 0
+    for iterations in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
+        jf = ev.jac[:, free]
+        a = jf.T @ jf
+        g = -jf.T @ ev.r
+        if prior_info is not None:
+            a = a + prior_info[np.ix_(free, free)]
+            g = g - prior_info[np.ix_(free, free)] @ (p - prior_mean)[free]
+        diag = np.maximum(np.diag(a), 1e-12 * max(np.diag(a).max(), 1e-300))
+        improved = False
+        for _ in range(20):
+            try:
+                step = np.linalg.solve(a + lam * np.diag(diag), g)
+            except np.linalg.LinAlgError:
+                lam = max(lam * 10.0, 1e-6)
+                continue
+            p_new = p.copy()
+            p_new[free] += step
+            if np.abs(p_new[:6] - p[:6]).max() > MAX_PHI_STEP:
+                lam = max(lam * 10.0, 1e-6)
+                continue
+            q_new = q_ref
+            if prob.with_att:
+                q_new = quat_mul(q_ref, quat_exp(p_new[9:12]))
+                q_new /= np.linalg.norm(q_new)
+                p_new[9:12] = 0.0
+            ev_new = evaluate(prob, p_new, q_new, False)
+            cost_new = total_cost(ev_new, p_new) if ev_new.ok else np.inf
+            if cost_new <= cost:
+                predicted = float(step @ g)  # ~ twice the predicted decrease
+                p, q_ref, cost = p_new, q_new, cost_new
+                lam = max(lam / 10.0, 1e-15)
+                improved = True
+                break
+            lam = max(lam * 10.0, 1e-6)
+        if not improved:
+            converged = True  # no step lowers the cost: a (local) minimum to working precision
+            ev = evaluate(prob, p, q_ref, True)
+            break
+        ev = evaluate(prob, p, q_ref, True)
+        if predicted <= tol:
+            converged = True
+            break
+    return p, q_ref, ev, cost, iterations, converged
+
+
+def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: int | None = None,
+        max_iter: int = 40) -> MLFit:
+    """Maximum-likelihood fit of the problem from p_start (q_start: initial attitude guess).
+
+    start_info (n, n): information (inverse covariance) of the start, used as a prior on the
+    stages before the last; first_horizon: measurements in the first stage (default: all).
+    The horizon doubles until it covers the record; the last stage has no prior.
+    """
+    m_total = prob.meas_idx.size
+    n_first = m_total if first_horizon is None else int(np.clip(first_horizon, 1, m_total))
+    p = np.array(p_start, dtype=float)
+    q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_start is None else np.asarray(q_start, dtype=float)
+    horizons = []
+    n = n_first
+    while n < m_total:
+        horizons.append(n)
+        n *= 2
+    horizons.append(m_total)
+    total_iter = 0
+    prior_mean = p.copy()
+    for stage, n in enumerate(horizons):
+        last = stage == len(horizons) - 1
+        sub = prob.window(n)
+        info = None if (last or start_info is None) else start_info
+        p, q_ref, ev, cost, it, converged = _levenberg_marquardt(
+            sub, p, q_ref, prior_mean if info is not None else None, info, max_iter=max_iter)
+        total_iter += it
+    free = prob.free()
+    fisher = np.zeros((prob.n_params, prob.n_params))
+    jf = ev.jac[:, free]
+    fisher[np.ix_(free, free)] = jf.T @ jf
+    return MLFit(p, q_ref if prob.with_att else None, fisher, ev, cost, total_iter, len(horizons),
+                 converged)
+
+
+def covariance(fisher: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Inverse of the Fisher information over the free parameters (zeros elsewhere).
+
+    Raises ConfigError when the information is singular (a parameter the data cannot fix).
+    """
+    n = fisher.shape[0]
+    out = np.zeros((n, n))
+    f = fisher[np.ix_(free, free)]
+    scale = np.sqrt(np.clip(np.diag(f), 1e-300, None))
+    fs = f / np.outer(scale, scale)
+    try:
+        inv = np.linalg.inv(fs)
+    except np.linalg.LinAlgError as exc:
+        raise ConfigError("the record does not determine every parameter (singular information)") \
+            from exc
+    if np.linalg.cond(fs) > 1e14:
+        raise ConfigError("the record does not determine every parameter (information matrix "
+                          f"condition number {np.linalg.cond(fs):.2g})")
+    out[np.ix_(free, free)] = inv / np.outer(scale, scale)
+    return out
+
+
+def theta_covariance(phi, cov_phi) -> np.ndarray:
+    """(6, 6) covariance of theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz) from that of phi (delta method)."""
+    d = dtheta_dphi(np.ascontiguousarray(phi))
+    return d @ cov_phi @ d.T
+
+
+#: ||J||_F^2 = theta^T W theta for theta in eq. (8) order (off-diagonals count twice).
+FROBENIUS_WEIGHTS = np.array([1.0, 2.0, 2.0, 1.0, 2.0, 1.0])
+
+
+def relative_frobenius_bound(theta, cov_theta) -> float:
+    """sqrt(E ||J_hat - J||_F^2) / ||J||_F for an estimate with covariance cov_theta (6, 6)."""
+    theta = np.asarray(theta, dtype=float)
+    expected = float(np.sum(FROBENIUS_WEIGHTS * np.diag(cov_theta)))
+    return math.sqrt(max(expected, 0.0)) / math.sqrt(float(np.sum(FROBENIUS_WEIGHTS * theta ** 2)))
+
+
+__all__ = ["Problem", "MLFit", "fit", "evaluate", "trajectory", "covariance", "theta_covariance",
+           "relative_frobenius_bound", "substeps", "theta_from_phi"]
