@@ -10,7 +10,7 @@ import sys
 
 from inertia_gym.errors import InertiaGymError
 
-COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose")
+COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose", "identify")
 
 
 def build_parser() -> argparse.ArgumentParser:

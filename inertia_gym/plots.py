@@ -79,3 +79,41 @@ def plot_informative_vs_not(informative, non_informative, path: str | Path) -> P
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_identification(result, folder: str | Path) -> list[Path]:
+    """Figures of identify: fit over the measured rates, residuals, and the inertia with its 95 %
+    intervals. result is an identify.Identification; returns the files written.
+    """
+    folder = Path(folder)
+    t = result.t - result.t[0]
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for i, name in enumerate("xyz"):
+        axes[0].plot(t, result.w_meas[:, i], color=f"C{i}", lw=0.5, alpha=0.5)
+        axes[0].plot(t, result.w_fit[:, i], color=f"C{i}", lw=1.0, label=f"w_{name} fit")
+        axes[1].plot(t, result.w_meas[:, i] - result.w_fit[:, i], color=f"C{i}", lw=0.5)
+    axes[0].set_ylabel("rate (rad/s)")
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[0].set_title(f"{result.name}: measured (thin) and fitted rates")
+    axes[1].set_ylabel("residual (rad/s)")
+    axes[1].set_xlabel("time (s)")
+    axes[1].set_title(f"residuals: rms/noise {result.rms_over_noise:.2f} ({result.noise.kind})")
+    fig.tight_layout()
+    fit_path = folder / "fit.png"
+    fig.savefig(fit_path, dpi=110)
+    plt.close(fig)
+    est = result.estimate
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ci = est.ci95()
+    ax.errorbar(np.arange(6), est.theta, yerr=[est.theta - ci[:, 0], ci[:, 1] - est.theta], fmt="o",
+                capsize=4)
+    ax.set_xticks(np.arange(6), THETA_LABELS)
+    ax.axhline(0.0, color="k", lw=0.5)
+    unit = "kg·m²" if est.scale_identified else "normalised (scale not identified)"
+    ax.set_ylabel(f"inertia ({unit})")
+    ax.set_title("identified inertia with 95 % intervals")
+    fig.tight_layout()
+    inertia_path = folder / "inertia.png"
+    fig.savefig(inertia_path, dpi=110)
+    plt.close(fig)
+    return [fit_path, inertia_path]

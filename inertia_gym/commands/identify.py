@@ -1,0 +1,44 @@
+"""`inertia-gym identify REC`: the inertia of the body in a recording, with 95 % intervals."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+import numpy as np
+
+from inertia_gym.commands.common import prepare_out_dir, write_json
+from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.identify import METHODS, identify, markdown
+from inertia_gym.plots import plot_identification
+
+
+def add_parser(subparsers) -> None:
+    """Register the sub-command."""
+    p = subparsers.add_parser("identify", help="identify the inertia of the body in a recording",
+                              description=__doc__)
+    p.add_argument("rec", metavar="REC",
+                   help="project CSV/Parquet (+ sidecar JSON) or a phyphox export folder/'Raw Data.csv'")
+    p.add_argument("--method", choices=METHODS, default="ml",
+                   help="ml: maximum likelihood over the whole record (default)")
+    p.add_argument("--out", default="identify", metavar="DIR", help="output folder (identify)")
+    p.add_argument("--no-plots", action="store_true", help="identify.json and summary.md only")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Identify each recording (each phyphox window on its own); one sub-folder per window."""
+    recs = read_recordings(args.rec)
+    out = prepare_out_dir(args.out)
+    for rec in recs:
+        sub = out if len(recs) == 1 else prepare_out_dir(out / re.sub(r"[^\w.-]+", "_", rec.name))
+        result = identify(rec, args.method)
+        summary = result.summary()
+        plots = [] if args.no_plots else plot_identification(result, sub)
+        write_json(sub / "identify.json", summary)
+        (sub / "summary.md").write_text(markdown(summary, [p.name for p in plots]))
+        moments = np.array(summary["principal_moments"])
+        print(f"{rec.name}: principal moments {np.array2string(moments, precision=4)} "
+              f"{'kg·m²' if summary['scale_identified'] else '(normalised: scale not identified)'}"
+              f", rms/noise {summary['rms_over_noise']:.2f} -> {sub / 'identify.json'}")
+    return 0

@@ -1,0 +1,450 @@
+"""Identify a body's inertia from its recording, with honest error bars.
+
+``identify(recording)`` fits the rigid-body model to a whole record by maximum likelihood
+(estimation/ml.py: output error on the gyro and, where recorded, the attitude; unknowns the
+inertia, the initial rate and attitude, a gyro bias where the attitude makes it identifiable),
+started from the linear integral equation error (estimation/equation_error.py). The result
+carries the inertia, its covariance and 95 % intervals, principal moments and axes with
+intervals, the Cramér-Rao bound, the fit's residuals and a statement of the noise model:
+
+* white noise at the sidecar's ``gyro_sigma`` (or, without one, the residuals' own level);
+* coloured noise (vibration, unmodelled motion) is detected from the residuals'
+  autocorrelation and then the covariance is the sandwich A^-1 B A^-1 with B the Bartlett
+  (Newey-West) long-run covariance of the score over as many lags as the correlation lasts, so
+  the intervals widen by as much as the correlation costs; the report names the lag count and
+  the inflation.
+
+The scale: without a known torque and without a changing internal momentum h, torque-free motion
+fixes the inertia only up to a factor. Then the scale is not fitted; the inertia is reported
+normalised to the sidecar's nominal trace (or to trace 1) with ``scale_identified: false`` and
+the covariance of the normalised inertia (ratios only).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.errors import RecordingError
+from inertia_gym.estimation import ml
+from inertia_gym.estimation.equation_error import equation_error_theta
+from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
+from inertia_gym.information import inertia_from_theta
+
+#: Methods identify() runs. The filters ('ekf', 'ukf') over recordings are not built yet (issue 10).
+METHODS = ("ml",)
+#: The scale counts as identified when its relative standard deviation is at most this.
+SCALE_SIGMA_IDENTIFIED = 0.05
+#: Relative prior width (log units) on the equation-error start in the early horizon stages.
+START_PRIOR_SIGMA = 0.1
+#: Relative error assumed of the equation-error start when planning the first horizon.
+START_REL_ERROR = 0.03
+#: Largest phase error (rad) the first horizon may accumulate from the start's inertia error.
+FIRST_HORIZON_PHASE = 0.5
+MIN_SAMPLES = 20
+TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseModel:
+    """How the residuals were treated: kind 'white' or 'coloured'; sigma (3,) rad/s gyro noise
+    used for weighting and its source; hac_lags (0 for white); inflation = the factor by which
+    the intervals widened over the white-noise Fisher bound (1 for white noise).
+    """
+
+    kind: str
+    sigma: np.ndarray
+    source: str
+    hac_lags: int
+    inflation: float
+
+    def describe(self) -> str:
+        """One sentence for reports."""
+        sig = ", ".join(f"{s:.3g}" for s in self.sigma)
+        if self.kind == "white":
+            return f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
+        return (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
+                f"sigma = ({sig}) rad/s ({self.source}), covariance by the Bartlett/Newey-West "
+                f"sandwich over {self.hac_lags} lags, intervals {self.inflation:.2f}x the white bound")
+
+
+@dataclasses.dataclass(frozen=True)
+class InertiaEstimate:
+    """An inertia with its uncertainty.
+
+    theta (6,) kg·m² (xx, xy, xz, yy, yz, zz); theta_cov (6, 6); scale_identified: False means
+    theta is normalised (trace = its trace) and theta_cov is that of the normalised inertia.
+    """
+
+    theta: np.ndarray
+    theta_cov: np.ndarray
+    scale_identified: bool
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """(3, 3) kg·m²."""
+        return inertia_from_theta(self.theta)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """(6,) standard deviations of theta."""
+        return np.sqrt(np.clip(np.diag(self.theta_cov), 0.0, None))
+
+    def ci95(self) -> np.ndarray:
+        """(6, 2) 95 % intervals of theta."""
+        return np.stack([self.theta - 1.96 * self.sigma, self.theta + 1.96 * self.sigma], axis=1)
+
+    def principal(self):
+        """Principal moments (3,) ascending with 95 % half-widths (3,), axes (3, 3) as columns,
+        and each axis' 95 % cone half-angle (3,) in degrees (delta method).
+        """
+        vals, vecs = np.linalg.eigh(self.inertia)
+        grads = np.stack([_eig_gradient(vecs[:, i], vecs[:, i]) for i in range(3)])
+        half = 1.96 * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", grads, self.theta_cov, grads), 0, None))
+        cone = np.zeros(3)
+        for i in range(3):
+            var = 0.0
+            for k in range(3):
+                if k != i:
+                    g = _eig_gradient(vecs[:, k], vecs[:, i]) / (vals[i] - vals[k])
+                    var += float(g @ self.theta_cov @ g)
+            cone[i] = math.degrees(min(math.pi / 2, 1.96 * math.sqrt(max(var, 0.0))))
+        return vals, half, vecs, cone
+
+    def crlb(self, fisher_cov_theta) -> float:
+        """Relative Frobenius error bound sqrt(E|dJ|_F^2)/|J|_F for the covariance given."""
+        return ml.relative_frobenius_bound(self.theta, fisher_cov_theta)
+
+
+def _eig_gradient(u, v) -> np.ndarray:
+    """Gradient of u^T J v with respect to theta (6,), J symmetric."""
+    return np.array([u[0] * v[0], u[0] * v[1] + u[1] * v[0], u[0] * v[2] + u[2] * v[0],
+                     u[1] * v[1], u[1] * v[2] + u[2] * v[1], u[2] * v[2]])
+
+
+def inertia_estimate(phi, cov_phi, scale_fixed: bool, trace_ref: float | None = None) -> InertiaEstimate:
+    """The inertia parameters theta and their covariance from phi (6,) and cov_phi (6, 6) (delta method).
+
+    scale_fixed: the data do not fix the scale; theta is normalised to trace_ref (its own trace
+    if None) and the covariance is that of the normalised inertia.
+    """
+    theta = theta_from_phi(np.ascontiguousarray(phi))
+    d = dtheta_dphi(np.ascontiguousarray(phi))
+    cov = d @ cov_phi @ d.T
+    if not scale_fixed:
+        return InertiaEstimate(theta, 0.5 * (cov + cov.T), True)
+    trace = float(TRACE_WEIGHTS @ theta)
+    target = trace if trace_ref is None else float(trace_ref)
+    norm = target / trace * (np.eye(6) - np.outer(theta, TRACE_WEIGHTS) / trace)
+    cov_n = norm @ cov @ norm.T
+    return InertiaEstimate(theta * target / trace, 0.5 * (cov_n + cov_n.T), False)
+
+
+# ------------------------------------------------------------------------------------------
+# Noise: white or coloured
+# ------------------------------------------------------------------------------------------
+
+
+def estimate_white_noise(w) -> np.ndarray:
+    """(3,) rad/s white-noise level from third differences (smooth motion cancels), robust."""
+    d3 = np.diff(w, n=3, axis=0)
+    mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) / 0.6745
+    return mad / math.sqrt(20.0)
+
+
+def correlation_lags(residuals, max_lag: int | None = None) -> int:
+    """Number of lags over which the residuals (M, c) stay correlated (0: white).
+
+    The mean autocorrelation over channels is significant at lag l when it exceeds 3/sqrt(M);
+    the count is the last significant lag before the first run of five insignificant ones.
+    """
+    x = residuals - residuals.mean(axis=0)
+    m = x.shape[0]
+    max_lag = min(m // 4, 2000 if max_lag is None else max_lag)
+    if max_lag < 1:
+        return 0
+    spec = np.fft.rfft(x, n=2 * m, axis=0)
+    acf = np.fft.irfft(spec * np.conj(spec), axis=0)[: max_lag + 1]
+    acf = (acf / np.clip(acf[0], 1e-300, None)).mean(axis=1)
+    bound = 3.0 / math.sqrt(m)
+    last, quiet = 0, 0
+    for lag in range(1, max_lag + 1):
+        if abs(acf[lag]) > bound:
+            last, quiet = lag, 0
+        else:
+            quiet += 1
+            if quiet >= 5:
+                break
+    return last
+
+
+def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
+    """A^-1 B A^-1 with A = J^T J and B the Bartlett long-run covariance of the per-measurement
+    scores g_k = J_k^T r_k over `lags` lags. jac (R, n), r (R,) with R = c * n_meas rows laid
+    out channel block by channel block (as ml.evaluate stacks gyro then attitude).
+    """
+    n_par = jac.shape[1]
+    blocks = jac.shape[0] // (3 * n_meas)
+    j = jac.reshape(blocks, n_meas, 3, n_par)
+    rr = r.reshape(blocks, n_meas, 3)
+    g = np.einsum("bmcn,bmc->mn", j, rr)
+    b = g.T @ g
+    for lag in range(1, lags + 1):
+        c = g[lag:].T @ g[:-lag]
+        b += (1.0 - lag / (lags + 1.0)) * (c + c.T)
+    a_inv = np.linalg.inv(jac.T @ jac)
+    cov = a_inv @ b @ a_inv
+    return 0.5 * (cov + cov.T)
+
+
+# ------------------------------------------------------------------------------------------
+# The fit, shared by identify() and validate's refinement
+# ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Refinement:
+    """An ML fit with its statistics: fit (ml.MLFit); cov (n, n) parameter covariance as
+    reported (sandwich when coloured); fisher_cov (n, n) inverse Fisher (white noise at
+    sigma: the Cramér-Rao bound); noise (NoiseModel); estimate (InertiaEstimate); crlb
+    (relative Frobenius bound at the estimate).
+    """
+
+    fit: ml.MLFit
+    cov: np.ndarray
+    fisher_cov: np.ndarray
+    noise: NoiseModel
+    estimate: InertiaEstimate
+    crlb: float
+
+
+def first_horizon(prob: ml.Problem, rel_error: float) -> int:
+    """Measurements in the first horizon stage: the span over which a start with relative
+    inertia error rel_error predicts the phase to within FIRST_HORIZON_PHASE rad (at least
+    half a rotation and 20 measurements).
+    """
+    t = prob.t_grid[prob.meas_idx]
+    rate = float(np.percentile(np.linalg.norm(prob.z_w, axis=1), 90)) + 1e-12
+    span = max(FIRST_HORIZON_PHASE / (rate * max(rel_error, 1e-6)), math.pi / rate)
+    return max(20, int(np.searchsorted(t, t[0] + span)))
+
+
+def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
+           trace_ref: float | None, sigma_source: str) -> Refinement:
+    """Fit the problem from a start, decide white or coloured noise, and build the statistics.
+
+    start_info (n, n) prior information of the start for the early horizon stages;
+    rel_error the start's relative inertia error (plans the first horizon).
+    """
+    fit = ml.fit(prob, p_start, q_start, start_info, first_horizon(prob, rel_error))
+    free = prob.free()
+    fisher_cov = ml.covariance(fit.fisher, free)
+    ev = fit.evaluation
+    m = prob.meas_idx.size
+    channels = ev.r.reshape(-1, m, 3).transpose(1, 0, 2).reshape(m, -1)
+    lags = correlation_lags(channels)
+    rms_ratio = float(np.sqrt(np.mean(ev.r ** 2)))
+    if lags == 0:
+        cov = fisher_cov * max(1.0, rms_ratio ** 2)
+        noise = NoiseModel("white", prob.sigma_w, sigma_source, 0, max(1.0, rms_ratio))
+    else:
+        cov = np.zeros_like(fisher_cov)
+        cov[np.ix_(free, free)] = sandwich_covariance(ev.jac[:, free], ev.r, m, lags)
+        ratio = np.sqrt(np.clip(np.diag(cov)[:6][free[:6]], 0, None)
+                        / np.clip(np.diag(fisher_cov)[:6][free[:6]], 1e-300, None))
+        noise = NoiseModel("coloured", prob.sigma_w, sigma_source, lags, float(np.median(ratio)))
+    phi = fit.p[:6]
+    estimate = inertia_estimate(phi, cov[:6, :6], prob.fix_scale, trace_ref)
+    bound = inertia_estimate(phi, fisher_cov[:6, :6], prob.fix_scale, trace_ref)
+    return Refinement(fit, cov, fisher_cov, noise, estimate,
+                      ml.relative_frobenius_bound(bound.theta, bound.theta_cov))
+
+
+# ------------------------------------------------------------------------------------------
+# Recordings
+# ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Identification:
+    """identify()'s result for one recording (segment).
+
+    name; method; estimate (InertiaEstimate); crlb; rms (3,) rad/s post-fit gyro residual;
+    rms_over_noise; noise (NoiseModel); bias (3,) rad/s or None; t (M,) s; w_meas, w_fit (M, 3)
+    rad/s; converged; wall_s; notes (list of sentences for the summary).
+    """
+
+    name: str
+    method: str
+    estimate: InertiaEstimate
+    crlb: float
+    rms: np.ndarray
+    rms_over_noise: float
+    noise: NoiseModel
+    bias: np.ndarray | None
+    t: np.ndarray
+    w_meas: np.ndarray
+    w_fit: np.ndarray
+    converged: bool
+    wall_s: float
+    notes: tuple
+
+    def summary(self) -> dict:
+        """The JSON keys of identify.json (all finite numbers)."""
+        est = self.estimate
+        vals, half, axes, cone = est.principal()
+        return {
+            "name": self.name,
+            "method": self.method,
+            "inertia": est.inertia.tolist(),
+            "theta": est.theta.tolist(),
+            "theta_cov": est.theta_cov.tolist(),
+            "ci95": est.ci95().tolist(),
+            "principal_moments": vals.tolist(),
+            "principal_moments_ci95": np.stack([vals - half, vals + half], axis=1).tolist(),
+            "principal_axes": axes.T.tolist(),
+            "principal_axes_ci95_deg": cone.tolist(),
+            "scale_identified": bool(est.scale_identified),
+            "crlb": float(self.crlb),
+            "rms": self.rms.tolist(),
+            "rms_over_noise": float(self.rms_over_noise),
+            "noise_model": self.noise.describe(),
+            "noise_kind": self.noise.kind,
+            "gyro_bias": None if self.bias is None else self.bias.tolist(),
+            "converged": bool(self.converged),
+            "n_samples": int(self.t.size),
+            "duration_s": float(self.t[-1] - self.t[0]),
+            "notes": list(self.notes),
+            "wall_s": float(self.wall_s),
+        }
+
+
+def _check_recording(rec: Recording) -> None:
+    if rec.t.size < MIN_SAMPLES:
+        raise RecordingError(f"{rec.name}: only {rec.t.size} samples; identify needs at least "
+                             f"{MIN_SAMPLES}")
+    noise = float(np.median(estimate_white_noise(rec.w))) if rec.t.size > 10 else 0.0
+    peak = float(np.max(np.linalg.norm(rec.w, axis=1)))
+    if peak < 1e-6 or peak < 5.0 * noise:
+        raise RecordingError(f"{rec.name}: the body does not rotate (peak |w| {peak:.3g} rad/s, "
+                             f"gyro noise {noise:.3g} rad/s): no inertia can be identified")
+    if rec.h is not None and not np.all(np.isfinite(rec.h)):
+        raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
+
+
+def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None = None) -> ml.Problem:
+    """The ML problem of a recording: grid = its rows, torque held per row, h linear."""
+    t = rec.t - rec.t[0]
+    n = t.size
+    tau = rec.tau if rec.tau is not None else np.zeros((n, 3))
+    h = rec.h if rec.h is not None else np.zeros((n, 3))
+    forced = bool(np.any(tau != 0.0)) or bool(np.ptp(h, axis=0).max() > 0.0)
+    if sigma_w is None:
+        sigma_w = np.maximum(estimate_white_noise(rec.w), 1e-9)
+    quat_sigma = float(rec.meta.get("quat_sigma", 0.0) or 0.0)
+    with_att = rec.q is not None
+    sigma_att = 2.0 * quat_sigma if quat_sigma > 0 else 0.02
+    return ml.Problem(
+        t_grid=t, tau_grid=np.asarray(tau, float), h_grid=np.asarray(h, float),
+        n_sub=ml.substeps(t, np.linalg.norm(rec.w, axis=1)), meas_idx=np.arange(n),
+        z_w=np.asarray(rec.w, float), z_q=None if not with_att else np.asarray(rec.q, float),
+        sigma_w=np.broadcast_to(np.asarray(sigma_w, float), (3,)).copy(), sigma_att=sigma_att,
+        fit_bias=with_att if fit_bias is None else bool(fit_bias), fix_scale=not forced)
+
+
+def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None) -> Identification:
+    """Identify the inertia of the body in one recording (see the module docstring).
+
+    method: 'ml' (maximum likelihood over the whole record). fit_bias: estimate a constant gyro
+    bias (default: where the attitude is recorded, which makes it identifiable).
+    """
+    if method not in METHODS:
+        raise RecordingError(f"method must be one of {METHODS}, got {method!r}")
+    t0 = time.perf_counter()
+    _check_recording(rec)
+    notes = []
+    if "gyro_sigma" in rec.meta:
+        sigma_w, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar gyro_sigma"
+    else:
+        sigma_w, source = None, "estimated from the residuals"
+    prob = problem_from_recording(rec, sigma_w, fit_bias)
+    nominal = rec.inertia_nominal
+    trace_ref = float(np.trace(nominal)) if nominal is not None else None
+    theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid,
+                                  trace=trace_ref if trace_ref is not None else 1.0)
+    phi0 = phi_from_inertia(inertia_from_theta(theta0))
+    n = prob.n_params
+    p0 = np.zeros(n)
+    p0[:6], p0[6:9] = phi0, prob.z_w[0]
+    info = np.zeros((n, n))
+    info[:6, :6] = np.eye(6) / START_PRIOR_SIGMA ** 2
+    q0 = None if rec.q is None else rec.q[0]
+    ref = refine(prob, p0, q0, info, START_REL_ERROR, trace_ref, source)
+    if sigma_w is None:  # reweight with the residuals' own level and refit once
+        ev = ref.fit.evaluation
+        level = np.sqrt(np.mean(ev.e_w ** 2, axis=0))
+        prob = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
+        ref = refine(prob, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
+    ev = ref.fit.evaluation
+    bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
+    w_fit = prob.z_w - ev.e_w
+    rms = np.sqrt(np.mean(ev.e_w ** 2, axis=0))
+    rms_over_noise = float(np.sqrt(np.mean((ev.e_w / prob.sigma_w) ** 2)))
+    est = ref.estimate
+    if est.scale_identified:
+        sigma_s = math.sqrt(max(ref.cov[0, 0], 0.0))
+        if sigma_s > SCALE_SIGMA_IDENTIFIED:
+            est = dataclasses.replace(est, scale_identified=False)
+            notes.append(f"the scale is poorly determined (relative sigma {sigma_s:.2g}): trust "
+                         "the ratios, not the absolute values")
+    else:
+        notes.append("neither a torque nor a changing internal momentum acts: the inertia is "
+                     "identified up to scale; it is reported normalised to trace "
+                     f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
+                     + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
+    if not ref.fit.converged:
+        notes.append("the fit stopped at its iteration limit before converging")
+    if rms_over_noise > 3.0:
+        notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
+                     "model leaves something out (run `inertia-gym diagnose`); the intervals are "
+                     "widened by the residuals' correlation but may still be optimistic")
+    return Identification(
+        name=rec.name, method=method, estimate=est, crlb=ref.crlb, rms=rms,
+        rms_over_noise=rms_over_noise, noise=ref.noise, bias=bias, t=rec.t, w_meas=rec.w,
+        w_fit=w_fit, converged=ref.fit.converged, wall_s=time.perf_counter() - t0,
+        notes=tuple(notes))
+
+
+def markdown(summary: dict, plots=()) -> str:
+    """summary.md of one identify.json summary (plots: file names to link)."""
+    labels = ("Jxx", "Jxy", "Jxz", "Jyy", "Jyz", "Jzz")
+    unit = "kg·m²" if summary["scale_identified"] else "normalised"
+    lines = [f"# Inertia of {summary['name']} ({summary['method']})", ""]
+    if not summary["scale_identified"]:
+        lines += ["**Scale not identified**: neither a known torque nor a changing internal "
+                  "momentum fixed the inertia's absolute size. The values are ratios, normalised "
+                  "to the trace shown; their intervals are those of the ratios.", ""]
+    lines += [f"| parameter | estimate ({unit}) | 95 % interval |", "|---|---|---|"]
+    for name, value, (lo, hi) in zip(labels, summary["theta"], summary["ci95"]):
+        lines.append(f"| {name} | {value:.6g} | [{lo:.6g}, {hi:.6g}] |")
+    lines += ["", "| principal moment | 95 % interval | axis (body frame) | axis 95 % cone |",
+              "|---|---|---|---|"]
+    for m, (lo, hi), ax, cone in zip(summary["principal_moments"], summary["principal_moments_ci95"],
+                                     summary["principal_axes"], summary["principal_axes_ci95_deg"]):
+        axis = ", ".join(f"{a:+.4f}" for a in ax)
+        lines.append(f"| {m:.6g} | [{lo:.6g}, {hi:.6g}] | ({axis}) | {cone:.2f}° |")
+    lines += ["", f"- Cramér-Rao bound (relative Frobenius error): {summary['crlb']:.3%}",
+              f"- post-fit gyro rms: {', '.join(f'{r:.3g}' for r in summary['rms'])} rad/s "
+              f"({summary['rms_over_noise']:.2f}x the noise)",
+              f"- noise model: {summary['noise_model']}",
+              f"- {summary['n_samples']} samples over {summary['duration_s']:.3f} s; "
+              f"converged: {summary['converged']}; {summary['wall_s']:.2f} s"]
+    if summary.get("gyro_bias") is not None:
+        lines.append(f"- gyro bias: {', '.join(f'{b:.3g}' for b in summary['gyro_bias'])} rad/s")
+    lines += [f"- note: {n}" for n in summary["notes"]]
+    lines += [""] + [f"![{p}]({p})" for p in plots]
+    return "\n".join(lines) + "\n"
