@@ -162,7 +162,8 @@ class Trace:
     w_hat, w_dot_hat, tau : (B, n, 3) per step; n_steps (B,).
     meas_step (B, m) step index of each measurement from the run's start; n_meas (B,);
     theta_hat, theta_var (B, m, 6) posterior mean and variance of theta after each update;
-    w_true, w_est (B, m, 3); nis (B, m).
+    measurements (B, m, 14): the true (q, w) at each measurement, then the gyro reading (3) and
+    the quaternion reading (4, NaN without an attitude sensor); w_est (B, m, 3); nis (B, m).
     """
 
     w_hat: np.ndarray
@@ -173,16 +174,21 @@ class Trace:
     n_meas: np.ndarray
     theta_hat: np.ndarray
     theta_var: np.ndarray
-    w_true: np.ndarray
+    measurements: np.ndarray
     w_est: np.ndarray
     nis: np.ndarray
+
+    @property
+    def w_true(self) -> np.ndarray:
+        """(B, m, 3) rad/s true rate at each measurement."""
+        return self.measurements[..., 4:7]
 
 
 @nb.njit(cache=True)
 def _segment_one(
     y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, a, b, v, tau_max,
     meas_at, z_noise, cfg, record_steps,
-    out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_w_true, log_w_est, log_nis,
+    out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis,
 ):
     """Advance one run by n_steps; returns (status, number of measurements processed)."""
     dt = cfg[ekf.C_DT]
@@ -233,9 +239,10 @@ def _segment_one(
             else:
                 ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
+            _measure(y_true, z_noise[meas_i], cfg, z)
             if status == 0:
-                status = _filter_update(x, P, phi_top, cov_work, sigma, n_updates, y_true,
-                                        z_noise[meas_i], cfg, z, log_nis, meas_i)
+                status = _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z,
+                                        log_nis, meas_i)
                 n_updates += 1
                 if status == 0:
                     inertia_hat = inertia_from_phi(x[7:13])
@@ -244,10 +251,23 @@ def _segment_one(
                                                              sigma_inertia_inv):
                         status = 1
             _log_theta(x, P, log_theta[meas_i], log_var[meas_i])
-            log_w_true[meas_i] = y_true[4:7]
+            _log_measurement(y_true, z, cfg, log_meas[meas_i])
             log_w_est[meas_i] = x[4:7]
             meas_i += 1
     return status, meas_i, n_updates
+
+
+@nb.njit(cache=True)
+def _log_measurement(y_true, z, cfg, out):
+    """Write the true state (q, w) and the gyro and quaternion readings into out (14,); the
+    quaternion reading is NaN when the scenario has no attitude sensor.
+    """
+    for i in range(7):
+        out[i] = y_true[i]
+    for i in range(3):
+        out[7 + i] = z[i]
+    for i in range(4):
+        out[10 + i] = z[3 + i] if cfg[ekf.C_USE_QUAT] > 0 else np.nan
 
 
 @nb.njit(cache=True)
@@ -282,9 +302,9 @@ def _record_step(x, tau, inertia_hat, inertia_hat_inv, w_hat, w_dot_hat):
 
 
 @nb.njit(cache=True)
-def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, y_true, noise, cfg, z, log_nis,
-                   meas_i):
-    """Covariance prediction + measurement update; returns STATUS_DIVERGED instead of raising.
+def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, meas_i):
+    """Covariance prediction + update with the measurement z; returns STATUS_DIVERGED instead
+    of raising.
 
     EKF: P^- from the accumulated transition; UKF: from the propagated sigma points.
     """
@@ -298,7 +318,6 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, y_true, noise, cfg
         phi_top[:, :] = 0.0
         for i in range(7):
             phi_top[i, i] = 1.0
-        _measure(y_true, noise, cfg, z)
         log_nis[meas_i] = ekf.ekf_update(x, P, z, cfg)
     except Exception:  # a failed factorisation: the estimate has left its domain
         return 1
@@ -332,7 +351,7 @@ def _measure(y_true, noise, cfg, z):
 def _segment_batch(
     y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi, v, tau_max,
     meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat, out_tau,
-    log_theta, log_var, log_w_true, log_w_est, log_nis, status, meas_done,
+    log_theta, log_var, log_meas, log_w_est, log_nis, status, meas_done,
 ):
     for r in nb.prange(y_true.shape[0]):
         if status[r] != 0:
@@ -342,7 +361,7 @@ def _segment_batch(
             bursts[r, : n_bursts[r]], xi[r, 0], xi[r, 1], v[r], tau_max,
             meas_at[r, : n_meas[r]], z_noise[r], cfg, record_steps,
             out_w_hat[r], out_w_dot_hat[r], out_tau[r], log_theta[r], log_var[r],
-            log_w_true[r], log_w_est[r], log_nis[r],
+            log_meas[r], log_w_est[r], log_nis[r],
         )
         status[r] = st
         meas_done[r] = done
@@ -405,7 +424,7 @@ def run_segment(
     out_tau = np.zeros((batch, n_max, 3))
     log_theta = np.full((batch, max_meas, 6), np.nan)
     log_var = np.full((batch, max_meas, 6), np.nan)
-    log_w_true = np.full((batch, max_meas, 3), np.nan)
+    log_meas = np.full((batch, max_meas, 14), np.nan)
     log_w_est = np.full((batch, max_meas, 3), np.nan)
     log_nis = np.full((batch, max_meas), np.nan)
     y_true, x, P = state.y_true.copy(), state.x.copy(), state.P.copy()
@@ -416,7 +435,7 @@ def run_segment(
     _segment_batch(
         y_true, sc.inertia_true_array, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi,
         v, sc.tau_max, meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat,
-        out_tau, log_theta, log_var, log_w_true, log_w_est, log_nis, status, meas_done,
+        out_tau, log_theta, log_var, log_meas, log_w_est, log_nis, status, meas_done,
     )
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
@@ -425,6 +444,6 @@ def run_segment(
     trace = Trace(
         w_hat=out_w_hat, w_dot_hat=out_w_dot_hat, tau=out_tau, n_steps=n_steps,
         meas_step=state.step[:, None] + meas_at, n_meas=n_meas, theta_hat=log_theta,
-        theta_var=log_var, w_true=log_w_true, w_est=log_w_est, nis=log_nis,
+        theta_var=log_var, measurements=log_meas, w_est=log_w_est, nis=log_nis,
     )
     return new_state, trace
