@@ -46,6 +46,8 @@ START_REL_ERROR = 0.03
 #: Largest phase error (rad) the first horizon may accumulate from the start's inertia error.
 FIRST_HORIZON_PHASE = 0.5
 MIN_SAMPLES = 20
+#: Least total rotation angle (rad) over a record: rigid-body dynamics need the body to turn.
+MIN_ROTATION = 0.1
 TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 
 
@@ -328,10 +330,13 @@ def _check_recording(rec: Recording) -> None:
         raise RecordingError(f"{rec.name}: only {rec.t.size} samples; identify needs at least "
                              f"{MIN_SAMPLES}")
     noise = float(np.median(estimate_white_noise(rec.w))) if rec.t.size > 10 else 0.0
-    peak = float(np.max(np.linalg.norm(rec.w, axis=1)))
-    if peak < 1e-6 or peak < 5.0 * noise:
+    rate = np.linalg.norm(rec.w, axis=1)
+    peak = float(np.max(rate))
+    turned = float(np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(rec.t)))
+    if peak < 5.0 * noise or turned < MIN_ROTATION:
         raise RecordingError(f"{rec.name}: the body does not rotate (peak |w| {peak:.3g} rad/s, "
-                             f"gyro noise {noise:.3g} rad/s): no inertia can be identified")
+                             f"gyro noise {noise:.3g} rad/s, {turned:.3g} rad turned in all): no "
+                             "inertia can be identified")
     if rec.h is not None and not np.all(np.isfinite(rec.h)):
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
 
@@ -393,7 +398,10 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
     w_fit = prob.z_w - ev.e_w
     rms = np.sqrt(np.mean(ev.e_w ** 2, axis=0))
-    rms_over_noise = float(np.sqrt(np.mean((ev.e_w / prob.sigma_w) ** 2)))
+    # Against the noise the fit did not produce: the sidecar's, or the third-difference level
+    # (the residuals' own level would make the ratio 1 by construction).
+    reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(rec.w), 1e-12)
+    rms_over_noise = float(np.sqrt(np.mean((ev.e_w / reference) ** 2)))
     est = ref.estimate
     if est.scale_identified:
         sigma_s = math.sqrt(max(ref.cov[0, 0], 0.0))

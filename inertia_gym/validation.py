@@ -134,7 +134,7 @@ def ratio_error(j_hat, j_true) -> np.ndarray:
 
 
 def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = True,
-             disturbance=None, refine_ml: bool = True) -> ValidationResult:
+             disturbance=None, refine_ml: bool = False) -> ValidationResult:
     """Validate xi = (a, b, T_on) (or None: no torque at all) over `duration` s for each seed.
 
     refine_ml: also refine each run by batch maximum likelihood and score it against the

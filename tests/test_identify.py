@@ -1,0 +1,175 @@
+"""`identify`: the inertia of a recorded body, on simulated data with known truth, on bad input,
+and on the real development recordings (skipped when ../shared/data is absent)."""
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from inertia_gym.cli import main
+from inertia_gym.discrepancy.recordings import Recording, read_recordings, write_recording
+from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.errors import RecordingError
+from inertia_gym.identify import identify
+from inertia_gym.information import theta_from_inertia
+from inertia_gym.scenario import Scenario
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+ROTOR = DATA / "rotor-throws"
+SMALL_BODY = dict(inertia_true=[[5.2e-4, 2e-6, 1e-6], [2e-6, 2.2e-4, 6e-6], [1e-6, 6e-6, 5.2e-4]],
+                  inertia_guess=[[5e-4, 0, 0], [0, 2.5e-4, 0], [0, 0, 5e-4]], omega0=[15.0, -6.0, -10.0],
+                  dt=0.00025, gyro_sigma=0.01, tau_max=1e-4)
+
+
+def _rel(j_hat, j):
+    return np.linalg.norm(j_hat - j) / np.linalg.norm(j)
+
+
+def _throw(seed, rotor=2e-3):
+    """A 0.5-s, 4-kHz gyro-only throw of a 5e-4 kg·m² body whose rotor spins up and down."""
+    sc = Scenario(**SMALL_BODY)
+    rec, side = simulate_recording(sc, 0.5, seed=seed, torque=False, rotor_h_max=rotor)
+    return dataclasses.replace(rec, q=None), sc
+
+
+@pytest.fixture(scope="module")
+def paper_recording():
+    """200 s at 100 Hz of the paper's body with torque bursts and attitude."""
+    rec, _ = simulate_recording(Scenario(), 200.0, seed=1, sample_dt=0.01)
+    return rec
+
+
+def test_ml_identifies_a_simulated_recording_within_its_bound(paper_recording):
+    res = identify(paper_recording)
+    truth = Scenario().inertia_true_array
+    assert res.estimate.scale_identified and res.converged
+    assert _rel(res.estimate.inertia, truth) < 4 * res.crlb
+    assert res.noise.kind == "white"
+    assert 0.9 < res.rms_over_noise < 1.1
+    inside = np.abs(res.estimate.theta - theta_from_inertia(truth)) <= 1.96 * res.estimate.sigma
+    assert inside.sum() >= 5
+    assert np.abs(res.bias).max() < 5 * Scenario().gyro_sigma  # no bias in the truth
+
+
+def test_summary_has_the_contract_keys_and_only_finite_numbers(paper_recording):
+    summary = identify(paper_recording).summary()
+    for key in ("inertia", "theta", "theta_cov", "ci95", "principal_moments", "principal_axes",
+                "scale_identified", "crlb", "rms", "rms_over_noise", "method", "wall_s"):
+        assert key in summary
+    text = json.dumps(summary, allow_nan=False)  # raises on NaN / Infinity
+    assert np.array(summary["theta_cov"]).shape == (6, 6)
+    assert np.array(summary["ci95"]).shape == (6, 2)
+    axes = np.array(summary["principal_axes"])
+    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-9)
+    assert "NaN" not in text
+
+
+def test_known_rotor_momentum_fixes_the_scale_of_a_thrown_body():
+    errors = []
+    for seed in range(4):
+        rec, sc = _throw(seed)
+        res = identify(rec)
+        assert res.estimate.scale_identified
+        errors.append(_rel(res.estimate.inertia, sc.inertia_true_array) / res.crlb)
+    assert np.median(errors) < 2.0
+
+
+def test_without_momentum_or_torque_the_scale_is_reported_unidentified():
+    rec, sc = _throw(0, rotor=None)
+    rec = dataclasses.replace(rec, meta={**rec.meta, "inertia_nominal": sc.inertia_guess_array.tolist()})
+    assert rec.h is None
+    res = identify(rec)
+    assert not res.estimate.scale_identified
+    assert np.trace(res.estimate.inertia) == pytest.approx(np.trace(sc.inertia_guess_array))
+    truth = sc.inertia_true_array
+    ratio = res.estimate.inertia / np.trace(res.estimate.inertia) - truth / np.trace(truth)
+    assert np.linalg.norm(ratio) / np.linalg.norm(truth / np.trace(truth)) < 0.01
+    assert any("up to scale" in n for n in res.notes)
+
+
+def test_a_withheld_rotor_momentum_shows_as_a_misfit_not_a_confident_answer():
+    rec, _ = _throw(0)
+    res = identify(dataclasses.replace(rec, h=None))
+    assert not res.estimate.scale_identified
+    assert res.rms_over_noise > 3.0
+    assert any("leaves something out" in n for n in res.notes)
+
+
+def test_identify_cli_writes_json_plots_and_summary(tmp_path, capsys):
+    rec, _ = _throw(1)
+    path = tmp_path / "throw.csv"
+    write_recording(path, rec, rec.meta)
+    out = tmp_path / "id"
+    assert main(["identify", str(path), "--out", str(out)]) == 0
+    summary = json.loads((out / "identify.json").read_text())
+    assert summary["method"] == "ml" and summary["scale_identified"] is True
+    assert (out / "fit.png").stat().st_size > 10_000 and (out / "inertia.png").stat().st_size > 5_000
+    assert "95 % interval" in (out / "summary.md").read_text()
+    assert "principal moments" in capsys.readouterr().out
+
+
+def _write(tmp_path, name, header, rows, sidecar=None):
+    path = tmp_path / name
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
+    if sidecar is not None:
+        path.with_suffix(".json").write_text(json.dumps(sidecar))
+    return path
+
+
+def _rows(n=200, rate=1.0):
+    t = np.arange(n) * 0.01
+    return [[ti, rate * math.cos(ti), rate * math.sin(ti), 0.3 * rate] for ti in t]
+
+
+@pytest.mark.parametrize("case, message", [
+    ("partial_h", "h_z"),
+    ("nan_h", "h_x"),
+    ("short", "samples"),
+    ("still", "does not rotate"),
+    ("indefinite_nominal", "inertia_nominal"),
+])
+def test_bad_input_ends_in_a_one_line_error_naming_the_field(tmp_path, capsys, case, message):
+    header, rows, side = ["t", "wx", "wy", "wz"], _rows(), None
+    if case == "partial_h":
+        header += ["h_x", "h_y"]
+        rows = [r + [0.0, 0.0] for r in rows]
+    elif case == "nan_h":
+        header += ["h_x", "h_y", "h_z"]
+        rows = [r + [0.0, 0.0, 0.0] for r in rows]
+        rows[17][4] = "nan"
+    elif case == "short":
+        rows = rows[:15]
+    elif case == "still":
+        rows = [[r[0], 1e-4 * np.sin(7 * i), 1e-4 * np.cos(5 * i), 0.0] for i, r in enumerate(rows)]
+    elif case == "indefinite_nominal":
+        side = {"inertia_nominal": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}
+    path = _write(tmp_path, "rec.csv", header, rows, side)
+    assert main(["identify", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err
+    assert not (tmp_path / "out" / "identify.json").exists()
+
+
+def test_unknown_method_is_refused():
+    rec = Recording(np.arange(50) * 0.01, np.ones((50, 3)))
+    with pytest.raises(RecordingError, match="method"):
+        identify(rec, method="magic")
+
+
+@pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
+def test_real_rotor_throws_against_their_reference_inertia():
+    """20 real throws with a logged rotor: error vs the CAD+calibration reference."""
+    truth = json.loads((ROTOR / "truth.json").read_text())
+    errors = []
+    for path in sorted(ROTOR.glob("*.csv")):
+        rec = read_recordings(path)[0]
+        res = identify(rec)
+        assert res.estimate.scale_identified and res.converged
+        assert np.all(np.isfinite(res.estimate.theta_cov))
+        errors.append(_rel(res.estimate.inertia, np.array(truth[path.stem]["inertia"])))
+    assert len(errors) == 20
+    assert np.median(errors) <= 0.021
+    assert max(errors) <= 0.055
