@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba as nb
 import numpy as np
 
 from inertia_gym.errors import ConfigError
@@ -29,13 +30,29 @@ def burst_direction(p_theta) -> np.ndarray:
     return v if v[np.argmax(np.abs(v))] > 0 else -v
 
 
+@nb.njit(cache=True)
+def burst_torque_into(a, b, w_hat, v, tau_max, out):
+    """Eq. (18) into out (3,): a (w_hat x v) + b v, scaled down to |tau|_inf <= tau_max keeping
+    its direction. a N·m·s, b N·m, w_hat rad/s (3,), v unit (3,); allocation-free (the compiled
+    closed loop calls it at every burst start).
+    """
+    for i in range(3):
+        out[i] = b * v[i]
+    out[0] += a * (w_hat[1] * v[2] - w_hat[2] * v[1])
+    out[1] += a * (w_hat[2] * v[0] - w_hat[0] * v[2])
+    out[2] += a * (w_hat[0] * v[1] - w_hat[1] * v[0])
+    peak = max(abs(out[0]), abs(out[1]), abs(out[2]))
+    if peak > tau_max:
+        for i in range(3):
+            out[i] *= tau_max / peak
+
+
 def burst_torque(a: float, b: float, w_hat, v, tau_max: float) -> np.ndarray:
     """Eq. (18): a (w_hat x v) + b v, scaled down to |tau|_inf <= tau_max. Shape (3,), N·m."""
-    if not tau_max > 0:
-        raise ConfigError(f"tau_max must be > 0, got {tau_max}")
-    tau = a * np.cross(w_hat, v) + b * np.asarray(v, dtype=float)
-    peak = np.abs(tau).max()
-    return tau * (tau_max / peak) if peak > tau_max else tau
+    out = np.empty(3)
+    burst_torque_into(float(a), float(b), np.asarray(w_hat, dtype=float), np.asarray(v, dtype=float),
+                      float(tau_max), out)
+    return out
 
 
 def check_xi(xi, bounds) -> np.ndarray:

@@ -10,15 +10,17 @@ metric; per measurement it records the estimate for plots and validation.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-import math
 
 import numba as nb
 import numpy as np
 
-from inertia_gym.dynamics import NO_DISTURBANCE, euler_to_quat, inv3, rk4_step_into
+from inertia_gym import sensors
+from inertia_gym.dynamics import DISTURBANCE_SIZE, NO_DISTURBANCE, euler_to_quat, inv3, rk4_step_into
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf, ukf
+from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.inertia_param import (
     decouple_scale,
     dtheta_dphi,
@@ -27,32 +29,15 @@ from inertia_gym.estimation.inertia_param import (
     theta_from_phi,
     theta_into,
 )
+from inertia_gym.excitation import burst_torque_into
 from inertia_gym.scenario import Scenario
 
 STATUS_OK, STATUS_DIVERGED = 0, 1
 
 
-def pack_filter_config(sc: Scenario) -> np.ndarray:
-    """Flat filter configuration read by the compiled kernels (layout in estimation/ekf.py)."""
-    cfg = np.zeros(ekf.CONFIG_SIZE)
-    cfg[ekf.C_DT] = sc.dt
-    cfg[ekf.C_GYRO] = sc.gyro_sigma
-    cfg[ekf.C_QUAT] = sc.quat_sigma
-    cfg[ekf.C_ACC] = sc.accel_sigma
-    cfg[ekf.C_MAG] = sc.mag_sigma
-    cfg[ekf.C_QQ] = sc.Q_quat
-    cfg[ekf.C_QW] = sc.Q_omega
-    cfg[ekf.C_QTH] = sc.Q_theta
-    cfg[ekf.C_GAMMA] = sc.alpha_gamma
-    cfg[ekf.C_QMIN] = sc.alpha_qmin
-    cfg[ekf.C_USE_QUAT] = 1.0 if sc.quat_sigma > 0 else 0.0
-    cfg[ekf.C_USE_VEC] = 1.0 if sc.use_vector_sensors else 0.0
-    cfg[ekf.C_GRAV] = sc.gravity_inertial
-    cfg[ekf.C_MAGREF] = sc.mag_inertial
-    cfg[ekf.C_NIS_GATE] = sc.nis_gate
-    cfg[ekf.C_STEP_LIMIT] = sc.inertia_step_limit
-    cfg[ekf.C_UKF] = 1.0 if sc.estimator == "ukf" else 0.0
-    return cfg
+def pack_filter_config(sc: Scenario) -> np.void:
+    """The filter configuration record the compiled kernels read (estimation/config.py)."""
+    return FilterConfig.from_scenario(sc).record()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,20 +169,38 @@ class Trace:
         return self.measurements[..., 4:7]
 
 
+#: Arrays of a batch of B runs handed to the compiled loop, grouped by role (leading axis B).
+#: Truth: y (B, 7) true (q, w), inertia (3, 3), dist (20,) packed disturbance on the truth.
+Truth = collections.namedtuple("Truth", "y inertia dist")
+#: Estimator: x (B, 13), P (B, 13, 13), n_updates (B,).
+Estimator = collections.namedtuple("Estimator", "x P n_updates")
+#: Plan: n_steps (B,); bursts (B, nb, 2) [start, stop) steps and n_bursts (B,); xi (B, 3);
+#: v (B, 3) burst directions; tau_max N·m; meas_at (B, m) steps of the measurements and
+#: n_meas (B,); z_noise (B, m, 13) noise draws; record_steps: keep the per-step log.
+Plan = collections.namedtuple("Plan", "n_steps bursts n_bursts xi v tau_max meas_at n_meas z_noise "
+                                      "record_steps")
+#: Logs (see Trace): w_hat, w_dot_hat, tau (B, n, 3) per step; theta, var (B, m, 6),
+#: measurements (B, m, 14), w_est (B, m, 3), nis (B, m) per measurement.
+Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurements w_est nis")
+
+
 @nb.njit(cache=True)
-def _segment_one(
-    y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, a, b, v, tau_max,
-    meas_at, z_noise, cfg, record_steps,
-    out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis,
-):
-    """Advance one run by n_steps; returns (status, number of measurements processed)."""
-    dt = cfg[ekf.C_DT]
+def _segment_one(truth, est, plan, logs, r, cfg):
+    """Advance run r of the batch by plan.n_steps[r]; returns (status, measurements processed,
+    updates so far). The truth, the estimate and the logs of run r are updated in place.
+    """
+    y_true, inertia_true, dist = truth.y[r], truth.inertia, truth.dist
+    x, P, n_updates = est.x[r], est.P[r], est.n_updates[r]
+    bursts = plan.bursts[r, : plan.n_bursts[r]]
+    a, b, v, tau_max = plan.xi[r, 0], plan.xi[r, 1], plan.v[r], plan.tau_max
+    meas_at, z_noise = plan.meas_at[r, : plan.n_meas[r]], plan.z_noise[r]
+    dt = cfg.dt
     inertia_true_inv = inv3(inertia_true)
     jac_work = np.empty((13, 13))
     cov_work = np.empty((14, 13))
     inertia_hat = inertia_from_phi(x[7:13])
     inertia_hat_inv = inv3(inertia_hat)
-    use_ukf = cfg[ekf.C_UKF] > 0
+    use_ukf = cfg.ukf > 0
     n_sigma = ukf.N_SIGMA if use_ukf else 0
     sigma = np.empty((n_sigma, 13))
     sigma_inertia = np.empty((n_sigma, 3, 3))
@@ -208,41 +211,34 @@ def _segment_one(
     for i in range(7):
         phi_top[i, i] = 1.0
     tau = np.zeros(3)
+    model_dist = np.zeros(DISTURBANCE_SIZE)  # the filter's model: no disturbance, no wheel
     burst_i = 0
     meas_i = 0
     status = 0
-    z = np.empty(ekf.measurement_size(cfg))
-    for k in range(n_steps):
+    z = np.empty(sensors.measurement_size(cfg))
+    for k in range(plan.n_steps[r]):
         # Burst law (18): computed from the filter's rate at the burst start, held over the burst.
         if burst_i < bursts.shape[0] and k == bursts[burst_i, 1]:
             tau[:] = 0.0
             burst_i += 1
         if burst_i < bursts.shape[0] and k == bursts[burst_i, 0]:
-            w_h = x[4:7]
-            for i in range(3):
-                tau[i] = b * v[i]
-            tau[0] += a * (w_h[1] * v[2] - w_h[2] * v[1])
-            tau[1] += a * (w_h[2] * v[0] - w_h[0] * v[2])
-            tau[2] += a * (w_h[0] * v[1] - w_h[1] * v[0])
-            peak = max(abs(tau[0]), abs(tau[1]), abs(tau[2]))
-            if peak > tau_max:  # saturate |tau|_inf <= tau_max, keeping the direction
-                for i in range(3):
-                    tau[i] *= tau_max / peak
-        if record_steps:
-            _record_step(x, tau, inertia_hat, inertia_hat_inv, out_w_hat[k], out_w_dot_hat[k])
-            out_tau[k] = tau
+            burst_torque_into(a, b, x[4:7], v, tau_max, tau)
+        if plan.record_steps:
+            _record_step(x, tau, inertia_hat, inertia_hat_inv, logs.w_hat[r, k], logs.w_dot_hat[r, k])
+            logs.tau[r, k] = tau
         rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_true)
         if status == 0:
             if use_ukf:
-                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt)
+                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt, model_dist)
                 ukf.sigma_mean(sigma, x)
             else:
-                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work)
+                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work,
+                                     model_dist)
         if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
-            _measure(y_true, z_noise[meas_i], cfg, z)
+            sensors.simulate_measurement(y_true, z_noise[meas_i], cfg, z)
             if status == 0:
                 status = _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z,
-                                        log_nis, meas_i)
+                                        logs.nis[r], meas_i)
                 n_updates += 1
                 if status == 0:
                     inertia_hat = inertia_from_phi(x[7:13])
@@ -250,9 +246,9 @@ def _segment_one(
                     if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia,
                                                              sigma_inertia_inv):
                         status = 1
-            _log_theta(x, P, log_theta[meas_i], log_var[meas_i])
-            _log_measurement(y_true, z, cfg, log_meas[meas_i])
-            log_w_est[meas_i] = x[4:7]
+            _log_theta(x, P, logs.theta[r, meas_i], logs.var[r, meas_i])
+            _log_measurement(y_true, z, cfg, logs.measurements[r, meas_i])
+            logs.w_est[r, meas_i] = x[4:7]
             meas_i += 1
     return status, meas_i, n_updates
 
@@ -267,7 +263,7 @@ def _log_measurement(y_true, z, cfg, out):
     for i in range(3):
         out[7 + i] = z[i]
     for i in range(4):
-        out[10 + i] = z[3 + i] if cfg[ekf.C_USE_QUAT] > 0 else np.nan
+        out[10 + i] = z[3 + i] if cfg.use_quat > 0 else np.nan
 
 
 @nb.njit(cache=True)
@@ -308,12 +304,12 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
 
     EKF: P^- from the accumulated transition; UKF: from the propagated sigma points.
     """
-    if cfg[ekf.C_UKF] > 0:
+    if cfg.ukf > 0:
         P[:, :] = ukf.sigma_covariance(sigma, x, n_updates, cfg)
     if not ekf.state_is_sane(x, P):
         return 1
     try:
-        if cfg[ekf.C_UKF] == 0:
+        if cfg.ukf == 0:
             ekf.propagate_covariance(P, phi_top, x, n_updates, cfg, cov_work)
         phi_top[:, :] = 0.0
         for i in range(7):
@@ -324,48 +320,20 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
     return 0 if ekf.state_is_sane(x, P) else 1
 
 
-@nb.njit(cache=True)
-def _measure(y_true, noise, cfg, z):
-    """Noisy measurement of the true state: gyro, [normalised quaternion], [body vectors]."""
-    for i in range(3):
-        z[i] = y_true[4 + i] + noise[i]
-    row = 3
-    if cfg[ekf.C_USE_QUAT] > 0:
-        norm = 0.0
-        for i in range(4):
-            z[row + i] = y_true[i] + noise[3 + i]
-            norm += z[row + i] ** 2
-        norm = math.sqrt(norm)
-        for i in range(4):
-            z[row + i] /= norm
-        row += 4
-    if cfg[ekf.C_USE_VEC] > 0:
-        g_b, _ = ekf.body_vector_and_jacobian(y_true[0:4], cfg[ekf.C_GRAV])
-        m_b, _ = ekf.body_vector_and_jacobian(y_true[0:4], cfg[ekf.C_MAGREF])
-        for i in range(3):
-            z[row + i] = g_b[i] + noise[7 + i]
-            z[row + 3 + i] = m_b[i] + noise[10 + i]
-
-
 @nb.njit(cache=True, parallel=True)
-def _segment_batch(
-    y_true, inertia_true, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi, v, tau_max,
-    meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat, out_tau,
-    log_theta, log_var, log_meas, log_w_est, log_nis, status, meas_done,
-):
-    for r in nb.prange(y_true.shape[0]):
+def _segment_batch(truth, est, plan, logs, cfg_array, status, meas_done):
+    """Advance every run of the batch that has not diverged (parallel over runs).
+
+    cfg_array : (1,) array of the filter configuration record (a record is handed to the
+    parallel loop inside an array: numba cannot pass a bare record into a parfor).
+    """
+    for r in nb.prange(truth.y.shape[0]):
         if status[r] != 0:
             continue
-        st, done, nu = _segment_one(
-            y_true[r], inertia_true, dist, x[r], P[r], n_updates[r], n_steps[r],
-            bursts[r, : n_bursts[r]], xi[r, 0], xi[r, 1], v[r], tau_max,
-            meas_at[r, : n_meas[r]], z_noise[r], cfg, record_steps,
-            out_w_hat[r], out_w_dot_hat[r], out_tau[r], log_theta[r], log_var[r],
-            log_meas[r], log_w_est[r], log_nis[r],
-        )
+        st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0])
         status[r] = st
         meas_done[r] = done
-        n_updates[r] = nu
+        est.n_updates[r] = nu
 
 
 def run_segment(
@@ -410,10 +378,7 @@ def run_segment(
     max_meas = max(1, max(len(s) for s in schedules))
     meas_at = np.zeros((batch, max_meas), dtype=np.int64)
     n_meas = np.array([len(s) for s in schedules], dtype=np.int64)
-    sigmas = np.concatenate(
-        [np.full(3, sc.gyro_sigma), np.full(4, sc.quat_sigma),
-         np.full(3, sc.accel_sigma), np.full(3, sc.mag_sigma)]
-    )
+    sigmas = sensors.noise_sigmas(cfg)
     z_noise = np.zeros((batch, max_meas, 13))
     for r in range(batch):
         meas_at[r, : n_meas[r]] = schedules[r]
@@ -433,9 +398,10 @@ def run_segment(
     meas_done = np.zeros(batch, dtype=np.int64)
     dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
     _segment_batch(
-        y_true, sc.inertia_true_array, dist, x, P, n_updates, n_steps, bursts, n_bursts, xi,
-        v, sc.tau_max, meas_at, n_meas, z_noise, cfg, record_steps, out_w_hat, out_w_dot_hat,
-        out_tau, log_theta, log_var, log_meas, log_w_est, log_nis, status, meas_done,
+        Truth(y_true, sc.inertia_true_array, dist), Estimator(x, P, n_updates),
+        Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
+        Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
+        np.array([cfg]), status, meas_done,
     )
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from inertia_gym import sensors
 from inertia_gym.dynamics import NO_DISTURBANCE, _state_rate_into, euler_to_quat, quat_to_rotation
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf
@@ -50,7 +51,7 @@ def _predict(x, tau, n, dt=0.01):
     inertia = inertia_from_phi(x[7:])
     for _ in range(n):
         ekf.ekf_predict_step(x, tau, dt, inertia, np.linalg.inv(inertia), phi_top,
-                             np.empty((13, 13)))
+                             np.empty((13, 13)), NO_DISTURBANCE)
     return x, phi_top
 
 
@@ -106,24 +107,24 @@ def test_transition_step_is_identity_plus_dt_jacobian_and_accumulates(rng):
     work = np.empty((13, 13))
     inertia = inertia_from_phi(phi_from_inertia(J))
     ekf.accumulate_transition(steps[0][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
-                              work)
+                              work, NO_DISTURBANCE)
     assert np.allclose(phi_top, steps[0][1][:7], rtol=0, atol=1e-9)
     ekf.accumulate_transition(steps[1][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
-                              work)
+                              work, NO_DISTURBANCE)
     assert np.allclose(phi_top, (steps[1][1] @ steps[0][1])[:7], rtol=0, atol=1e-9)
 
 
 def test_vector_sensor_jacobian_matches_finite_differences(rng):
     q = euler_to_quat([40, -10, 70])
     v = np.array([0.2, 0.0, 0.45])
-    out, jac = ekf.body_vector_and_jacobian(q, v)
+    out, jac = sensors.body_vector_and_jacobian(q, v)
     assert np.allclose(out, quat_to_rotation(q).T @ v)
     num = np.empty((3, 4))
     for j in range(4):
         e = np.zeros(4)
         e[j] = 1e-7
-        num[:, j] = (ekf.body_vector_and_jacobian(q + e, v)[0]
-                     - ekf.body_vector_and_jacobian(q - e, v)[0]) / 2e-7
+        num[:, j] = (sensors.body_vector_and_jacobian(q + e, v)[0]
+                     - sensors.body_vector_and_jacobian(q - e, v)[0]) / 2e-7
     assert np.allclose(jac, num, atol=1e-6)
 
 
@@ -177,9 +178,9 @@ def test_update_equals_textbook_joseph_form(paper, rng, vector_sensors):
     cfg = pack_filter_config(sc)
     a = rng.normal(size=(13, 13))
     x, P = state.x[0].copy(), state.P[0] + 1e-3 * a @ a.T  # dense covariance: all H entries count
-    h, big_h = ekf.measurement_model(x, cfg)
+    h, big_h = sensors.measurement_model(x, cfg)
     z = h + 0.02 * rng.normal(size=h.shape)
-    r = np.diag(ekf.measurement_noise(cfg))
+    r = np.diag(sensors.measurement_noise(cfg))
     gain = P @ big_h.T @ np.linalg.inv(big_h @ P @ big_h.T + r)
     i_kh = np.eye(13) - gain @ big_h
     x_ref = x + gain @ (z - h)

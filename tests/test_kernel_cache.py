@@ -24,7 +24,7 @@ def test_digest_follows_every_kernel_source_and_nothing_else(tmp_path):
     before = kernel_cache.sources_digest(root)
     # An edit to a callee in another file (the case numba's own cache misses) changes the key.
     ekf_py = root / "estimation" / "ekf.py"
-    ekf_py.write_text(ekf_py.read_text().replace("cfg[C_NIS_GATE] * m", "cfg[C_NIS_GATE] * m * 2"))
+    ekf_py.write_text(ekf_py.read_text().replace("cfg.nis_gate * m", "cfg.nis_gate * m * 2"))
     edited = kernel_cache.sources_digest(root)
     assert edited != before
     # A file without kernels does not.

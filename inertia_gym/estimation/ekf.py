@@ -23,36 +23,30 @@ import numpy as np
 from inertia_gym.dynamics import rk4_step_into
 from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_norm_sq, theta_into
 from inertia_gym.information import psi_into
+from inertia_gym.sensors import align_quaternion_sign, measurement_model, measurement_noise
 
 N_STATE = 13
-# Indices into the packed filter configuration vector (see simulation.pack_filter_config).
-C_DT, C_GYRO, C_QUAT, C_ACC, C_MAG, C_QQ, C_QW, C_QTH, C_GAMMA, C_QMIN = range(10)
-C_USE_QUAT, C_USE_VEC = 10, 11
-C_GRAV = slice(12, 15)
-C_MAGREF = slice(15, 18)
-C_NIS_GATE = 18
-C_STEP_LIMIT = 19
-C_UKF = 20
-CONFIG_SIZE = 21
 
 
 @nb.njit(cache=True)
-def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, work):
+def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, work, dist):
     """phi_top <- (I + dt A) phi_top for the (q, w) rows, theta columns in theta coordinates.
 
     phi_top : (7, 13) rows (q, w), columns (q, w, theta). A is the Jacobian of (q_dot, w_dot)
-    at x: A_qq = 1/2 Omega(w), A_qw = 1/2 Xi(q), A_ww = J^-1 ([J w]x - [w]x J),
+    at x: A_qq = 1/2 Omega(w), A_qw = 1/2 Xi(q), A_ww = J^-1 ([J w + h]x - [w]x J),
     A_wtheta = -J^-1 Psi(w, w_dot) (eq. 9 differentiated). The w rows have zero q columns, which
-    the loops skip. work : (13, 13) scratch; allocation-free.
+    the loops skip. work : (13, 13) scratch; allocation-free. dist : the packed disturbance of
+    dynamics.py, of which the filter's model uses the known internal momentum h = dist[3:6]
+    (N·m·s) and the extra torque dist[0:3] (N·m, e.g. -h_dot); zeros in the simulator.
     """
     qw, qx, qy, qz = x[0], x[1], x[2], x[3]
     wx, wy, wz = x[4], x[5], x[6]
-    hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz
-    hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz
-    hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz
-    mx = tau[0] - (wy * hz - wz * hy)
-    my = tau[1] - (wz * hx - wx * hz)
-    mz = tau[2] - (wx * hy - wy * hx)
+    hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz + dist[3]
+    hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz + dist[4]
+    hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz + dist[5]
+    mx = tau[0] + dist[0] - (wy * hz - wz * hy)
+    my = tau[1] + dist[1] - (wz * hx - wx * hz)
+    mz = tau[2] + dist[2] - (wx * hy - wy * hx)
     acc = work[0, 0:3]
     for i in range(3):
         acc[i] = inertia_inv[i, 0] * mx + inertia_inv[i, 1] * my + inertia_inv[i, 2] * mz
@@ -147,12 +141,12 @@ def small_inverse(a):
 @nb.njit(cache=True)
 def add_process_noise(P, x, n_updates, cfg):
     """P += Q_k = alpha_k blkdiag(Q_q I4, Q_w I3, Q_phi), Q_phi = D^-1 Q_theta D^-T (in place)."""
-    alpha = alpha_schedule(n_updates, cfg[C_GAMMA], cfg[C_QMIN])
+    alpha = alpha_schedule(n_updates, cfg.alpha_gamma, cfg.alpha_qmin)
     for i in range(4):
-        P[i, i] += alpha * cfg[C_QQ]
+        P[i, i] += alpha * cfg.Q_quat
     for i in range(4, 7):
-        P[i, i] += alpha * cfg[C_QW]
-    if cfg[C_QTH] > 0.0:
+        P[i, i] += alpha * cfg.Q_omega
+    if cfg.Q_theta > 0.0:
         d_inv = small_inverse(dtheta_dphi(x[7:13]))
         for i in range(6):
             for j in range(6):
@@ -161,7 +155,7 @@ def add_process_noise(P, x, n_updates, cfg):
                 acc = 0.0
                 for k in range(6):
                     acc += d_inv[i, k] * d_inv[j, k]
-                P[7 + i, 7 + j] += alpha * cfg[C_QTH] * acc
+                P[7 + i, 7 + j] += alpha * cfg.Q_theta * acc
 
 
 @nb.njit(cache=True)
@@ -205,85 +199,6 @@ def propagate_covariance(P, phi_top, x, n_updates, cfg, work):
             avg = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = avg
             P[j, i] = avg
-
-
-@nb.njit(cache=True)
-def measurement_size(cfg):
-    """Length of z for this configuration: 3 (+4 attitude) (+6 vector sensors)."""
-    return 3 + (4 if cfg[C_USE_QUAT] > 0 else 0) + (6 if cfg[C_USE_VEC] > 0 else 0)
-
-
-@nb.njit(cache=True)
-def body_vector_and_jacobian(q, v):
-    """R(q)^T v (inertial -> body) and its derivative d/dq, shape (3,) and (3, 4)."""
-    q0, qv = q[0], q[1:4]
-    dot = qv[0] * v[0] + qv[1] * v[1] + qv[2] * v[2]
-    cr = np.array(
-        (qv[1] * v[2] - qv[2] * v[1], qv[2] * v[0] - qv[0] * v[2], qv[0] * v[1] - qv[1] * v[0])
-    )
-    sq = q0 * q0 - (qv[0] ** 2 + qv[1] ** 2 + qv[2] ** 2)
-    out = sq * v + 2.0 * dot * qv - 2.0 * q0 * cr
-    jac = np.empty((3, 4))
-    jac[:, 0] = 2.0 * q0 * v - 2.0 * cr
-    skew_v = np.array(((0.0, -v[2], v[1]), (v[2], 0.0, -v[0]), (-v[1], v[0], 0.0)))
-    for i in range(3):
-        for j in range(3):
-            jac[i, 1 + j] = (
-                -2.0 * v[i] * qv[j] + 2.0 * qv[i] * v[j] + 2.0 * q0 * skew_v[i, j]
-                + (2.0 * dot if i == j else 0.0)
-            )
-    return out, jac
-
-
-@nb.njit(cache=True)
-def measurement_model(x, cfg):
-    """Predicted measurement h(x) (m,) and its Jacobian H (m, 13)."""
-    m = measurement_size(cfg)
-    h = np.zeros(m)
-    big_h = np.zeros((m, N_STATE))
-    for i in range(3):
-        h[i] = x[4 + i]
-        big_h[i, 4 + i] = 1.0
-    row = 3
-    if cfg[C_USE_QUAT] > 0:
-        for i in range(4):
-            h[row + i] = x[i]
-            big_h[row + i, i] = 1.0
-        row += 4
-    if cfg[C_USE_VEC] > 0:
-        g_b, g_jac = body_vector_and_jacobian(x[0:4], cfg[C_GRAV])
-        m_b, m_jac = body_vector_and_jacobian(x[0:4], cfg[C_MAGREF])
-        h[row:row + 3] = g_b
-        h[row + 3:row + 6] = m_b
-        big_h[row:row + 3, 0:4] = g_jac
-        big_h[row + 3:row + 6, 0:4] = m_jac
-    return h, big_h
-
-
-@nb.njit(cache=True)
-def measurement_noise(cfg):
-    """Diagonal of R, shape (m,)."""
-    m = measurement_size(cfg)
-    r = np.empty(m)
-    r[0:3] = cfg[C_GYRO] ** 2
-    row = 3
-    if cfg[C_USE_QUAT] > 0:
-        r[row:row + 4] = cfg[C_QUAT] ** 2
-        row += 4
-    if cfg[C_USE_VEC] > 0:
-        r[row:row + 3] = cfg[C_ACC] ** 2
-        r[row + 3:row + 6] = cfg[C_MAG] ** 2
-    return r
-
-
-@nb.njit(cache=True)
-def align_quaternion_sign(z, x, cfg):
-    """Flip the measured quaternion to the hemisphere of the estimate (q and -q are one attitude)."""
-    if cfg[C_USE_QUAT] > 0:
-        dot = z[3] * x[0] + z[4] * x[1] + z[5] * x[2] + z[6] * x[3]
-        if dot < 0.0:
-            for i in range(3, 7):
-                z[i] = -z[i]
 
 
 @nb.njit(cache=True)
@@ -399,7 +314,7 @@ def ekf_update(x, P, z, cfg):
     which equals (I - K H) P (I - K H)^T + K R K^T for any gain K (so it stays exact for the
     damped gain of :func:`limit_inertia_step`). Raises ValueError if S is not positive definite.
 
-    Consistency guard: when the NIS exceeds cfg[C_NIS_GATE] times the measurement size, the
+    Consistency guard: when the NIS exceeds cfg.nis_gate times the measurement size, the
     rate and attitude prior variances are raised (adaptive process noise) until it does not.
     Far from the true inertia the model's one-interval prediction of w is poor; explaining that
     as process noise keeps the rate on the gyro and lets theta learn in small, well-linearised
@@ -410,10 +325,10 @@ def ekf_update(x, P, z, cfg):
     r = measurement_noise(cfg)
     m = r.shape[0]
     innov = z - h
-    gate = cfg[C_NIS_GATE] * m
+    gate = cfg.nis_gate * m
     add_w = (innov[0] ** 2 + innov[1] ** 2 + innov[2] ** 2) / 3.0
     add_q = 0.0
-    if cfg[C_USE_QUAT] > 0:
+    if cfg.use_quat > 0:
         add_q = (innov[3] ** 2 + innov[4] ** 2 + innov[5] ** 2 + innov[6] ** 2) / 4.0
     pht = np.empty((N_STATE, m))
     s = np.empty((m, m))
@@ -443,7 +358,7 @@ def ekf_update(x, P, z, cfg):
     for i in range(N_STATE):
         _solve_lower(low, pht[i], y)
         _solve_upper_t(low, y, gain[i])
-    limit_inertia_step(x, gain, innov, cfg[C_STEP_LIMIT])
+    limit_inertia_step(x, gain, innov, cfg.inertia_step_limit)
     for i in range(N_STATE):
         acc = 0.0
         for j in range(m):
@@ -470,18 +385,16 @@ def ekf_update(x, P, z, cfg):
 
 
 @nb.njit(cache=True)
-def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_jac):
+def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_jac, dist):
     """Advance the EKF mean by one dt (RK4) and accumulate the transition; x updated in place.
 
     inertia, inertia_inv : J(phi) and its inverse for the current x (phi is constant between
     updates, so the caller computes them once per measurement interval).
-    scratch_jac : (13, 13).
+    scratch_jac : (13, 13). dist : (20,) packed disturbance; the model uses its internal
+    momentum h and extra torque (see :func:`accumulate_transition`).
     """
-    accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, scratch_jac)
-    rk4_step_into(x, dt, inertia, inertia_inv, tau, _NO_DIST, x)
-
-
-_NO_DIST = np.zeros(20)
+    accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, scratch_jac, dist)
+    rk4_step_into(x, dt, inertia, inertia_inv, tau, dist, x)
 
 
 @nb.njit(cache=True)

@@ -27,7 +27,6 @@ N_SIGMA = 2 * N_STATE
 # Spread of the sigma points in standard deviations. The textbook sqrt(n) = 3.6 sends points of
 # the paper's prior (sigma of log-moments ~ 1) to inertias so extreme that RK4 at dt is unstable.
 SPREAD = 1.0
-_NO_DIST = np.zeros(20)
 
 
 @nb.njit(cache=True)
@@ -49,10 +48,13 @@ def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
 
 
 @nb.njit(cache=True)
-def predict_sigma_points(sigma, inertia, inertia_inv, tau, dt):
-    """Advance every sigma point's (q, w) by one dt with RK4, in place."""
+def predict_sigma_points(sigma, inertia, inertia_inv, tau, dt, dist):
+    """Advance every sigma point's (q, w) by one dt with RK4, in place; dist (20,) the packed
+    disturbance of the filter's model (known internal momentum and extra torque; zeros in the
+    simulator).
+    """
     for k in range(N_SIGMA):
-        rk4_step_into(sigma[k], dt, inertia[k], inertia_inv[k], tau, _NO_DIST, sigma[k])
+        rk4_step_into(sigma[k], dt, inertia[k], inertia_inv[k], tau, dist, sigma[k])
 
 
 @nb.njit(cache=True)

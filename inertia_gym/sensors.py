@@ -1,0 +1,129 @@
+"""Sensors: the simulated measurement and the filter's measurement model, in one place.
+
+Measurement vector z = (gyro w (3) rad/s, [attitude q (4), scalar first], [gravity (3),
+magnetic field (3) in the body frame]); which parts are present is set by the filter
+configuration (estimation/config.py). The simulator draws readings with
+:func:`simulate_measurement`; the filters predict them with :func:`measurement_model` (h(x) and
+its Jacobian H) and weigh them with :func:`measurement_noise` (the diagonal of R).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+N_STATE = 13
+
+
+@nb.njit(cache=True)
+def measurement_size(cfg):
+    """Length of z for this configuration: 3 (+4 attitude) (+6 vector sensors)."""
+    return 3 + (4 if cfg.use_quat > 0 else 0) + (6 if cfg.use_vector_sensors > 0 else 0)
+
+
+@nb.njit(cache=True)
+def body_vector_and_jacobian(q, v):
+    """R(q)^T v (inertial -> body) and its derivative d/dq, shape (3,) and (3, 4)."""
+    q0, qv = q[0], q[1:4]
+    dot = qv[0] * v[0] + qv[1] * v[1] + qv[2] * v[2]
+    cr = np.array(
+        (qv[1] * v[2] - qv[2] * v[1], qv[2] * v[0] - qv[0] * v[2], qv[0] * v[1] - qv[1] * v[0])
+    )
+    sq = q0 * q0 - (qv[0] ** 2 + qv[1] ** 2 + qv[2] ** 2)
+    out = sq * v + 2.0 * dot * qv - 2.0 * q0 * cr
+    jac = np.empty((3, 4))
+    jac[:, 0] = 2.0 * q0 * v - 2.0 * cr
+    skew_v = np.array(((0.0, -v[2], v[1]), (v[2], 0.0, -v[0]), (-v[1], v[0], 0.0)))
+    for i in range(3):
+        for j in range(3):
+            jac[i, 1 + j] = (
+                -2.0 * v[i] * qv[j] + 2.0 * qv[i] * v[j] + 2.0 * q0 * skew_v[i, j]
+                + (2.0 * dot if i == j else 0.0)
+            )
+    return out, jac
+
+
+@nb.njit(cache=True)
+def measurement_model(x, cfg):
+    """Predicted measurement h(x) (m,) and its Jacobian H (m, 13)."""
+    m = measurement_size(cfg)
+    h = np.zeros(m)
+    big_h = np.zeros((m, N_STATE))
+    for i in range(3):
+        h[i] = x[4 + i]
+        big_h[i, 4 + i] = 1.0
+    row = 3
+    if cfg.use_quat > 0:
+        for i in range(4):
+            h[row + i] = x[i]
+            big_h[row + i, i] = 1.0
+        row += 4
+    if cfg.use_vector_sensors > 0:
+        g_b, g_jac = body_vector_and_jacobian(x[0:4], cfg.gravity)
+        m_b, m_jac = body_vector_and_jacobian(x[0:4], cfg.mag_reference)
+        h[row:row + 3] = g_b
+        h[row + 3:row + 6] = m_b
+        big_h[row:row + 3, 0:4] = g_jac
+        big_h[row + 3:row + 6, 0:4] = m_jac
+    return h, big_h
+
+
+@nb.njit(cache=True)
+def measurement_noise(cfg):
+    """Diagonal of R, shape (m,)."""
+    m = measurement_size(cfg)
+    r = np.empty(m)
+    r[0:3] = cfg.gyro_sigma ** 2
+    row = 3
+    if cfg.use_quat > 0:
+        r[row:row + 4] = cfg.quat_sigma ** 2
+        row += 4
+    if cfg.use_vector_sensors > 0:
+        r[row:row + 3] = cfg.accel_sigma ** 2
+        r[row + 3:row + 6] = cfg.mag_sigma ** 2
+    return r
+
+
+@nb.njit(cache=True)
+def align_quaternion_sign(z, x, cfg):
+    """Flip the measured quaternion to the hemisphere of the estimate (q and -q are one attitude)."""
+    if cfg.use_quat > 0:
+        dot = z[3] * x[0] + z[4] * x[1] + z[5] * x[2] + z[6] * x[3]
+        if dot < 0.0:
+            for i in range(3, 7):
+                z[i] = -z[i]
+
+
+@nb.njit(cache=True)
+def simulate_measurement(y_true, noise, cfg, z):
+    """Write the noisy measurement of the true state y_true = (q, w) (7,) into z: gyro,
+    [normalised quaternion], [body vectors]; noise (13,) the draws of :func:`noise_sigmas`.
+    """
+    for i in range(3):
+        z[i] = y_true[4 + i] + noise[i]
+    row = 3
+    if cfg.use_quat > 0:
+        norm = 0.0
+        for i in range(4):
+            z[row + i] = y_true[i] + noise[3 + i]
+            norm += z[row + i] ** 2
+        norm = math.sqrt(norm)
+        for i in range(4):
+            z[row + i] /= norm
+        row += 4
+    if cfg.use_vector_sensors > 0:
+        g_b, _ = body_vector_and_jacobian(y_true[0:4], cfg.gravity)
+        m_b, _ = body_vector_and_jacobian(y_true[0:4], cfg.mag_reference)
+        for i in range(3):
+            z[row + i] = g_b[i] + noise[7 + i]
+            z[row + 3 + i] = m_b[i] + noise[10 + i]
+
+
+def noise_sigmas(cfg) -> np.ndarray:
+    """(13,) standard deviations of the noise draws of :func:`simulate_measurement`: gyro (3),
+    quaternion components (4), gravity (3), magnetometer (3).
+    """
+    return np.concatenate([np.full(3, cfg.gyro_sigma), np.full(4, cfg.quat_sigma),
+                           np.full(3, cfg.accel_sigma), np.full(3, cfg.mag_sigma)])
