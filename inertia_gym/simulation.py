@@ -44,9 +44,12 @@ def pack_filter_config(sc: Scenario) -> np.void:
 class SimState:
     """State of B closed-loop runs between segments (arrays have leading dimension B).
 
-    y_true (B, 7) true (q, w); x (B, 13) filter mean (q, w, phi); P (B, 13, 13) filter covariance;
-    n_updates (B,) filter updates so far; steps_to_meas (B,) steps until the next measurement;
-    step (B,) time steps elapsed; diverged (B,) bool.
+    y_true (B, 7) true (q, w); x (B, 13) filter mean (q, w, phi); P (B, 13, 13) filter covariance
+    at the last update; n_updates (B,) filter updates so far; steps_to_meas (B,) steps until the
+    next measurement; step (B,) time steps elapsed; diverged (B,) bool. The prediction since the
+    last update carries over a segment boundary: phi_top (B, 7, 13) the EKF's transition
+    accumulated so far, sigma (B, 26, 13) the UKF's propagated sigma points (sigma_fresh (B,):
+    none drawn yet).
     """
 
     y_true: np.ndarray
@@ -56,6 +59,9 @@ class SimState:
     steps_to_meas: np.ndarray
     step: np.ndarray
     diverged: np.ndarray
+    phi_top: np.ndarray
+    sigma: np.ndarray
+    sigma_fresh: np.ndarray
 
     @property
     def batch(self) -> int:
@@ -137,6 +143,9 @@ def initial_state(sc: Scenario, rngs: list[np.random.Generator]) -> SimState:
         steps_to_meas=np.array([_meas_interval_steps(sc, r, 1)[0] for r in rngs], dtype=np.int64),
         step=np.zeros(batch, dtype=np.int64),
         diverged=np.zeros(batch, dtype=bool),
+        phi_top=np.tile(np.eye(7, 13), (batch, 1, 1)),
+        sigma=np.zeros((batch, ukf.N_SIGMA, 13)),
+        sigma_fresh=np.ones(batch, dtype=bool),
     )
 
 
@@ -172,8 +181,11 @@ class Trace:
 #: Arrays of a batch of B runs handed to the compiled loop, grouped by role (leading axis B).
 #: Truth: y (B, 7) true (q, w), inertia (3, 3), dist (20,) packed disturbance on the truth.
 Truth = collections.namedtuple("Truth", "y inertia dist")
-#: Estimator: x (B, 13), P (B, 13, 13), n_updates (B,).
-Estimator = collections.namedtuple("Estimator", "x P n_updates")
+#: Estimator: x (B, 13), P (B, 13, 13), and the prediction in progress: phi_top (B, 7, 13),
+#: sigma (B, 26, 13) (see SimState). The 1-D per-run counters and flags (n_updates,
+#: sigma_fresh) go to the compiled loop as plain arguments: written through a namedtuple inside
+#: numba's parallel loop, their updates were lost.
+Estimator = collections.namedtuple("Estimator", "x P phi_top sigma")
 #: Plan: n_steps (B,); bursts (B, nb, 2) [start, stop) steps and n_bursts (B,); xi (B, 3);
 #: v (B, 3) burst directions; tau_max N·m; meas_at (B, m) steps of the measurements and
 #: n_meas (B,); z_noise (B, m, 13) noise draws; record_steps: keep the per-step log.
@@ -185,12 +197,13 @@ Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurement
 
 
 @nb.njit(cache=True)
-def _segment_one(truth, est, plan, logs, r, cfg):
-    """Advance run r of the batch by plan.n_steps[r]; returns (status, measurements processed,
-    updates so far). The truth, the estimate and the logs of run r are updated in place.
+def _segment_one(truth, est, plan, logs, r, cfg, n_updates, sigma_fresh):
+    """Advance run r of the batch by plan.n_steps[r] from n_updates filter updates so far
+    (sigma_fresh: the UKF has no propagated sigma points yet); returns (status, measurements
+    processed, updates so far). The truth, the estimate and the logs of run r change in place.
     """
     y_true, inertia_true, dist = truth.y[r], truth.inertia, truth.dist
-    x, P, n_updates = est.x[r], est.P[r], est.n_updates[r]
+    x, P = est.x[r], est.P[r]
     bursts = plan.bursts[r, : plan.n_bursts[r]]
     a, b, v, tau_max = plan.xi[r, 0], plan.xi[r, 1], plan.v[r], plan.tau_max
     meas_at, z_noise = plan.meas_at[r, : plan.n_meas[r]], plan.z_noise[r]
@@ -202,14 +215,18 @@ def _segment_one(truth, est, plan, logs, r, cfg):
     inertia_hat_inv = inv3(inertia_hat)
     use_ukf = cfg.ukf > 0
     n_sigma = ukf.N_SIGMA if use_ukf else 0
-    sigma = np.empty((n_sigma, 13))
+    sigma = est.sigma[r]
     sigma_inertia = np.empty((n_sigma, 3, 3))
     sigma_inertia_inv = np.empty((n_sigma, 3, 3))
-    if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia, sigma_inertia_inv):
-        return 1, 0, n_updates
-    phi_top = np.zeros((7, 13))
-    for i in range(7):
-        phi_top[i, i] = 1.0
+    if use_ukf:
+        if sigma_fresh:
+            if not ukf.draw_sigma_points(x, P, sigma, sigma_inertia, sigma_inertia_inv):
+                return 1, 0, n_updates
+        else:  # carry on with the points propagated in the last segment
+            for k in range(n_sigma):
+                sigma_inertia[k] = inertia_from_phi(sigma[k, 7:13])
+                sigma_inertia_inv[k] = inv3(sigma_inertia[k])
+    phi_top = est.phi_top[r]
     tau = np.zeros(3)
     model_dist = np.zeros(DISTURBANCE_SIZE)  # the filter's model: no disturbance, no wheel
     burst_i = 0
@@ -321,19 +338,23 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
 
 
 @nb.njit(cache=True, parallel=True)
-def _segment_batch(truth, est, plan, logs, cfg_array, status, meas_done):
+def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
     """Advance every run of the batch that has not diverged (parallel over runs).
 
     cfg_array : (1,) array of the filter configuration record (a record is handed to the
     parallel loop inside an array: numba cannot pass a bare record into a parfor).
+    n_updates, sigma_fresh, status, meas_done : (B,) per-run counters and flags, updated.
     """
     for r in nb.prange(truth.y.shape[0]):
         if status[r] != 0:
             continue
-        st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0])
+        st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0], n_updates[r],
+                                    sigma_fresh[r])
         status[r] = st
         meas_done[r] = done
-        est.n_updates[r] = nu
+        n_updates[r] = nu
+        if cfg_array[0].ukf > 0:
+            sigma_fresh[r] = False
 
 
 def run_segment(
@@ -394,18 +415,20 @@ def run_segment(
     log_nis = np.full((batch, max_meas), np.nan)
     y_true, x, P = state.y_true.copy(), state.x.copy(), state.P.copy()
     n_updates = state.n_updates.copy()
+    phi_top, sigma, sigma_fresh = state.phi_top.copy(), state.sigma.copy(), state.sigma_fresh.copy()
     status = state.diverged.astype(np.int64)
     meas_done = np.zeros(batch, dtype=np.int64)
     dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
     _segment_batch(
-        Truth(y_true, sc.inertia_true_array, dist), Estimator(x, P, n_updates),
+        Truth(y_true, sc.inertia_true_array, dist), Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
-        np.array([cfg]), status, meas_done,
+        np.array([cfg]), n_updates, sigma_fresh, status, meas_done,
     )
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
-        step=state.step + n_steps, diverged=status != STATUS_OK,
+        step=state.step + n_steps, diverged=status != STATUS_OK, phi_top=phi_top, sigma=sigma,
+        sigma_fresh=sigma_fresh,
     )
     trace = Trace(
         w_hat=out_w_hat, w_dot_hat=out_w_dot_hat, tau=out_tau, n_steps=n_steps,

@@ -42,7 +42,9 @@ class ValidationResult:
     rel_errors (S,) ||J_hat - J||_F / ||J||_F at the end; ratio_rel_errors (S,) the same after
     dividing each by its trace; covered (S, 6) bool truth inside +-1.96 sigma; diverged (S,) bool;
     scale_identified (S,) bool; t_meas (S, m) s; theta_hat, theta_sigma (S, m, 6); w_est, w_true
-    (S, m, 3); t_step (n,) and tau (S, n, 3) the applied torque (when recorded).
+    (S, m, 3); t_step (n,) and tau (S, n, 3) the applied torque (when recorded); refined (the
+    batch-ML scores, when asked for); measurements (S, m, 14) the true (q, w) and the gyro and
+    quaternion readings the filter took at t_meas.
     """
 
     seeds: tuple
@@ -64,6 +66,7 @@ class ValidationResult:
     tau: np.ndarray
     wall_s: float
     refined: "RefinedScores | None" = None
+    measurements: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The contract keys of DESIGN.md section 3 (validate's result.json)."""
@@ -200,7 +203,7 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
         covered=covered, diverged=state.diverged.copy(), scale_identified=scale_ok,
         inertia_hat=j_hat, inertia_true=inertia_true, t_meas=t_meas, theta_hat=th,
         theta_sigma=th_sig, w_est=w_est, w_true=w_true, t_step=t_step, tau=tau,
-        wall_s=time.perf_counter() - t0, refined=refined,
+        wall_s=time.perf_counter() - t0, refined=refined, measurements=measurements,
     )
 
 

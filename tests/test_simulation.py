@@ -53,3 +53,4 @@ def test_logged_estimate_is_theta_and_delta_method_variance_at_the_last_update(p
         assert np.allclose(trace.theta_hat[r, last], theta_from_phi(x[7:13]), rtol=1e-12)
         assert np.allclose(trace.theta_var[r, last], np.diag(d @ P[7:, 7:] @ d.T), rtol=1e-9)
         assert np.allclose(trace.theta_var[r, last], np.diag(again.P_theta()[0]), rtol=1e-9)
+
