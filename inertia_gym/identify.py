@@ -1,11 +1,12 @@
 """Identify a body's inertia from its recording, with honest error bars.
 
-``identify(recording)`` fits the rigid-body model to a whole record by maximum likelihood
-(estimation/ml.py: output error on the gyro and, where recorded, the attitude; unknowns the
-inertia, the initial rate and attitude, a gyro bias where the attitude makes it identifiable),
-started from the linear integral equation error (estimation/equation_error.py). The result
-carries the inertia, its covariance and 95 % intervals, principal moments and axes with
-intervals, the Cramér-Rao bound, the fit's residuals and a statement of the noise model:
+``identify(recording, method="ml" | "ekf" | "ukf")``. The default, ``ml``, fits the rigid-body
+model to a whole record by maximum likelihood (estimation/ml.py: output error on the gyro and,
+where recorded, the attitude; unknowns the inertia, the initial rate and attitude, a gyro bias
+where the attitude makes it identifiable), started from the linear integral equation error
+(estimation/equation_error.py). The result carries the inertia, its covariance and 95 %
+intervals, principal moments and axes with intervals, the Cramér-Rao bound, the fit's residuals
+and a statement of the noise model:
 
 * white noise at the sidecar's ``gyro_sigma`` (or, without one, the residuals' own level);
 * coloured noise (vibration, unmodelled motion) is detected from the residuals'
@@ -13,6 +14,9 @@ intervals, the Cramér-Rao bound, the fit's residuals and a statement of the noi
   (Newey-West) long-run covariance of the score over as many lags as the correlation lasts, so
   the intervals widen by as much as the correlation costs; the report names the lag count and
   the inflation.
+
+The filters (``ekf``, ``ukf``) run the paper's estimator once over the rows (estimation/
+filters.py), with the same start; their covariance is the filter's own.
 
 The scale: without a known torque and without a changing internal momentum h, torque-free motion
 fixes the inertia only up to a factor. Then the scale is not fitted; the inertia is reported
@@ -29,14 +33,15 @@ import time
 import numpy as np
 
 from inertia_gym.discrepancy.recordings import Recording
-from inertia_gym.errors import RecordingError
+from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import ml
+from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
+from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
 from inertia_gym.information import inertia_from_theta
 
-#: Methods identify() runs. The filters ('ekf', 'ukf') over recordings are not built yet (issue 10).
-METHODS = ("ml",)
+METHODS = ("ml", "ekf", "ukf")
 #: The scale counts as identified when its relative standard deviation is at most this.
 SCALE_SIGMA_IDENTIFIED = 0.05
 #: Relative prior width (log units) on the equation-error start in the early horizon stages.
@@ -364,14 +369,15 @@ def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None =
 def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None) -> Identification:
     """Identify the inertia of the body in one recording (see the module docstring).
 
-    method: 'ml' (maximum likelihood over the whole record). fit_bias: estimate a constant gyro
-    bias (default: where the attitude is recorded, which makes it identifiable).
+    method: 'ml' (maximum likelihood over the whole record), or 'ekf' / 'ukf' (the paper's
+    filter run once over the record through estimation/filters.py, started from the same
+    equation-error estimate). fit_bias (ml only): estimate a constant gyro bias (default: where
+    the attitude is recorded, which makes it identifiable).
     """
     if method not in METHODS:
         raise RecordingError(f"method must be one of {METHODS}, got {method!r}")
     t0 = time.perf_counter()
     _check_recording(rec)
-    notes = []
     if "gyro_sigma" in rec.meta:
         sigma_w, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar gyro_sigma"
     else:
@@ -382,6 +388,43 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid,
                                   trace=trace_ref if trace_ref is not None else 1.0)
     phi0 = phi_from_inertia(inertia_from_theta(theta0))
+    # Against the noise the fit did not produce: the sidecar's, or the third-difference level
+    # (the residuals' own level would make the ratio 1 by construction).
+    reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(rec.w), 1e-12)
+    if method == "ml":
+        out = _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref)
+    else:
+        out = _identify_filter(rec, prob, phi0, method, trace_ref)
+    est, crlb, noise, e_w, bias, converged, notes = out
+    rms = np.sqrt(np.mean(e_w ** 2, axis=0))
+    rms_over_noise = float(np.sqrt(np.mean((e_w / reference) ** 2)))
+    if est.scale_identified:
+        trace_sigma = math.sqrt(max(float(TRACE_WEIGHTS @ est.theta_cov @ TRACE_WEIGHTS), 0.0))
+        sigma_s = trace_sigma / float(TRACE_WEIGHTS @ est.theta)
+        if sigma_s > SCALE_SIGMA_IDENTIFIED:
+            est = dataclasses.replace(est, scale_identified=False)
+            notes.append(f"the scale is poorly determined (relative sigma of the trace "
+                         f"{sigma_s:.2g}): trust the ratios, not the absolute values")
+    else:
+        notes.append("neither a torque nor a changing internal momentum acts: the inertia is "
+                     "identified up to scale; it is reported normalised to trace "
+                     f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
+                     + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
+    if not converged:
+        notes.append("the fit stopped at its iteration limit before converging")
+    if rms_over_noise > 3.0:
+        notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
+                     "model leaves something out (run `inertia-gym diagnose`); the intervals are "
+                     "widened by the residuals' correlation but may still be optimistic")
+    return Identification(
+        name=rec.name, method=method, estimate=est, crlb=crlb, rms=rms,
+        rms_over_noise=rms_over_noise, noise=noise, bias=bias, t=rec.t, w_meas=rec.w,
+        w_fit=rec.w - e_w, converged=converged, wall_s=time.perf_counter() - t0,
+        notes=tuple(notes))
+
+
+def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
+    """The ML branch of identify(): (estimate, crlb, noise, gyro residual, bias, converged, notes)."""
     n = prob.n_params
     p0 = np.zeros(n)
     p0[:6], p0[6:9] = phi0, prob.z_w[0]
@@ -390,41 +433,78 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     q0 = None if rec.q is None else rec.q[0]
     ref = refine(prob, p0, q0, info, START_REL_ERROR, trace_ref, source)
     if sigma_w is None:  # reweight with the residuals' own level and refit once
-        ev = ref.fit.evaluation
-        level = np.sqrt(np.mean(ev.e_w ** 2, axis=0))
+        level = np.sqrt(np.mean(ref.fit.evaluation.e_w ** 2, axis=0))
         prob = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
         ref = refine(prob, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
-    ev = ref.fit.evaluation
     bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
-    w_fit = prob.z_w - ev.e_w
-    rms = np.sqrt(np.mean(ev.e_w ** 2, axis=0))
-    # Against the noise the fit did not produce: the sidecar's, or the third-difference level
-    # (the residuals' own level would make the ratio 1 by construction).
-    reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(rec.w), 1e-12)
-    rms_over_noise = float(np.sqrt(np.mean((ev.e_w / reference) ** 2)))
-    est = ref.estimate
-    if est.scale_identified:
-        sigma_s = math.sqrt(max(ref.cov[0, 0], 0.0))
-        if sigma_s > SCALE_SIGMA_IDENTIFIED:
-            est = dataclasses.replace(est, scale_identified=False)
-            notes.append(f"the scale is poorly determined (relative sigma {sigma_s:.2g}): trust "
-                         "the ratios, not the absolute values")
-    else:
-        notes.append("neither a torque nor a changing internal momentum acts: the inertia is "
-                     "identified up to scale; it is reported normalised to trace "
-                     f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
-                     + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
-    if not ref.fit.converged:
-        notes.append("the fit stopped at its iteration limit before converging")
-    if rms_over_noise > 3.0:
-        notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
-                     "model leaves something out (run `inertia-gym diagnose`); the intervals are "
-                     "widened by the residuals' correlation but may still be optimistic")
-    return Identification(
-        name=rec.name, method=method, estimate=est, crlb=ref.crlb, rms=rms,
-        rms_over_noise=rms_over_noise, noise=ref.noise, bias=bias, t=rec.t, w_meas=rec.w,
-        w_fit=w_fit, converged=ref.fit.converged, wall_s=time.perf_counter() - t0,
-        notes=tuple(notes))
+    return (ref.estimate, ref.crlb, ref.noise, ref.fit.evaluation.e_w, bias, ref.fit.converged, [])
+
+
+#: Start uncertainty of the filter's inertia (standard deviation of each log-Cholesky parameter).
+FILTER_START_SIGMA = 0.3
+
+
+def filter_config_for(rec: Recording, sigma_w, estimator: str, trace: float) -> FilterConfig:
+    """The paper's filter sized to a recording: integration step from the sampling and the
+    rate, noise from the sensors, process noise scaled like the paper's (Q_omega ~ sigma_w^2,
+    Q_quat = sigma_q^2, Q_theta relative to the inertia's size).
+    """
+    dt_rows = float(np.median(np.diff(rec.t)))
+    peak = float(np.max(np.linalg.norm(rec.w, axis=1)))
+    quat_sigma = float(rec.meta.get("quat_sigma", 0.01) or 0.01)
+    gyro = float(np.mean(sigma_w))
+    return FilterConfig(
+        dt=min(dt_rows, ml.MAX_ROTATION_PER_STEP / max(peak, 1e-12)), gyro_sigma=gyro,
+        quat_sigma=quat_sigma, Q_quat=quat_sigma ** 2, Q_omega=1.1 * gyro ** 2,
+        Q_theta=PAPER_Q_THETA * (trace / PAPER_GUESS_TRACE) ** 2, use_quat=rec.q is not None,
+        estimator=estimator)
+
+
+#: The paper's Q_theta (kg·m²)² for its guess of trace 430 kg·m²: scaled by (trace / 430)².
+PAPER_Q_THETA, PAPER_GUESS_TRACE = 5e-2, 430.0
+
+
+def _identify_filter(rec, prob, phi0, estimator, trace_ref):
+    """The filter branch of identify(): one pass of InertiaFilter over the rows."""
+    sigma_w = prob.sigma_w
+    trace = float(TRACE_WEIGHTS @ theta_from_phi(phi0))
+    cfg = filter_config_for(rec, sigma_w, estimator, trace)
+    x0 = np.r_[rec.q[0] if rec.q is not None else [1.0, 0, 0, 0], rec.w[0], phi0]
+    p0 = np.zeros((13, 13))
+    p0[:4, :4] = np.eye(4) * (3 * cfg.quat_sigma) ** 2  # unobserved (and harmless) without q
+    p0[4:7, 4:7] = np.eye(3) * (3 * cfg.gyro_sigma) ** 2
+    p0[7:, 7:] = np.eye(6) * FILTER_START_SIGMA ** 2
+    if prob.fix_scale:
+        p0[7, 7] = 0.0  # torque-free data cannot move the scale: keep it at the start's
+    filt = InertiaFilter(cfg, x0, p0)
+    t, h, tau = prob.t_grid, prob.h_grid, prob.tau_grid
+    e_w = np.zeros_like(rec.w)  # the first row is the start, not a prediction
+    try:
+        for k in range(1, t.size):
+            dt = t[k] - t[k - 1]
+            filt.predict(dt, tau[k - 1], 0.5 * (h[k - 1] + h[k]), (h[k] - h[k - 1]) / dt)
+            z = rec.w[k] if rec.q is None else np.r_[rec.w[k], rec.q[k]]
+            filt.update(z)
+            e_w[k] = filt.y[:3]
+    except EstimatorDivergedError as exc:
+        raise RecordingError(f"{rec.name}: the {estimator} diverged on this recording ({exc}); "
+                             "try --method ml") from exc
+    cov_phi = filt.P[7:13, 7:13].copy()
+    est = inertia_estimate(filt.x[7:13], cov_phi, prob.fix_scale, trace_ref)
+    # The bound belongs to the data: the ML Fisher information at the filter's estimate.
+    p = np.zeros(prob.n_params)
+    p[:6], p[6:9] = filt.x[7:13], rec.w[0]
+    ev = ml.evaluate(prob, p, rec.q[0] if rec.q is not None else np.array([1.0, 0, 0, 0]), True)
+    free = prob.free()
+    fisher = np.zeros((prob.n_params, prob.n_params))
+    fisher[np.ix_(free, free)] = ev.jac[:, free].T @ ev.jac[:, free]
+    bound = inertia_estimate(filt.x[7:13], ml.covariance(fisher, free)[:6, :6], prob.fix_scale,
+                             trace_ref)
+    crlb = ml.relative_frobenius_bound(bound.theta, bound.theta_cov)
+    noise = NoiseModel("white", sigma_w, "filter measurement noise R", 0, 1.0)
+    notes = [f"{estimator.upper()} over {t.size} rows, final NIS {filt.nis:.3g}; its covariance is "
+             "the filter's own (process noise included), not a likelihood bound"]
+    return est, crlb, noise, e_w, None, True, notes
 
 
 def markdown(summary: dict, plots=()) -> str:

@@ -173,3 +173,24 @@ def test_real_rotor_throws_against_their_reference_inertia():
     assert len(errors) == 20
     assert np.median(errors) <= 0.021
     assert max(errors) <= 0.055
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_the_paper_filter_runs_over_a_recording_and_the_batch_fit_beats_it(paper_recording, method):
+    truth = Scenario().inertia_true_array
+    filt = identify(paper_recording, method)
+    assert filt.method == method and filt.estimate.scale_identified
+    assert _rel(filt.estimate.inertia, truth) < 0.05
+    assert np.all(np.isfinite(filt.estimate.theta_cov))
+    batch = identify(paper_recording, "ml")
+    assert _rel(batch.estimate.inertia, truth) < 0.1 * _rel(filt.estimate.inertia, truth)
+
+
+def test_identify_cli_runs_the_ukf_on_a_thrown_body_with_a_rotor(tmp_path):
+    rec, sc = _throw(2)
+    path = tmp_path / "throw.csv"
+    write_recording(path, rec, rec.meta)
+    assert main(["identify", str(path), "--method", "ukf", "--out", str(tmp_path / "u"), "--no-plots"]) == 0
+    summary = json.loads((tmp_path / "u" / "identify.json").read_text())
+    assert summary["method"] == "ukf"
+    assert _rel(np.array(summary["inertia"]), sc.inertia_true_array) < 0.05

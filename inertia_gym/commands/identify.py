@@ -20,7 +20,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("rec", metavar="REC",
                    help="project CSV/Parquet (+ sidecar JSON) or a phyphox export folder/'Raw Data.csv'")
     p.add_argument("--method", choices=METHODS, default="ml",
-                   help="ml: maximum likelihood over the whole record (default)")
+                   help="ml: maximum likelihood over the whole record (default); ekf/ukf: the "
+                        "paper's filter run once over the record")
     p.add_argument("--out", default="identify", metavar="DIR", help="output folder (identify)")
     p.add_argument("--no-plots", action="store_true", help="identify.json and summary.md only")
     p.set_defaults(func=run)

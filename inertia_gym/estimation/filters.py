@@ -102,14 +102,19 @@ class InertiaFilter:
             self._dist[0:3] = -np.asarray(h_dot, dtype=float)
         n = max(1, int(math.ceil(dt / self.config.dt - 1e-9))) if dt > 0 else 0
         step = dt / n if n else 0.0
-        for _ in range(n):
-            if self._ukf:
-                ukf.predict_sigma_points(self._sigma, self._sigma_inertia, self._sigma_inertia_inv,
-                                         tau, step, self._dist)
-                ukf.sigma_mean(self._sigma, self.x)
-            else:
-                ekf.ekf_predict_step(self.x, tau, step, self._inertia, self._inertia_inv,
-                                     self._phi_top, self._jac_work, self._dist)
+        try:
+            for _ in range(n):
+                if self._ukf:
+                    ukf.predict_sigma_points(self._sigma, self._sigma_inertia,
+                                             self._sigma_inertia_inv, tau, step, self._dist)
+                    ukf.sigma_mean(self._sigma, self.x)
+                else:
+                    ekf.ekf_predict_step(self.x, tau, step, self._inertia, self._inertia_inv,
+                                         self._phi_top, self._jac_work, self._dist)
+        except ZeroDivisionError as exc:  # a degenerate sigma point or quaternion
+            raise EstimatorDivergedError(f"the filter's prediction failed: {exc}") from exc
+        if not np.all(np.isfinite(self.x)):
+            raise EstimatorDivergedError("the filter's prediction is not finite")
 
     def update(self, z) -> float:
         """Take one measurement z (measurement_size,); returns the NIS. Raises
