@@ -122,10 +122,6 @@ class InertiaEstimate:
             cone[i] = math.degrees(min(math.pi / 2, 1.96 * math.sqrt(max(var, 0.0))))
         return vals, half, vecs, cone
 
-    def crlb(self, fisher_cov_theta) -> float:
-        """Relative Frobenius error bound sqrt(E|dJ|_F^2)/|J|_F for the covariance given."""
-        return ml.relative_frobenius_bound(self.theta, fisher_cov_theta)
-
 
 def _eig_gradient(u, v) -> np.ndarray:
     """Gradient of u^T J v with respect to theta (6,), J symmetric."""
@@ -203,7 +199,7 @@ def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     for lag in range(1, lags + 1):
         c = g[lag:].T @ g[:-lag]
         b += (1.0 - lag / (lags + 1.0)) * (c + c.T)
-    a_inv = np.linalg.inv(jac.T @ jac)
+    a_inv = ml.jacobian_covariance(jac, np.ones(n_par, dtype=bool))
     cov = a_inv @ b @ a_inv
     return 0.5 * (cov + cov.T)
 
@@ -249,9 +245,9 @@ def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
     """
     fit = ml.fit(prob, p_start, q_start, start_info, first_horizon(prob, rel_error))
     free = prob.free()
-    fisher_cov = ml.covariance(fit.fisher, free)
+    fisher_cov = ml.jacobian_covariance(fit.evaluation.jac, free)
     ev = fit.evaluation
-    m = prob.meas_idx.size
+    m = fit.n_used
     channels = ev.r.reshape(-1, m, 3).transpose(1, 0, 2).reshape(m, -1)
     lags = correlation_lags(channels)
     rms_ratio = float(np.sqrt(np.mean(ev.r ** 2)))
@@ -396,8 +392,8 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     else:
         out = _identify_filter(rec, prob, phi0, method, trace_ref)
     est, crlb, noise, e_w, bias, converged, notes = out
-    rms = np.sqrt(np.mean(e_w ** 2, axis=0))
-    rms_over_noise = float(np.sqrt(np.mean((e_w / reference) ** 2)))
+    rms = np.sqrt(np.nanmean(e_w ** 2, axis=0))
+    rms_over_noise = float(np.sqrt(np.nanmean((e_w / reference) ** 2)))
     if est.scale_identified:
         trace_sigma = math.sqrt(max(float(TRACE_WEIGHTS @ est.theta_cov @ TRACE_WEIGHTS), 0.0))
         sigma_s = trace_sigma / float(TRACE_WEIGHTS @ est.theta)
@@ -434,10 +430,20 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
     ref = refine(prob, p0, q0, info, START_REL_ERROR, trace_ref, source)
     if sigma_w is None:  # reweight with the residuals' own level and refit once
         level = np.sqrt(np.mean(ref.fit.evaluation.e_w ** 2, axis=0))
+        prob = prob.window(ref.fit.n_used) if ref.fit.n_used < prob.meas_idx.size else prob
         prob = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
         ref = refine(prob, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
     bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
-    return (ref.estimate, ref.crlb, ref.noise, ref.fit.evaluation.e_w, bias, ref.fit.converged, [])
+    e_w = np.full(prob.z_w.shape, np.nan)  # rows past the fitted horizon stay unexplained
+    e_w[: ref.fit.n_used] = ref.fit.evaluation.e_w
+    notes = []
+    if ref.fit.n_used < prob.meas_idx.size:
+        t = prob.t_grid[prob.meas_idx]
+        notes.append(f"the model's trajectory could be fitted only over the first "
+                     f"{t[ref.fit.n_used - 1] - t[0]:.4g} s of {t[-1] - t[0]:.4g} s: beyond, its "
+                     "sensitivity to the inertia grows too fast (a tumble near the separatrix, or "
+                     "physics the model leaves out); the estimate rests on that span")
+    return ref.estimate, ref.crlb, ref.noise, e_w, bias, ref.fit.converged, notes
 
 
 #: Start uncertainty of the filter's inertia (standard deviation of each log-Cholesky parameter).
@@ -495,10 +501,8 @@ def _identify_filter(rec, prob, phi0, estimator, trace_ref):
     p = np.zeros(prob.n_params)
     p[:6], p[6:9] = filt.x[7:13], rec.w[0]
     ev = ml.evaluate(prob, p, rec.q[0] if rec.q is not None else np.array([1.0, 0, 0, 0]), True)
-    free = prob.free()
-    fisher = np.zeros((prob.n_params, prob.n_params))
-    fisher[np.ix_(free, free)] = ev.jac[:, free].T @ ev.jac[:, free]
-    bound = inertia_estimate(filt.x[7:13], ml.covariance(fisher, free)[:6, :6], prob.fix_scale,
+    bound = inertia_estimate(filt.x[7:13], ml.jacobian_covariance(ev.jac, prob.free())[:6, :6],
+                             prob.fix_scale,
                              trace_ref)
     crlb = ml.relative_frobenius_bound(bound.theta, bound.theta_cov)
     noise = NoiseModel("white", sigma_w, "filter measurement noise R", 0, 1.0)

@@ -249,10 +249,8 @@ def _refine_one(sc: Scenario, x_final, p_final, t_meas, meas, tau, forced: bool)
         truth[0] = p0[0]
     truth[6:9] = z[0, 4:7]
     ev = ml.evaluate(prob, truth, z[0, 0:4] if with_att else np.array([1.0, 0, 0, 0]), True)
-    free = prob.free()
-    fisher = np.zeros((n, n))
-    fisher[np.ix_(free, free)] = ev.jac[:, free].T @ ev.jac[:, free]
-    bound = inertia_estimate(truth[:6], ml.covariance(fisher, free)[:6, :6], prob.fix_scale)
+    bound = inertia_estimate(truth[:6], ml.jacobian_covariance(ev.jac, prob.free())[:6, :6],
+                             prob.fix_scale)
     return ref.estimate, bound, prob.fix_scale
 
 

@@ -194,3 +194,17 @@ def test_identify_cli_runs_the_ukf_on_a_thrown_body_with_a_rotor(tmp_path):
     summary = json.loads((tmp_path / "u" / "identify.json").read_text())
     assert summary["method"] == "ukf"
     assert _rel(np.array(summary["inertia"]), sc.inertia_true_array) < 0.05
+
+
+def test_a_trajectory_the_model_cannot_follow_is_fitted_as_far_as_it_can_and_says_so():
+    """Torque the recording does not log acts after 40 s: the horizon stops growing there, the
+    estimate rests on the span it could follow, and the notes say so."""
+    rec, _ = simulate_recording(Scenario(), 120.0, seed=4, sample_dt=0.01)
+    tau = rec.tau.copy()
+    tau[rec.t > 40.0] = 0.0
+    res = identify(dataclasses.replace(rec, tau=tau))
+    notes = " ".join(res.notes)
+    assert "could be fitted only over the first" in notes
+    fitted = np.isfinite(res.w_fit[:, 0])
+    assert 0.2 < fitted.mean() < 0.9
+    assert _rel(res.estimate.inertia, Scenario().inertia_true_array) < 5 * res.crlb + 1e-4

@@ -73,13 +73,30 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
     a = np.add.reduceat(rows, starts, axis=0).reshape(-1, 6)
     c = np.add.reduceat(rhs, starts, axis=0).reshape(-1)
     col = np.linalg.norm(a, axis=0) + 1e-300
-    forced = np.linalg.norm(c) > 1e-9 * (np.linalg.norm(a) * max(abs(trace), 1e-300))
-    if forced:
-        theta = np.linalg.lstsq(a / col, c, rcond=None)[0] / col
+    c_win = np.linalg.norm(c.reshape(-1, 3), axis=1)
+    forced_win = c_win > 1e-3 * max(c_win.max(), 1e-300)
+    forced = bool(np.any(c_win > 0.0)) and c_win.max() > 1e-9 * np.linalg.norm(a) * max(abs(trace), 1e-300)
+    rows_free = np.repeat(~forced_win, 3)
+    if not forced:
+        theta = _null_vector(a, col)
+        return valid_theta(theta * trace / (theta[0] + theta[3] + theta[5]), trace)
+    if rows_free.sum() >= 9:
+        # Shape from the unforced windows (A theta = 0 there), scale from the forced ones. Least
+        # squares would shrink theta: A carries the gyro noise (errors in variables), so on
+        # every window |A theta| falls with theta. The scale is therefore regressed the other
+        # way round, the noisy A shape on the known forcing c: 1/s = <A shape, c> / <c, c>.
+        shape = _null_vector(a[rows_free], col)
+        shape *= np.sign(shape[0] + shape[3] + shape[5])
+        pred, forcing = a[~rows_free] @ shape, c[~rows_free]
+        theta = shape * float(forcing @ forcing) / float(pred @ forcing)
     else:
-        theta = np.linalg.svd(a / col)[2][-1] / col
-        theta *= trace / (theta[0] + theta[3] + theta[5])
-    return valid_theta(theta, trace if not forced else None)
+        theta = np.linalg.lstsq(a / col, c, rcond=None)[0] / col
+    return valid_theta(theta)
+
+
+def _null_vector(a, col) -> np.ndarray:
+    """The theta (6,) minimising |A theta| at unit norm of the column-scaled system."""
+    return np.linalg.svd(a / col)[2][-1] / col
 
 
 def valid_theta(theta, trace=None) -> np.ndarray:

@@ -43,6 +43,11 @@ N_DYN = 12  # sensitivity columns integrated by the kernel: phi (6), w0 (3), dq0
 MAX_ROTATION_PER_STEP = 0.1
 #: Largest change of the inertia's log-Cholesky parameters in one Levenberg-Marquardt step.
 MAX_PHI_STEP = 0.2
+#: A horizon stage whose residual rms exceeds the previous stage's by this factor has slipped.
+SLIP_FACTOR = 1.5
+#: A horizon stage whose start misses the new data by this factor over the last good rms is
+#: abandoned before iterating.
+GIVE_UP_FACTOR = 10.0
 
 
 # ------------------------------------------------------------------------------------------
@@ -344,26 +349,30 @@ class MLFit:
     """Result of the output-error fit.
 
     p (n,) the estimate [phi, w0, (dq0 = 0), (b)] with q0 (4,) its initial attitude (or None);
-    cov (n, n) inverse Fisher information at p (white noise at sigma); cost = 0.5 |r|^2;
-    evaluation at p; n_stages horizons fitted; converged: the last stage met its tolerance.
+    cost = 0.5 |r|^2; evaluation at p (of the first n_used measurements; its Jacobian gives the
+    Fisher information J^T J under white noise at sigma); n_stages horizons fitted; converged: the last
+    stage met its tolerance; n_used: measurements the estimate rests on (M unless the
+    horizon could not grow over the whole record).
     """
 
     p: np.ndarray
     q0: np.ndarray | None
-    fisher: np.ndarray
     evaluation: Evaluation
     cost: float
     n_iter: int
     n_stages: int
     converged: bool
+    n_used: int
 
 
 def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=None,
-                         max_iter: int = 40, tol: float = 1e-3):
+                         max_iter: int = 40, tol: float = 1e-3, give_up_rms: float = math.inf):
     """Minimise 0.5|r|^2 (+ 0.5 (p - mean)^T info (p - mean)) over the free parameters.
 
-    Converged when the last step's predicted decrease of |r|^2 is below tol (chi-square units:
-    1e-3 is a step of about 0.03 standard deviations).
+    Converged when the last step's predicted or actual decrease of |r|^2 is below tol
+    (chi-square units: 1e-3 is a step of about 0.03 standard deviations). give_up_rms: if the
+    start's residual rms (per residual) exceeds it, return at once unconverged (a horizon stage
+    whose start already lost the trajectory).
 
     Returns (p, q_ref, evaluation with Jacobian, cost, iterations, converged).
     """
@@ -382,6 +391,8 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
     if not ev.ok:
         raise ConfigError("the model's trajectory is not finite at the start estimate")
     cost = total_cost(ev, p)
+    if math.sqrt(np.mean(ev.r ** 2)) > give_up_rms:
+        return p, q_ref, ev, cost, 0, False
     # Damped at first, then quickly Gauss-Newton: Marquardt's damping along diag(A) crawls along
     # the strongly correlated inertia-phase directions, so it falls tenfold per accepted step.
     # A step may change the inertia's log-parameters by at most MAX_PHI_STEP (a trust region:
@@ -389,21 +400,28 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
     lam = 1e-3
     converged = False
     iterations = 0
+    prior_root = None
+    if prior_info is not None:  # rows R_p with R_p^T R_p = the prior information (free block)
+        vals, vecs = np.linalg.eigh(prior_info[np.ix_(free, free)])
+        keep = vals > 1e-12 * max(vals.max(), 1e-300)
+        prior_root = (vecs[:, keep] * np.sqrt(vals[keep])).T
     for iterations in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
+        # Gauss-Newton steps from the QR factor of the column-scaled Jacobian, never from J^T J:
+        # over a long tumble the sensitivities grow by many orders and J^T J would square a
+        # condition number of 1e8 into 1e16.
         jf = ev.jac[:, free]
-        a = jf.T @ jf
-        g = -jf.T @ ev.r
-        if prior_info is not None:
-            a = a + prior_info[np.ix_(free, free)]
-            g = g - prior_info[np.ix_(free, free)] @ (p - prior_mean)[free]
-        diag = np.maximum(np.diag(a), 1e-12 * max(np.diag(a).max(), 1e-300))
+        col = np.maximum(np.linalg.norm(jf, axis=0), 1e-300)
+        r_fac, qtr = _qr_rhs(jf / col, -ev.r)
+        blocks, rhs = [r_fac], [qtr]
+        if prior_root is not None:
+            blocks.append(prior_root / col)
+            rhs.append(-prior_root @ (p - prior_mean)[free])
+        g = np.concatenate(blocks).T @ np.concatenate(rhs)  # -gradient, in scaled coordinates
         improved = False
         for _ in range(20):
-            try:
-                step = np.linalg.solve(a + lam * np.diag(diag), g)
-            except np.linalg.LinAlgError:
-                lam = max(lam * 10.0, 1e-6)
-                continue
+            damped = np.concatenate(blocks + [math.sqrt(lam) * np.eye(col.size)])
+            scaled = np.linalg.lstsq(damped, np.concatenate(rhs + [np.zeros(col.size)]), rcond=None)[0]
+            step = scaled / col
             p_new = p.copy()
             p_new[free] += step
             if np.abs(p_new[:6] - p[:6]).max() > MAX_PHI_STEP:
@@ -417,7 +435,8 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
             ev_new = evaluate(prob, p_new, q_new, False)
             cost_new = total_cost(ev_new, p_new) if ev_new.ok else np.inf
             if cost_new <= cost:
-                predicted = float(step @ g)  # ~ twice the predicted decrease
+                predicted = float(scaled @ g)  # ~ twice the predicted decrease
+                drop = cost - cost_new
                 p, q_ref, cost = p_new, q_new, cost_new
                 lam = max(lam / 10.0, 1e-15)
                 improved = True
@@ -428,10 +447,33 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
             ev = evaluate(prob, p, q_ref, True)
             break
         ev = evaluate(prob, p, q_ref, True)
-        if predicted <= tol:
+        if predicted <= tol or drop <= 0.5 * tol:  # nothing left to gain, or none gained
             converged = True
             break
     return p, q_ref, ev, cost, iterations, converged
+
+
+def _qr_rhs(a, b):
+    """R (n, n) of the thin QR of a (R, n) and Q^T b (n,)."""
+    q, r = np.linalg.qr(a)
+    return r, q.T @ b
+
+
+def jacobian_covariance(jac, free) -> np.ndarray:
+    """(J^T J)^-1 over the free columns of the weighted Jacobian jac (R, n), zeros elsewhere,
+    from the SVD of the column-scaled J (its condition number, not its square, limits the
+    precision). Raises ConfigError when the record does not determine every free parameter.
+    """
+    jf = jac[:, free]
+    col = np.maximum(np.linalg.norm(jf, axis=0), 1e-300)
+    _, sv, vt = np.linalg.svd(jf / col, full_matrices=False)
+    if sv[-1] <= 1e-13 * sv[0]:
+        raise ConfigError("the record does not determine every parameter (Jacobian condition "
+                          f"number {sv[0] / max(sv[-1], 1e-300):.2g})")
+    inner = (vt.T / sv ** 2) @ vt
+    out = np.zeros((jac.shape[1], jac.shape[1]))
+    out[np.ix_(free, free)] = inner / np.outer(col, col)
+    return 0.5 * (out + out.T)
 
 
 def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: int | None = None,
@@ -440,55 +482,55 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
 
     start_info (n, n): information (inverse covariance) of the start, used as a prior on the
     stages before the last; first_horizon: measurements in the first stage (default: all).
-    The horizon doubles until it covers the record; the last stage has no prior.
+    The horizon doubles until it covers the record; the last stage has no prior. A stage that
+    does not converge, or whose residual rms jumps by more than SLIP_FACTOR over the previous
+    stage's (the trajectory slipped out of the fit's basin: near a separatrix the sensitivities
+    grow exponentially), is retried with a quarter more instead of twice the last horizon; if
+    that fails too, the fit keeps the last good horizon (refitted without the prior) and says
+    so in ``n_used`` < M.
     """
     m_total = prob.meas_idx.size
-    n_first = m_total if first_horizon is None else int(np.clip(first_horizon, 1, m_total))
+    n = m_total if first_horizon is None else int(np.clip(first_horizon, 1, m_total))
     p = np.array(p_start, dtype=float)
     q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_start is None else np.asarray(q_start, dtype=float)
-    horizons = []
-    n = n_first
-    while n < m_total:
-        horizons.append(n)
-        n *= 2
-    horizons.append(m_total)
-    total_iter = 0
     prior_mean = p.copy()
-    for stage, n in enumerate(horizons):
-        last = stage == len(horizons) - 1
-        sub = prob.window(n)
+    total_iter, stages = 0, 0
+    good = None  # (n, p, q_ref, evaluation, cost, converged, had_prior)
+    retried = False
+    while True:
+        last = n == m_total
         info = None if (last or start_info is None) else start_info
-        p, q_ref, ev, cost, it, converged = _levenberg_marquardt(
-            sub, p, q_ref, prior_mean if info is not None else None, info, max_iter=max_iter)
+        # A start that already misses the new data by far (GIVE_UP_FACTOR times the last good
+        # rms) has lost the trajectory: back off at once instead of iterating.
+        give_up = math.inf if good is None else GIVE_UP_FACTOR * good[7]
+        out = _levenberg_marquardt(prob.window(n), p, q_ref, prior_mean if info is not None else None,
+                                   info, max_iter=max_iter, give_up_rms=give_up)
+        total_iter += out[4]
+        stages += 1
+        rms = float(np.sqrt(np.mean(out[2].r ** 2)))
+        # A stage stopped by the iteration limit with residuals as small as the last good
+        # stage's is kept (a slow crawl along an ill-conditioned valley, reported through
+        # `converged`); one whose residuals jumped has lost the trajectory.
+        ok = good is None or rms <= SLIP_FACTOR * good[7]
+        if ok or good is None:
+            p, q_ref = out[0], out[1]
+            good = (n, p, q_ref, out[2], out[3], out[5], info is not None, rms)
+            retried = False
+            if last:
+                break
+            n = min(2 * n, m_total)
+        elif not retried:
+            retried = True
+            n = min(max(good[0] + 1, int(1.25 * good[0])), m_total)
+        else:
+            break
+    n_used, p, q_ref, ev, cost, converged, had_prior, _ = good
+    if had_prior:  # the last good stage carried the start's prior: refit it as pure likelihood
+        p, q_ref, ev, cost, it, converged = _levenberg_marquardt(prob.window(n_used), p, q_ref,
+                                                                 max_iter=max_iter)
         total_iter += it
-    free = prob.free()
-    fisher = np.zeros((prob.n_params, prob.n_params))
-    jf = ev.jac[:, free]
-    fisher[np.ix_(free, free)] = jf.T @ jf
-    return MLFit(p, q_ref if prob.with_att else None, fisher, ev, cost, total_iter, len(horizons),
-                 converged)
-
-
-def covariance(fisher: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Inverse of the Fisher information over the free parameters (zeros elsewhere).
-
-    Raises ConfigError when the information is singular (a parameter the data cannot fix).
-    """
-    n = fisher.shape[0]
-    out = np.zeros((n, n))
-    f = fisher[np.ix_(free, free)]
-    scale = np.sqrt(np.clip(np.diag(f), 1e-300, None))
-    fs = f / np.outer(scale, scale)
-    try:
-        inv = np.linalg.inv(fs)
-    except np.linalg.LinAlgError as exc:
-        raise ConfigError("the record does not determine every parameter (singular information)") \
-            from exc
-    if np.linalg.cond(fs) > 1e14:
-        raise ConfigError("the record does not determine every parameter (information matrix "
-                          f"condition number {np.linalg.cond(fs):.2g})")
-    out[np.ix_(free, free)] = inv / np.outer(scale, scale)
-    return out
+    return MLFit(p, q_ref if prob.with_att else None, ev, cost, total_iter, stages, converged,
+                 n_used)
 
 
 def theta_covariance(phi, cov_phi) -> np.ndarray:
@@ -508,5 +550,5 @@ def relative_frobenius_bound(theta, cov_theta) -> float:
     return math.sqrt(max(expected, 0.0)) / math.sqrt(float(np.sum(FROBENIUS_WEIGHTS * theta ** 2)))
 
 
-__all__ = ["Problem", "MLFit", "fit", "evaluate", "trajectory", "covariance", "theta_covariance",
+__all__ = ["Problem", "MLFit", "fit", "evaluate", "trajectory", "jacobian_covariance", "theta_covariance",
            "relative_frobenius_bound", "substeps", "theta_from_phi"]
