@@ -10,19 +10,24 @@ from inertia_gym.kernel_cache import use_source_keyed_cache
 use_source_keyed_cache()  # before any kernel module is imported (see kernel_cache.py)
 
 import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
+from inertia_gym.discrepancy.recordings import Recording, read_recordings  # noqa: E402
 from inertia_gym.errors import (  # noqa: E402
     ConfigError,
     EstimatorDivergedError,
     InertiaGymError,
     RecordingError,
 )
+from inertia_gym.identification import identify  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
 
 __all__ = [
     "ConfigError",
     "EstimatorDivergedError",
     "InertiaGymError",
+    "Recording",
     "RecordingError",
     "Scenario",
+    "identify",
+    "read_recordings",
 ]
 __version__ = "0.1.0"

@@ -25,7 +25,7 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ml
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
 from inertia_gym.excitation import burst_direction, validation_schedule
-from inertia_gym.identify import inertia_estimate, refine
+from inertia_gym.identification import inertia_estimate, refine
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
 from inertia_gym.scenario import Scenario, steps
 from inertia_gym.simulation import initial_state, run_segment

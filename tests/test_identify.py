@@ -13,7 +13,7 @@ from inertia_gym.cli import main
 from inertia_gym.discrepancy.recordings import Recording, read_recordings, write_recording
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.errors import RecordingError
-from inertia_gym.identify import identify
+from inertia_gym.identification import identify
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.scenario import Scenario
 
@@ -208,3 +208,11 @@ def test_a_trajectory_the_model_cannot_follow_is_fitted_as_far_as_it_can_and_say
     fitted = np.isfinite(res.w_fit[:, 0])
     assert 0.2 < fitted.mean() < 0.9
     assert _rel(res.estimate.inertia, Scenario().inertia_true_array) < 5 * res.crlb + 1e-4
+
+
+def test_package_level_api(paper_recording):
+    import inertia_gym
+
+    result = inertia_gym.identify(paper_recording)
+    assert result.summary()["scale_identified"] is True
+    assert callable(inertia_gym.read_recordings)

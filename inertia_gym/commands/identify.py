@@ -9,7 +9,7 @@ import numpy as np
 
 from inertia_gym.commands.common import prepare_out_dir, write_json
 from inertia_gym.discrepancy.recordings import read_recordings
-from inertia_gym.identify import METHODS, identify, markdown
+from inertia_gym.identification import METHODS, identify, markdown
 from inertia_gym.plots import plot_identification
 
 

@@ -10,7 +10,7 @@ from inertia_gym.dynamics import euler_to_quat, propagate, quat_to_rotation
 from inertia_gym.estimation import ml
 from inertia_gym.estimation.equation_error import equation_error_theta, valid_theta
 from inertia_gym.estimation.inertia_param import phi_from_inertia
-from inertia_gym.identify import inertia_estimate, refine
+from inertia_gym.identification import inertia_estimate, refine
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
 
 J_TRUE = np.array([[100.0, 2.0, -3.0], [2.0, 130.0, 4.0], [-3.0, 4.0, 200.0]])
