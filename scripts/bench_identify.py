@@ -51,7 +51,7 @@ from inertia_gym.errors import ConfigError, RecordingError  # noqa: E402
 from inertia_gym.estimation import ml  # noqa: E402
 from inertia_gym.estimation.equation_error import equation_error_theta  # noqa: E402
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia  # noqa: E402
-from inertia_gym.identify import identify, problem_from_recording  # noqa: E402
+from inertia_gym.identification import identify, problem_from_recording  # noqa: E402
 from inertia_gym.information import inertia_from_theta  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
 

@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 
 from inertia_gym.discrepancy.recordings import read_recordings  # noqa: E402
 from inertia_gym.estimation.ml import FROBENIUS_WEIGHTS  # noqa: E402
-from inertia_gym.identify import identify  # noqa: E402
+from inertia_gym.identification import identify  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "rotor-throws"
 TRIU = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))  # theta order
