@@ -96,7 +96,7 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
 
 def _null_vector(a, col) -> np.ndarray:
     """The theta (6,) minimising |A theta| at unit norm of the column-scaled system."""
-    return np.linalg.svd(a / col)[2][-1] / col
+    return np.linalg.svd(a / col, full_matrices=False)[2][-1] / col
 
 
 def valid_theta(theta, trace=None) -> np.ndarray:

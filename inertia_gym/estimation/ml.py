@@ -454,9 +454,12 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
 
 
 def _qr_rhs(a, b):
-    """R (n, n) of the thin QR of a (R, n) and Q^T b (n,)."""
-    q, r = np.linalg.qr(a)
-    return r, q.T @ b
+    """R (n, n) of the thin QR of a (R, n) and Q^T b (n,), from the triangular factor of [a | b]
+    alone (Q is never formed).
+    """
+    n = a.shape[1]
+    r_aug = np.linalg.qr(np.column_stack([a, b]), mode="r")
+    return r_aug[:n, :n], r_aug[:n, n]
 
 
 def jacobian_covariance(jac, free) -> np.ndarray:
