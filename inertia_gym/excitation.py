@@ -49,6 +49,8 @@ def burst_torque_into(a, b, w_hat, v, tau_max, out):
 
 def burst_torque(a: float, b: float, w_hat, v, tau_max: float) -> np.ndarray:
     """Eq. (18): a (w_hat x v) + b v, scaled down to |tau|_inf <= tau_max. Shape (3,), N·m."""
+    if not tau_max > 0:
+        raise ConfigError(f"tau_max must be > 0, got {tau_max}")
     out = np.empty(3)
     burst_torque_into(float(a), float(b), np.asarray(w_hat, dtype=float), np.asarray(v, dtype=float),
                       float(tau_max), out)

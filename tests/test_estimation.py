@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -240,8 +242,7 @@ def test_divergence_is_reported_not_raised(paper):
     state = initial_state(paper, rngs)
     bad_p = state.P.copy()
     bad_p[0, 5, 5] = np.nan
-    state = type(state)(state.y_true, state.x, bad_p, state.n_updates, state.steps_to_meas,
-                        state.step, state.diverged)
+    state = dataclasses.replace(state, P=bad_p)
     new, trace = run_segment(paper, state, 100, np.zeros((1, 0, 2)), np.zeros(3), np.eye(3)[0],
                              rngs, record_steps=False)
     assert new.diverged[0]
