@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,25 @@ def add_scenario_option(parser: argparse.ArgumentParser) -> None:
 def load_scenario(args: argparse.Namespace) -> Scenario:
     """The scenario selected by --scenario."""
     return Scenario.load(args.scenario)
+
+
+def add_recording_argument(parser: argparse.ArgumentParser) -> None:
+    """The positional REC of the commands that read a recording."""
+    parser.add_argument("rec", metavar="REC",
+                        help="project CSV/Parquet (+ sidecar JSON) or a phyphox export "
+                             "folder/'Raw Data.csv'")
+
+
+def recording_folders(rec_path: str, out: str | Path):
+    """Read every recording (segment) of rec_path; yield (recording, its output folder): out
+    itself for a single recording, else one sub-folder per segment named after it.
+    """
+    from inertia_gym.discrepancy.recordings import read_recordings
+
+    recs = read_recordings(rec_path)
+    folder = prepare_out_dir(out)
+    for rec in recs:
+        yield rec, folder if len(recs) == 1 else prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", rec.name))
 
 
 def prepare_out_dir(path: str | Path) -> Path:

@@ -3,18 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import re
 
-from inertia_gym.commands.common import prepare_out_dir, write_json
-from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.commands.common import add_recording_argument, recording_folders, write_json
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
 
 
 def add_parser(subparsers) -> None:
     """Register the sub-command."""
     p = subparsers.add_parser("diagnose", help="diagnose a recording against the rigid-body model")
-    p.add_argument("rec", metavar="REC",
-                   help="project CSV/Parquet (+ sidecar JSON) or a phyphox export folder/'Raw Data.csv'")
+    add_recording_argument(p)
     p.add_argument("--out", default="diagnosis", metavar="DIR", help="output folder")
     p.add_argument("--no-plots", action="store_true", help="report.json and summary only")
     p.set_defaults(func=run)
@@ -22,10 +19,7 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Diagnose each recording (each phyphox window on its own); one sub-folder per window."""
-    recs = read_recordings(args.rec)
-    out = prepare_out_dir(args.out)
-    for rec in recs:
-        sub = out if len(recs) == 1 else prepare_out_dir(out / re.sub(r"[^\w.-]+", "_", rec.name))
+    for rec, sub in recording_folders(args.rec, args.out):
         report, arrays = diagnose(rec)
         plots = [] if args.no_plots else write_plots(sub, report, arrays)
         write_json(sub / "report.json", report)

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import re
 
 import numpy as np
 
-from inertia_gym.commands.common import prepare_out_dir, write_json
-from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.commands.common import add_recording_argument, recording_folders, write_json
 from inertia_gym.identification import METHODS, identify, markdown
 from inertia_gym.plots import plot_identification
 
@@ -17,8 +15,7 @@ def add_parser(subparsers) -> None:
     """Register the sub-command."""
     p = subparsers.add_parser("identify", help="identify the inertia of the body in a recording",
                               description=__doc__)
-    p.add_argument("rec", metavar="REC",
-                   help="project CSV/Parquet (+ sidecar JSON) or a phyphox export folder/'Raw Data.csv'")
+    add_recording_argument(p)
     p.add_argument("--method", choices=METHODS, default="ml",
                    help="ml: maximum likelihood over the whole record (default); ekf/ukf: the "
                         "paper's filter run once over the record")
@@ -29,10 +26,7 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Identify each recording (each phyphox window on its own); one sub-folder per window."""
-    recs = read_recordings(args.rec)
-    out = prepare_out_dir(args.out)
-    for rec in recs:
-        sub = out if len(recs) == 1 else prepare_out_dir(out / re.sub(r"[^\w.-]+", "_", rec.name))
+    for rec, sub in recording_folders(args.rec, args.out):
         result = identify(rec, args.method)
         summary = result.summary()
         plots = [] if args.no_plots else plot_identification(result, sub)
