@@ -1,0 +1,39 @@
+"""scripts/bench_identify.py and scripts/identify_rotor_throws.py run end to end (short runs)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+ROTOR = Path(__file__).resolve().parents[2] / "shared" / "data" / "rotor-throws"
+
+
+def test_bench_identify_reports_both_walls_and_errors():
+    out = subprocess.run(
+        [sys.executable, str(SCRIPTS / "bench_identify.py"), "--duration-a", "5", "--repeats", "1",
+         "--peer-budget", "2"], capture_output=True, text=True, check=True, timeout=300,
+    )
+    lines = [json.loads(x) for x in out.stdout.splitlines() if x.startswith("{")]
+    assert [x["case"] for x in lines] == ["a", "b"]
+    for report in lines:
+        assert report["wall_s_identify"] > 0 and report["wall_s_peer"] > 0
+        assert 0 <= report["rel_error_identify"] < 0.1  # 5 s of data: a rough estimate
+
+
+@pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
+def test_rotor_throw_table(tmp_path):
+    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data", str(ROTOR),
+                          "--out", str(tmp_path)], capture_output=True, text=True, check=True, timeout=300)
+    assert "median error" in out.stdout
+    report = json.loads((tmp_path / "rotor_throws.json").read_text())
+    assert len(report["rows"]) == 20
+    assert report["median_rel_error"] <= 0.021 and report["worst_rel_error"] <= 0.055
+
+
+def test_rotor_throw_table_without_data_exits_cleanly(tmp_path):
+    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data",
+                          str(tmp_path / "absent")], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip().count("\n") == 0
