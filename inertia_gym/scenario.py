@@ -10,11 +10,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import tomllib
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import tomllib
 
 from inertia_gym.errors import ConfigError
 

@@ -6,6 +6,8 @@ and the cost live there.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -27,6 +29,18 @@ OBS_HIGH = np.array([100.0] * 3 + [1000.0] * 6 + [40.0] * 6 + [10.0], dtype=np.f
 
 class ResetNeededError(InertiaGymError, gym.error.ResetNeeded):
     """`step` was called before `reset` (or after the run ended)."""
+
+
+def as_scenario(scenario) -> Scenario:
+    """A Scenario from a Scenario, a mapping of field overrides, a TOML/JSON path, or None."""
+    if scenario is None or isinstance(scenario, Scenario):
+        return Scenario() if scenario is None else scenario
+    if isinstance(scenario, Mapping):
+        return Scenario.from_mapping(scenario)
+    if isinstance(scenario, (str, Path)):
+        return Scenario.load(scenario)
+    raise ConfigError(f"scenario must be a Scenario, a mapping of fields or a file path, got "
+                      f"{type(scenario).__name__}")
 
 
 def check_seed(seed: Any) -> int | None:
@@ -100,9 +114,9 @@ class ExcitationEnv(gym.Env):
     **Start state.** The scenario's initial attitude and rate; the filter starts at
     ``inertia_guess`` with covariance ``P0_theta`` after a first noisy measurement.
 
-    **Termination.** Only on divergence; truncation at the evaluation budget M comes from
-    ``TimeLimit`` (``max_episode_steps``, 100 when registered). Pass the same number as
-    ``budget`` so that the progress feature reaches 1.
+    **Termination.** Only on divergence. **Truncation** once ``budget`` steps (the evaluation
+    budget M) are taken; ``TimeLimit`` (``max_episode_steps``, 100 when registered) truncates
+    too, whichever comes first.
 
     **info.** cost, info_cost, posterior_cost, alpha, lambda_min (smallest over windows),
     theta_hat (6,), p_theta_eigvals (6,) ascending, rel_error (||J_hat − J||_F / ||J||_F, the
@@ -116,21 +130,21 @@ class ExcitationEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, scenario: Scenario | None = None, cost: str = "info", budget: int = 100,
-                 carry_over: bool = True):
+    def __init__(self, scenario: Scenario | Mapping | str | Path | None = None, cost: str = "info",
+                 budget: int = 100, carry_over: bool = True):
         """Build the env.
 
-        scenario: the experiment (paper's by default); cost: "info" or "posterior"; budget: the
-        evaluation budget M the progress feature is measured against; carry_over: keep the
-        estimator's state from step to step (Algorithm 1).
+        scenario: the experiment: a Scenario, a mapping of field overrides, or the path of a
+        TOML/JSON scenario file (the paper's by default); cost: "info" or "posterior"; budget:
+        the evaluation budget M: the progress feature is measured against it and the episode
+        is truncated once M steps are taken; carry_over: keep the estimator's state from step
+        to step (Algorithm 1).
         """
         if cost not in COSTS:
             raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise ConfigError(f"budget must be an integer >= 1, got {budget!r}")
-        self.scenario = Scenario() if scenario is None else scenario
-        if not isinstance(self.scenario, Scenario):
-            raise ConfigError(f"scenario must be a Scenario, got {type(scenario).__name__}")
+        self.scenario = as_scenario(scenario)
         self.cost = cost
         self.budget = int(budget)
         self.carry_over = bool(carry_over)
@@ -171,7 +185,8 @@ class ExcitationEnv(gym.Env):
         info = self._info(res, xi, cost)
         if res.diverged:
             self._state = None
-        return obs, -cost, bool(res.diverged), False, info
+        truncated = not res.diverged and self._steps >= self.budget
+        return obs, -cost, bool(res.diverged), truncated, info
 
     def _observation(self) -> np.ndarray:
         st = self._state

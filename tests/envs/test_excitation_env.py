@@ -136,7 +136,8 @@ def test_invalid_seeds_raise(seed):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"cost": "fisher"}, "cost"), ({"budget": 0}, "budget"), ({"scenario": {}}, "Scenario"),
+    ({"cost": "fisher"}, "cost"), ({"budget": 0}, "budget"), ({"scenario": 3.0}, "Scenario"),
+    ({"scenario": {"tau_mx": 1.0}}, "unknown scenario field"), ({"scenario": "absent.toml"}, "exist"),
 ])
 def test_invalid_constructor_arguments(kwargs, match):
     with pytest.raises(ConfigError, match=match):
@@ -188,3 +189,18 @@ def test_divergence_terminates_with_finite_cost(monkeypatch):
     assert np.all(obs == 0)
     with pytest.raises(ResetNeededError):
         env.step(ACTION)
+
+
+def test_scenario_may_be_a_mapping_or_a_file(tmp_path):
+    assert ExcitationEnv(scenario={"tau_max": 2.0}).scenario == Scenario(tau_max=2.0)
+    path = tmp_path / "sc.toml"
+    path.write_text("tau_max = 3.0\n")
+    assert ExcitationEnv(scenario=str(path)).scenario == Scenario(tau_max=3.0)
+    assert ExcitationEnv(scenario=path).scenario == Scenario(tau_max=3.0)
+
+
+def test_budget_truncates_the_episode():
+    env = ExcitationEnv(budget=2)
+    env.reset(seed=0)
+    flags = [env.step(ACTION)[2:4] for _ in range(2)]
+    assert flags == [(False, False), (False, True)]
