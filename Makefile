@@ -20,7 +20,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --durations=15
 
 lint: $(STAMP)
-	$(BIN)/ruff check inertia_gym agents scripts tests
+	$(BIN)/ruff check inertia_gym scripts tests
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench_speed.py

@@ -13,6 +13,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
+from inertia_gym.agents.base import AGENTS as AGENT_REGISTRY
 from inertia_gym.envs import ENV_ID
 from inertia_gym.envs.excitation import check_seed, divergence_cost
 from inertia_gym.episode import COSTS, run_episode
@@ -20,7 +21,7 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
 from inertia_gym.simulation import initial_state
 
-AGENTS = ("bo", "random", "sac", "td3", "ppo")
+AGENTS = tuple(AGENT_REGISTRY)  # "bo", "random", "sac", "td3", "ppo"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,7 +32,7 @@ class OptimizationResult:
     cost; costs (M,) the cost of each evaluation in order; xis (M, 3) the xi of each evaluation;
     wall_s the wall-clock seconds of the whole run. rel_errors (M,) the true relative inertia
     error after each evaluation (the simulation knows the truth). xi_recommended (3,) the
-    evaluated xi with the lowest GP posterior mean cost (agents.bo.posterior_best): the same
+    evaluated xi with the lowest GP posterior mean cost (inertia_gym.agents.bo.posterior_best): the same
     noise-robust rule for every agent, next to the paper's argmin of the observed cost.
     """
 
@@ -126,8 +127,8 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = "info
     every evaluation (a stationary objective) instead of Algorithm 1's carry-over.
     agent_options : passed to the agent's constructor (e.g. ``kappa`` or ``refit_every``).
     """
-    from agents import make_agent
-    from agents.bo import posterior_best
+    from inertia_gym.agents import make_agent
+    from inertia_gym.agents.bo import posterior_best
     from inertia_gym.envs.excitation import action_to_xi, xi_to_action
 
     _check_common(sc, cost)

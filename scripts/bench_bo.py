@@ -3,7 +3,7 @@
 Stock loop: the same GP (SingleTaskGP, Normalize, Standardize), the same acquisition (LogPI with
 kappa, eq. 23) and the same Sobol design, but the GP is refitted from scratch at every iteration
 and optimize_acqf uses the BoTorch tutorials' settings (num_restarts=10, raw_samples=512, default
-options). Project loop: agents.bo.BOAgent with its defaults (warm-started hyperparameters,
+options). Project loop: inertia_gym.agents.bo.BOAgent with its defaults (warm-started hyperparameters,
 refit every 10 evaluations, 2 restarts / 256 raw samples, no retries), on one torch thread as
 optimize() runs it. The stock loop runs twice: with torch's default thread count (as a user
 would run it) and on one thread (isolating the algorithmic gains). All go through the same env
@@ -33,8 +33,8 @@ from botorch.models.transforms import Normalize, Standardize
 from botorch.optim import optimize_acqf
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from agents.base import AskTellAgent
-from agents.bo import BOAgent, posterior_best
+from inertia_gym.agents.base import AskTellAgent
+from inertia_gym.agents.bo import BOAgent, posterior_best
 from inertia_gym.envs.excitation import action_to_xi, xi_to_action
 from inertia_gym.optimization import EvaluationLog, evaluate_xi, make_env, torch_threads
 from inertia_gym.scenario import Scenario

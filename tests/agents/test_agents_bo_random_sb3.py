@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import torch
 
-from agents import make_agent
-from agents.bo import BOAgent, hyperparameters, posterior_best
-from agents.random_search import RandomAgent
-from agents.sb3 import sb3_settings
+from inertia_gym.agents import make_agent
+from inertia_gym.agents.bo import BOAgent, hyperparameters, posterior_best
+from inertia_gym.agents.random_search import RandomAgent
+from inertia_gym.agents.sb3 import sb3_settings
 from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import optimize, torch_threads
 from inertia_gym.scenario import Scenario
@@ -113,3 +113,27 @@ def test_sb3_settings_learn_early():
     assert sb3_settings("ppo", 100)["n_steps"] <= 16
     with pytest.raises(ConfigError):
         sb3_settings("dqn", 100)
+
+
+def test_a_user_module_named_agents_does_not_shadow_ours(tmp_path):
+    """`python -m` puts the working directory first on sys.path: a user's agents.py there must
+    not replace the package's agents (they live in inertia_gym.agents)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "agents.py").write_text("raise ImportError('this is the user\\'s agents.py')\n")
+    proc = subprocess.run([sys.executable, "-m", "inertia_gym.cli", "optimize", "--agent", "random",
+                           "--budget", "2", "--out", str(tmp_path / "opt")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "opt" / "result.json").exists()
+
+
+def test_agents_are_registered_by_name():
+    from inertia_gym.agents import AGENTS
+    from inertia_gym.errors import ConfigError
+
+    assert list(AGENTS) == ["bo", "random", "sac", "td3", "ppo"]
+    assert isinstance(make_agent("random", 0, 5), RandomAgent)
+    with pytest.raises(ConfigError, match="bo, random"):
+        make_agent("cmaes", 0, 5)

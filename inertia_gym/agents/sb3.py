@@ -20,7 +20,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 from tqdm.auto import tqdm
 
-from agents.base import Agent
+from inertia_gym.agents.base import Agent
 from inertia_gym.errors import ConfigError
 
 

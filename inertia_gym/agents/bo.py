@@ -24,7 +24,7 @@ from botorch.models.transforms import Normalize, Standardize
 from botorch.optim import optimize_acqf
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from agents.base import AskTellAgent
+from inertia_gym.agents.base import AskTellAgent
 from inertia_gym.errors import ConfigError
 
 ACQUISITIONS = ("pi", "logpi")

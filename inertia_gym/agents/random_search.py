@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.base import AskTellAgent
+from inertia_gym.agents.base import AskTellAgent
 
 
 class RandomAgent(AskTellAgent):

@@ -57,18 +57,33 @@ class AskTellAgent(Agent):
                 env.reset()
 
 
+def _bo(seed, budget, **options):
+    from inertia_gym.agents.bo import BOAgent
+
+    return BOAgent(seed, **options)
+
+
+def _random(seed, budget, **options):
+    from inertia_gym.agents.random_search import RandomAgent
+
+    return RandomAgent(seed, **options)
+
+
+def _sb3(algorithm):
+    def build(seed, budget, **options):
+        from inertia_gym.agents.sb3 import SB3Agent
+
+        return SB3Agent(algorithm, seed, budget, **options)
+    return build
+
+
+#: The agents by name: each entry builds one from (seed, budget, **options). Its module is
+#: imported only when the agent is built (torch and SB3 load only for the agents that need them).
+AGENTS = {"bo": _bo, "random": _random, "sac": _sb3("sac"), "td3": _sb3("td3"), "ppo": _sb3("ppo")}
+
+
 def make_agent(name: str, seed: int, budget: int, **options) -> Agent:
-    """Build the agent `name` ("bo", "random", "sac", "td3", "ppo") for a budget of steps."""
-    if name == "bo":
-        from agents.bo import BOAgent
-
-        return BOAgent(seed, **options)
-    if name == "random":
-        from agents.random_search import RandomAgent
-
-        return RandomAgent(seed, **options)
-    if name in ("sac", "td3", "ppo"):
-        from agents.sb3 import SB3Agent
-
-        return SB3Agent(name, seed, budget, **options)
-    raise ConfigError(f"agent must be one of bo, random, sac, td3, ppo; got {name!r}")
+    """Build the agent `name` (a key of AGENTS: "bo", "random", "sac", "td3", "ppo")."""
+    if name not in AGENTS:
+        raise ConfigError(f"agent must be one of {', '.join(AGENTS)}; got {name!r}")
+    return AGENTS[name](seed, budget, **options)
