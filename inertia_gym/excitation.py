@@ -2,7 +2,7 @@
 
 tau = a (w_hat x v) + b v, held over a burst of T_on seconds, saturated to |tau|_inf <= tau_max by
 scaling the whole vector (the direction of the law is kept). v is taken from P_theta as
-DESIGN.md proposes: the dominant eigenvector d_theta of P_theta (6x6) is mapped to the symmetric
+docs/paper-errata.md proposes: the dominant eigenvector d_theta of P_theta (6x6) is mapped to the symmetric
 matrix J(d_theta), and v is that matrix's eigenvector of largest |eigenvalue| (the body axis
 whose inertia is least known), with its sign fixed so that its largest component is positive.
 """

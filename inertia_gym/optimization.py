@@ -49,7 +49,7 @@ class OptimizationResult:
     xi_recommended: np.ndarray | None = None
 
     def to_json(self) -> dict:
-        """Return the keys of DESIGN.md section 3 (optimize's result.json) as plain JSON."""
+        """Return the keys of docs/contracts.md (optimize's result.json) as plain JSON."""
         out = {
             "agent": self.agent,
             "budget": int(self.budget),

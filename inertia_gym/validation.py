@@ -69,7 +69,7 @@ class ValidationResult:
     measurements: np.ndarray | None = None
 
     def summary(self) -> dict:
-        """The contract keys of DESIGN.md section 3 (validate's result.json)."""
+        """The contract keys of docs/contracts.md (validate's result.json)."""
         ok = ~self.diverged
         return {
             "xi": None if self.xi is None else list(self.xi),

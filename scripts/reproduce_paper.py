@@ -81,7 +81,7 @@ def main():
     md = f"""# Reproduction of Basu & Sanfelice, simulation section
 
 Command: `python scripts/reproduce_paper.py --seed {args.seed} --budget {args.budget} --out {out}`
-(wall time {numbers['wall_s']:.0f} s). Scenario: the paper's (DESIGN.md section 1 choices);
+(wall time {numbers['wall_s']:.0f} s). Scenario: the paper's (docs/paper-errata.md choices);
 bounds of xi = (a, b, T_on): {fmt(lo)} to {fmt(hi)} (the paper's formula a <= tau_max/|w0|).
 
 | quantity | paper | here | why they differ |
@@ -116,7 +116,7 @@ bounds of xi = (a, b, T_on): {fmt(lo)} to {fmt(hi)} (the paper's formula a <= ta
    BO learned. From the scenario's start the lowest J of all lies at the corner a = b = 0,
    T_on = 1 s, i.e. no torque with the longest window (scripts/bo_vs_random.py, grid), an
    excitation that cannot identify the inertia's scale: J rewards the estimator's error, the
-   caveat DESIGN.md section 1 names.
+   caveat docs/paper-errata.md names.
 3. **J's level (14 vs ~{np.median(costs):.2g}).** J = -log(alpha + eps_lambda) with alpha the
    soft-min of lambda_min; the paper's J = 14 means alpha ~ 1e-6, ours ~ exp(-J). The paper does
    not report eps, eps_lambda, beta, nor whether coast-only windows enter S; these set J's level

@@ -1,6 +1,6 @@
 """`inertia-gym optimize`: Algorithm 1 (BO-EKF episodic excitation) or a baseline agent.
 
-Writes DIR/result.json (DESIGN.md section 3: agent, budget, seed, xi_star, cost_star, costs,
+Writes DIR/result.json (docs/contracts.md: agent, budget, seed, xi_star, cost_star, costs,
 wall_s; plus cost_kind, xis, rel_errors, xi_recommended) and DIR/optimize.png (Figure 1 style:
 the cost of each evaluation and its running best).
 """

@@ -1,4 +1,4 @@
-"""The physics catalogue (DESIGN.md §3): each effect's parameters, a random draw of them, the
+"""The physics catalogue (docs/contracts.md): each effect's parameters, a random draw of them, the
 truth simulator of the augmented system, and the equation-error model used to fit them.
 
 Units: rad/s, N·m, kg·m², s. The body obeys

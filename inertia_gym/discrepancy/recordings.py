@@ -1,7 +1,7 @@
 """Recordings: the project's CSV (+ sidecar JSON), phyphox exports, Parquet.
 
 A recording holds gyro samples and, optionally, attitude, commanded torque and known internal
-angular momentum (DESIGN.md §3). Columns (one row per gyro sample):
+angular momentum (README.md, "Recording format"; docs/contracts.md). Columns (one row per gyro sample):
 
     t                    s, strictly increasing (required)
     wx, wy, wz           rad/s, body-frame gyro (required)
@@ -206,7 +206,7 @@ def _is_numeric(value) -> bool:
 
 
 def read_csv_recording(path: str | Path) -> Recording:
-    """Read the project's CSV format (DESIGN.md §3) and its sidecar."""
+    """Read the project's CSV format (README.md, "Recording format") and its sidecar."""
     path = Path(path)
     header, data = _read_table(path)
     return _from_columns(path, header, data, read_sidecar(path))

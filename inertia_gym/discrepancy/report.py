@@ -105,7 +105,7 @@ def _fit_summary(fit: Fit, sigma) -> dict:
 
 
 def diagnose(rec: Recording) -> dict:
-    """The full diagnosis of one recording as a JSON-ready dict (DESIGN.md §3 keys, and more)."""
+    """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)."""
     d = prepare(rec)
     nominal, fits, skipped, d = fit_all(d)
     ranked = []
