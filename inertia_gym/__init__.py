@@ -5,9 +5,10 @@ excitation, simulation), thin shells over them (envs, cli) and the sim-vs-real d
 (discrepancy). Importing it registers the Gymnasium environment "InertiaGym/Excitation-v0".
 """
 
-from inertia_gym.kernel_cache import use_source_keyed_cache
+from inertia_gym.kernel_cache import use_fork_safe_threading, use_source_keyed_cache
 
 use_source_keyed_cache()  # before any kernel module is imported (see kernel_cache.py)
+use_fork_safe_threading()  # before the first parallel kernel runs (see kernel_cache.py)
 
 import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
 from inertia_gym.discrepancy.recordings import Recording, read_recordings  # noqa: E402

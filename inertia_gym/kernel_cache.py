@@ -77,3 +77,19 @@ def prune_stale_caches(current: Path, keep: int = KEEP_VERSIONS) -> list[Path]:
     for folder in stale:
         shutil.rmtree(folder, ignore_errors=True)
     return stale
+
+
+def use_fork_safe_threading() -> str:
+    """Run the parallel kernels on numba's fork-safe "workqueue" threading layer, unless the user
+    chose one with $NUMBA_THREADING_LAYER; returns the layer asked for.
+
+    With GNU OpenMP (numba's default where it is installed), a process that has run a parallel
+    kernel cannot fork: ``gym.make_vec(..., vectorization_mode="async")`` and SB3's
+    ``SubprocVecEnv`` (fork start method) died with "fork() called from a process already using
+    GNU OpenMP". The workqueue layer forks safely; it must not be entered from two Python
+    threads at once (the package never does; run batches in processes, as executors.py does).
+    """
+    if not os.environ.get("NUMBA_THREADING_LAYER"):
+        numba.config.THREADING_LAYER = "workqueue"
+    return numba.config.THREADING_LAYER
+
