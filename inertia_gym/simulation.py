@@ -215,7 +215,7 @@ def _segment_one(truth, est, plan, logs, r, cfg, n_updates, sigma_fresh):
     inertia_hat_inv = inv3(inertia_hat)
     use_ukf = cfg.ukf > 0
     n_sigma = ukf.N_SIGMA if use_ukf else 0
-    sigma = est.sigma[r]
+    sigma = est.sigma[r].copy()
     sigma_inertia = np.empty((n_sigma, 3, 3))
     sigma_inertia_inv = np.empty((n_sigma, 3, 3))
     if use_ukf:
@@ -226,7 +226,7 @@ def _segment_one(truth, est, plan, logs, r, cfg, n_updates, sigma_fresh):
             for k in range(n_sigma):
                 sigma_inertia[k] = inertia_from_phi(sigma[k, 7:13])
                 sigma_inertia_inv[k] = inv3(sigma_inertia[k])
-    phi_top = est.phi_top[r]
+    phi_top = est.phi_top[r].copy()  # local and contiguous in the hot loop; written back below
     tau = np.zeros(3)
     model_dist = np.zeros(DISTURBANCE_SIZE)  # the filter's model: no disturbance, no wheel
     burst_i = 0
@@ -267,6 +267,8 @@ def _segment_one(truth, est, plan, logs, r, cfg, n_updates, sigma_fresh):
             _log_measurement(y_true, z, cfg, logs.measurements[r, meas_i])
             logs.w_est[r, meas_i] = x[4:7]
             meas_i += 1
+    est.phi_top[r] = phi_top
+    est.sigma[r] = sigma
     return status, meas_i, n_updates
 
 
@@ -337,24 +339,36 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
     return 0 if ekf.state_is_sane(x, P) else 1
 
 
-@nb.njit(cache=True, parallel=True)
-def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
-    """Advance every run of the batch that has not diverged (parallel over runs).
+@nb.njit(cache=True)
+def _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, r):
+    """Advance run r of the batch unless it has diverged; its counters and flags updated.
 
     cfg_array : (1,) array of the filter configuration record (a record is handed to the
     parallel loop inside an array: numba cannot pass a bare record into a parfor).
-    n_updates, sigma_fresh, status, meas_done : (B,) per-run counters and flags, updated.
+    n_updates, sigma_fresh, status, meas_done : (B,) per-run counters and flags.
     """
+    if status[r] != 0:
+        return
+    st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0], n_updates[r],
+                                sigma_fresh[r])
+    status[r] = st
+    meas_done[r] = done
+    n_updates[r] = nu
+    if cfg_array[0].ukf > 0:
+        sigma_fresh[r] = False
+
+
+@nb.njit(cache=True, parallel=True)
+def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
+    """Advance every run of the batch (parallel over runs); arguments as :func:`_advance_run`."""
     for r in nb.prange(truth.y.shape[0]):
-        if status[r] != 0:
-            continue
-        st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0], n_updates[r],
-                                    sigma_fresh[r])
-        status[r] = st
-        meas_done[r] = done
-        n_updates[r] = nu
-        if cfg_array[0].ukf > 0:
-            sigma_fresh[r] = False
+        _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, r)
+
+
+@nb.njit(cache=True)
+def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
+    """A batch of one run, without the threading layer's launch cost (an env step, one seed)."""
+    _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, 0)
 
 
 def run_segment(
@@ -419,7 +433,7 @@ def run_segment(
     status = state.diverged.astype(np.int64)
     meas_done = np.zeros(batch, dtype=np.int64)
     dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
-    _segment_batch(
+    (_segment_single if batch == 1 else _segment_batch)(
         Truth(y_true, sc.inertia_true_array, dist), Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
