@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
+from pathlib import Path
 
 from inertia_gym.errors import InertiaGymError
 
@@ -25,14 +28,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Set to 1 to see the full traceback of an internal failure instead of its one-line summary.
+DEBUG_VARIABLE = "INERTIA_GYM_DEBUG"
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the process exit code (2 for a usage or input error)."""
+    """Entry point; returns the process exit code: 2 for a usage or input error, 1 for an
+    internal failure (one line on stderr; the traceback with INERTIA_GYM_DEBUG=1).
+    """
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except InertiaGymError as exc:
         print(f"inertia-gym {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # a failure the command did not foresee: one line, not a traceback
+        if os.environ.get(DEBUG_VARIABLE) == "1":
+            raise
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        print(f"inertia-gym {args.command}: internal error: {type(exc).__name__}: {exc} "
+              f"(at {Path(where.filename).name}:{where.lineno}; rerun with {DEBUG_VARIABLE}=1 "
+              "for the traceback, and please report it)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
