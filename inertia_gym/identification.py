@@ -40,6 +40,7 @@ from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
 from inertia_gym.information import inertia_from_theta
+from inertia_gym.sensors import estimate_white_noise
 
 METHODS = ("ml", "ekf", "ukf")
 #: The scale counts as identified when its relative standard deviation is at most this.
@@ -152,13 +153,6 @@ def inertia_estimate(phi, cov_phi, scale_fixed: bool, trace_ref: float | None = 
 # ------------------------------------------------------------------------------------------
 
 
-def estimate_white_noise(w) -> np.ndarray:
-    """(3,) rad/s white-noise level from third differences (smooth motion cancels), robust."""
-    d3 = np.diff(w, n=3, axis=0)
-    mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) / 0.6745
-    return mad / math.sqrt(20.0)
-
-
 def correlation_lags(residuals, max_lag: int | None = None) -> int:
     """Number of lags over which the residuals (M, c) stay correlated (0: white).
 
@@ -223,6 +217,17 @@ class Refinement:
     noise: NoiseModel
     estimate: InertiaEstimate
     crlb: float
+
+
+def cramer_rao_bound(prob: ml.Problem, p, q_ref=None, trace_ref: float | None = None) -> InertiaEstimate:
+    """The inertia at the parameters p (n,) with the Cramér-Rao covariance of the problem there:
+    (J^T J)^-1 of the weighted sensitivities (white noise at prob.sigma_w), q_ref (4,) the
+    initial attitude (None: identity, for records without attitude).
+    """
+    q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_ref is None else q_ref
+    ev = ml.evaluate(prob, p, q_ref, True)
+    return inertia_estimate(p[:6], ml.jacobian_covariance(ev.jac, prob.free())[:6, :6],
+                            prob.fix_scale, trace_ref)
 
 
 def first_horizon(prob: ml.Problem, rel_error: float) -> int:
@@ -500,10 +505,7 @@ def _identify_filter(rec, prob, phi0, estimator, trace_ref):
     # The bound belongs to the data: the ML Fisher information at the filter's estimate.
     p = np.zeros(prob.n_params)
     p[:6], p[6:9] = filt.x[7:13], rec.w[0]
-    ev = ml.evaluate(prob, p, rec.q[0] if rec.q is not None else np.array([1.0, 0, 0, 0]), True)
-    bound = inertia_estimate(filt.x[7:13], ml.jacobian_covariance(ev.jac, prob.free())[:6, :6],
-                             prob.fix_scale,
-                             trace_ref)
+    bound = cramer_rao_bound(prob, p, rec.q[0] if rec.q is not None else None, trace_ref)
     crlb = ml.relative_frobenius_bound(bound.theta, bound.theta_cov)
     noise = NoiseModel("white", sigma_w, "filter measurement noise R", 0, 1.0)
     notes = [f"{estimator.upper()} over {t.size} rows, final NIS {filt.nis:.3g}; its covariance is "

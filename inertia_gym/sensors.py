@@ -127,3 +127,13 @@ def noise_sigmas(cfg) -> np.ndarray:
     """
     return np.concatenate([np.full(3, cfg.gyro_sigma), np.full(4, cfg.quat_sigma),
                            np.full(3, cfg.accel_sigma), np.full(3, cfg.mag_sigma)])
+
+
+def estimate_white_noise(w) -> np.ndarray:
+    """(3,) rad/s: robust white-noise level of gyro rows w (n, 3) from third differences
+    (smooth motion cancels; the median absolute deviation ignores outliers).
+    """
+    d3 = np.diff(w, n=3, axis=0)
+    mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) / 0.6745
+    return mad / math.sqrt(20.0)
+

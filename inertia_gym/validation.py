@@ -25,14 +25,10 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ml
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
 from inertia_gym.excitation import burst_direction, validation_schedule
-from inertia_gym.identification import inertia_estimate, refine
+from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED, cramer_rao_bound, refine
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
 from inertia_gym.scenario import Scenario, steps
 from inertia_gym.simulation import initial_state, run_segment
-
-# The scale counts as identified when the posterior standard deviation of log-scale is at most
-# this (a 5% relative scale uncertainty) and has at least halved from the prior.
-SCALE_SIGMA_IDENTIFIED = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -188,6 +184,8 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
     sigma = np.sqrt(np.clip(np.diagonal(state.P_theta(), axis1=1, axis2=2), 0, None))
     covered = np.abs(theta_hat - theta_true) <= 1.96 * sigma
     sigma_s = np.sqrt(state.P[:, 7, 7])
+    # Identified: the log-scale's posterior sigma is at most SCALE_SIGMA_IDENTIFIED (5 %) and at
+    # most half the prior's.
     scale_ok = (sigma_s <= SCALE_SIGMA_IDENTIFIED) & (sigma_s <= 0.5 * prior_sigma_s)
     t_meas, th, th_sig, w_est, measurements = _concat_logs(logs, sc.dt)
     w_true = measurements[..., 4:7]
@@ -248,9 +246,7 @@ def _refine_one(sc: Scenario, x_final, p_final, t_meas, meas, tau, forced: bool)
     if prob.fix_scale:
         truth[0] = p0[0]
     truth[6:9] = z[0, 4:7]
-    ev = ml.evaluate(prob, truth, z[0, 0:4] if with_att else np.array([1.0, 0, 0, 0]), True)
-    bound = inertia_estimate(truth[:6], ml.jacobian_covariance(ev.jac, prob.free())[:6, :6],
-                             prob.fix_scale)
+    bound = cramer_rao_bound(prob, truth, z[0, 0:4] if with_att else None)
     return ref.estimate, bound, prob.fix_scale
 
 

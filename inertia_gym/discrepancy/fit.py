@@ -30,7 +30,9 @@ from inertia_gym.discrepancy.effects import (
     unpack,
 )
 from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.estimation.equation_error import modulating_windows
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
+from inertia_gym.sensors import estimate_white_noise
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
@@ -64,33 +66,18 @@ class Data:
     scale_fixed: bool
 
 
-def estimate_gyro_noise(w) -> np.ndarray:
-    """(3,) rad/s: robust white-noise level from third differences (smooth motion cancels)."""
-    d3 = np.diff(w, n=3, axis=0)
-    mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) / 0.6745
-    return mad / np.sqrt(20.0)
-
-
 def prepare(rec: Recording) -> Data:
     """Intervals, noise level and scale handling for one recording."""
     n = rec.t.size
-    m = int(np.clip(n // 150, 8, 40))
-    edges = np.arange(0, n, m)
-    if edges[-1] != n - 1:
-        edges = np.append(edges, n - 1) if n - 1 - edges[-1] >= 2 else np.append(edges[:-1], n - 1)
+    edges, phi, dphi = modulating_windows(rec.t, int(np.clip(n // 150, 8, 40)))
     if "gyro_sigma" in rec.meta:
         sigma, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar"
     else:
-        sigma, source = np.maximum(estimate_gyro_noise(rec.w), 1e-6), "estimated from the data"
+        sigma, source = np.maximum(estimate_white_noise(rec.w), 1e-6), "estimated from the data"
     nominal = rec.inertia_nominal
     trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
     tau = rec.tau if rec.tau is not None else np.zeros_like(rec.w)
     t = rec.t
-    k = np.clip(np.searchsorted(edges, np.arange(n), side="right") - 1, 0, edges.size - 2)
-    t_a, t_b = t[edges[k]], t[edges[k + 1]]
-    u = (t - t_a) / (t_b - t_a)
-    phi = np.sin(np.pi * u) ** 2
-    dphi = np.pi * np.sin(2 * np.pi * u) / (t_b - t_a)
     quad = np.gradient(t)
     return Data(t, rec.w, tau, quat_rotations(rec.q) if rec.q is not None else None, edges, phi, dphi, quad,
                 sigma, source, rec.has_torque, trace0, (not rec.has_torque) or nominal is not None)

@@ -27,8 +27,11 @@ def omega_matrix(w) -> np.ndarray:
     return out
 
 
-def _windows(t, samples_per_window: int):
-    """phi, phi' (n,) and interval starts for windows of ~samples_per_window samples."""
+def modulating_windows(t, samples_per_window: int):
+    """Consecutive intervals of ~samples_per_window samples over t (n,) s, and on each the
+    window phi = sin^2 that vanishes at both ends. Returns edges (K+1,) sample indices of the
+    interval boundaries (the last is n - 1), phi (n,) and its time derivative phi' (n,) 1/s.
+    """
     n = t.size
     m = max(4, int(samples_per_window))
     edges = np.arange(0, n, m)
@@ -41,7 +44,7 @@ def _windows(t, samples_per_window: int):
     u = (t - t_a) / (t_b - t_a)
     phi = np.sin(np.pi * u) ** 2
     dphi = np.pi * np.sin(2 * np.pi * u) / (t_b - t_a)
-    return phi, dphi, edges[:-1]
+    return edges, phi, dphi
 
 
 def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=None) -> np.ndarray:
@@ -62,7 +65,8 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
         rate = float(np.median(np.linalg.norm(w, axis=1))) + 1e-12
         dt = float(np.median(np.diff(t)))
         samples_per_window = int(np.clip(2.0 / (rate * dt), 16, max(16, n // 10)))
-    phi, dphi, starts = _windows(t, samples_per_window)
+    edges, phi, dphi = modulating_windows(t, samples_per_window)
+    starts = edges[:-1]
     quad = np.gradient(t)
     om = omega_matrix(w)
     wx = np.zeros((n, 3, 3))

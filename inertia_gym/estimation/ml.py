@@ -36,7 +36,7 @@ import numba as nb
 import numpy as np
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, theta_from_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
 
 N_DYN = 12  # sensitivity columns integrated by the kernel: phi (6), w0 (3), dq0 (3)
 #: Largest rotation per integration sub-step, rad (RK4's phase error ~ (w h)^5 / 120 per step).
@@ -536,12 +536,6 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
                  n_used)
 
 
-def theta_covariance(phi, cov_phi) -> np.ndarray:
-    """(6, 6) covariance of theta = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz) from that of phi (delta method)."""
-    d = dtheta_dphi(np.ascontiguousarray(phi))
-    return d @ cov_phi @ d.T
-
-
 #: ||J||_F^2 = theta^T W theta for theta in eq. (8) order (off-diagonals count twice).
 FROBENIUS_WEIGHTS = np.array([1.0, 2.0, 2.0, 1.0, 2.0, 1.0])
 
@@ -553,5 +547,5 @@ def relative_frobenius_bound(theta, cov_theta) -> float:
     return math.sqrt(max(expected, 0.0)) / math.sqrt(float(np.sum(FROBENIUS_WEIGHTS * theta ** 2)))
 
 
-__all__ = ["Problem", "MLFit", "fit", "evaluate", "trajectory", "jacobian_covariance", "theta_covariance",
-           "relative_frobenius_bound", "substeps", "theta_from_phi"]
+__all__ = ["Problem", "MLFit", "fit", "evaluate", "trajectory", "jacobian_covariance",
+           "relative_frobenius_bound", "substeps"]
