@@ -89,6 +89,15 @@ class SimState:
         idx = np.atleast_1d(np.arange(self.batch)[index])
         return SimState(*(getattr(self, f.name)[idx] for f in dataclasses.fields(self)))
 
+    def with_rows(self, index, rows: "SimState") -> "SimState":
+        """A copy with the runs at `index` (ints, slice or bool mask) replaced by `rows`."""
+        fields = {}
+        for f in dataclasses.fields(self):
+            merged = getattr(self, f.name).copy()
+            merged[index] = getattr(rows, f.name)
+            fields[f.name] = merged
+        return SimState(**fields)
+
 
 def _meas_interval_steps(sc: Scenario, rng: np.random.Generator, count: int) -> np.ndarray:
     """``count`` intervals between measurements, in steps (>= 1), from U[meas_interval] s."""

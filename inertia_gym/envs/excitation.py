@@ -52,6 +52,20 @@ def check_seed(seed: Any) -> int | None:
     return int(seed)
 
 
+def check_cost(cost: Any) -> str:
+    """Return cost if it is one of :data:`inertia_gym.episode.COSTS`, else raise ConfigError."""
+    if cost not in COSTS:
+        raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
+    return cost
+
+
+def check_count(name: str, value: Any) -> int:
+    """Return value as an int if it is an integer >= 1, else raise ConfigError naming `name`."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
 def divergence_cost(sc: Scenario, cost: str) -> float:
     """Finite cost charged for an episode in which the estimator diverged.
 
@@ -83,6 +97,76 @@ def xi_to_action(sc: Scenario, xi) -> np.ndarray:
     lo, hi = sc.xi_bounds
     span = np.where(hi > lo, hi - lo, 1.0)
     return np.clip(2.0 * (np.asarray(xi, dtype=float) - lo) / span - 1.0, -1, 1).astype(np.float32)
+
+
+def start_runs(sc: Scenario, rngs: list[np.random.Generator]) -> tuple[SimState, list[dict]]:
+    """B runs at the scenario's start, one per Generator, and the reset info of each."""
+    state = initial_state(sc, rngs)
+    eigvals = np.linalg.eigvalsh(state.P_theta())
+    errors = relative_error(state.inertia_hat(), sc.inertia_true_array)
+    infos = [{"theta_hat": theta, "p_theta_eigvals": eig, "rel_error": float(err), "time": 0.0}
+             for theta, eig, err in zip(state.theta_hat(), eigvals, errors)]
+    return state, infos
+
+
+def step_runs(sc: Scenario, state: SimState, actions, rngs: list[np.random.Generator], *,
+              cost: str, carry_over: bool) -> tuple[SimState, list[EpisodeResult], np.ndarray,
+                                                    np.ndarray]:
+    """One env step of B runs: one excitation episode each, in one call of the batched loop.
+
+    actions (B, 3) in [-1, 1], checked row by row (:func:`action_to_xi`); rngs: one Generator
+    per run. With carry_over False every run first restarts from the scenario's start.
+    Returns (new state, one EpisodeResult per run, xi (B, 3), cost (B,)), the cost of a
+    diverged run being :func:`divergence_cost`. The single env (B = 1) and the vector env
+    both step through here.
+    """
+    xi = np.array([action_to_xi(sc, action) for action in actions]).reshape(-1, 3)
+    if not carry_over:
+        state = initial_state(sc, rngs)
+    state, results = run_episode(sc, state, xi, rngs, cost=cost)
+    costs = np.array([divergence_cost(sc, cost) if res.diverged else float(res.cost)
+                      for res in results])
+    return state, results, xi, costs
+
+
+def observations(sc: Scenario, state: SimState, steps, budget: int) -> np.ndarray:
+    """Observations (B, 16) float32 of B runs after `steps` (B,) steps out of `budget`.
+
+    Layout and bounds as in :class:`ExcitationEnv`; a diverged run observes zeros.
+    """
+    obs = np.zeros((state.batch, OBS_SIZE), dtype=np.float32)
+    healthy = np.flatnonzero(~state.diverged)
+    if healthy.size == 0:
+        return obs
+    live = state.select(healthy)
+    scale = float(np.trace(sc.inertia_guess_array) / 3.0)
+    eig = np.linalg.eigvalsh(live.P_theta()) / scale**2
+    features = np.concatenate([
+        live.x[:, 4:7] / sc.omega_ref,
+        live.theta_hat() / scale,
+        np.log10(np.clip(eig, 1e-300, None)),
+        np.asarray(steps, dtype=float)[healthy, None] / budget,
+    ], axis=1)
+    obs[healthy] = np.clip(np.nan_to_num(features), OBS_LOW, OBS_HIGH)
+    return obs
+
+
+def step_info(res: EpisodeResult, xi: np.ndarray, cost: float, time: float) -> dict:
+    """The info dict of one run's step (keys as in :class:`ExcitationEnv`); time s since reset."""
+    return {
+        "cost": cost,
+        "info_cost": float(res.info_cost),
+        "posterior_cost": float(res.posterior_cost),
+        "alpha": float(res.alpha),
+        "lambda_min": float(res.lambda_min.min()) if res.lambda_min.size else 0.0,
+        "theta_hat": res.theta_hat,
+        "p_theta_eigvals": res.p_theta_eigvals,
+        "rel_error": float(res.rel_error),
+        "xi": xi,
+        "duration": float(res.duration),
+        "time": time,
+        "diverged": bool(res.diverged),
+    }
 
 
 class ExcitationEnv(gym.Env):
@@ -140,17 +224,12 @@ class ExcitationEnv(gym.Env):
         is truncated once M steps are taken; carry_over: keep the estimator's state from step
         to step (Algorithm 1).
         """
-        if cost not in COSTS:
-            raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
-        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-            raise ConfigError(f"budget must be an integer >= 1, got {budget!r}")
         self.scenario = as_scenario(scenario)
-        self.cost = cost
-        self.budget = int(budget)
+        self.cost = check_cost(cost)
+        self.budget = check_count("budget", budget)
         self.carry_over = bool(carry_over)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self.observation_space = spaces.Box(OBS_LOW, OBS_HIGH, dtype=np.float32)
-        self._scale = float(np.trace(self.scenario.inertia_guess_array) / 3.0)
         self._state: SimState | None = None
         self._steps = 0
         self._time = 0.0
@@ -158,61 +237,25 @@ class ExcitationEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start a new run of Algorithm 1 at the scenario's start; returns (obs, info)."""
         super().reset(seed=check_seed(seed))
-        self._state = initial_state(self.scenario, [self.np_random])
+        self._state, (info,) = start_runs(self.scenario, [self.np_random])
         self._steps, self._time = 0, 0.0
-        info = {
-            "theta_hat": self._state.theta_hat()[0],
-            "p_theta_eigvals": np.linalg.eigvalsh(self._state.P_theta()[0]),
-            "rel_error": float(relative_error(self._state.inertia_hat()[0],
-                                              self.scenario.inertia_true_array)),
-            "time": 0.0,
-        }
         return self._observation(), info
 
     def step(self, action):
         """Run one excitation episode with xi from `action`; returns the Gymnasium 5-tuple."""
         if self._state is None:
             raise ResetNeededError("call reset() before step() (and after a diverged run)")
-        xi = action_to_xi(self.scenario, action)
-        if not self.carry_over:
-            self._state = initial_state(self.scenario, [self.np_random])
-        self._state, (res,) = run_episode(self.scenario, self._state, xi, [self.np_random],
-                                          cost=self.cost)
+        self._state, (res,), (xi,), (cost,) = step_runs(
+            self.scenario, self._state, [action], [self.np_random], cost=self.cost,
+            carry_over=self.carry_over)
         self._steps += 1
         self._time += float(res.duration)
-        cost = divergence_cost(self.scenario, self.cost) if res.diverged else float(res.cost)
         obs = self._observation()
-        info = self._info(res, xi, cost)
+        info = step_info(res, xi, float(cost), self._time)
         if res.diverged:
             self._state = None
         truncated = not res.diverged and self._steps >= self.budget
-        return obs, -cost, bool(res.diverged), truncated, info
+        return obs, -float(cost), bool(res.diverged), truncated, info
 
     def _observation(self) -> np.ndarray:
-        st = self._state
-        if st.diverged[0]:
-            return np.zeros(OBS_SIZE, dtype=np.float32)
-        eig = np.linalg.eigvalsh(st.P_theta()[0]) / self._scale**2
-        obs = np.concatenate([
-            st.x[0, 4:7] / self.scenario.omega_ref,
-            st.theta_hat()[0] / self._scale,
-            np.log10(np.clip(eig, 1e-300, None)),
-            [self._steps / self.budget],
-        ])
-        return np.clip(np.nan_to_num(obs), OBS_LOW, OBS_HIGH).astype(np.float32)
-
-    def _info(self, res: EpisodeResult, xi: np.ndarray, cost: float) -> dict:
-        return {
-            "cost": cost,
-            "info_cost": float(res.info_cost),
-            "posterior_cost": float(res.posterior_cost),
-            "alpha": float(res.alpha),
-            "lambda_min": float(res.lambda_min.min()) if res.lambda_min.size else 0.0,
-            "theta_hat": res.theta_hat,
-            "p_theta_eigvals": res.p_theta_eigvals,
-            "rel_error": float(res.rel_error),
-            "xi": xi,
-            "duration": float(res.duration),
-            "time": self._time,
-            "diverged": bool(res.diverged),
-        }
+        return observations(self.scenario, self._state, [self._steps], self.budget)[0]
