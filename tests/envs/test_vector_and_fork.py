@@ -18,14 +18,18 @@ def parallel_kernel_ran_in_parent():
     env.step(env.action_space.sample())  # the parallel closed loop has run in this process
 
 
-@pytest.mark.parametrize("mode", ["sync", "async"])
+@pytest.mark.parametrize("mode", ["sync", "async", "vector_entry_point"])
 def test_make_vec_steps_in_every_mode(mode):
-    vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode=mode, budget=5)
+    vec = gym.make_vec(ENV_ID, num_envs=4, vectorization_mode=mode, budget=2)
     try:
+        vec.action_space.seed(0)
         obs, _ = vec.reset(seed=1)
-        obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
-        assert obs.shape == (2, vec.single_observation_space.shape[0])
-        assert np.all(np.isfinite(reward)) and not terminated.any() and not truncated.any()
+        for expect_truncated in (False, True):
+            obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+            assert vec.observation_space.contains(obs) and obs.shape == (4, 16)
+            assert np.all(np.isfinite(reward)) and len(set(reward)) == 4
+            assert not terminated.any() and (truncated == expect_truncated).all()
+            assert info["_cost"].all() and np.all(info["cost"] == -reward)
     finally:
         vec.close()
 
