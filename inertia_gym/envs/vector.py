@@ -55,7 +55,8 @@ class ExcitationVectorEnv(VectorEnv):
 
     **Seeding.** Each sub-env owns a Generator. ``reset(seed=s)`` seeds sub-env i with s + i,
     ``reset(seed=[s0, s1, ...])`` with s_i (None keeps its current Generator, or draws a fresh
-    one on the first reset); autoresets continue each sub-env's Generator. Seeded the same way,
+    one on the first reset); autoresets continue each sub-env's Generator.
+    ``reset(options={"reset_mask": mask})`` resets (and seeds) only the sub-envs in mask. Seeded the same way,
     sub-env i runs exactly as a single env: ``make_vec`` in "sync" mode gives the same results.
     """
 
@@ -99,14 +100,25 @@ class ExcitationVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict | None = None):
-        """Reset every sub-env to the scenario's start; returns (obs (B, 16), infos)."""
-        for i, sub_seed in enumerate(self._sub_seeds(seed)):
-            if sub_seed is not None or self._rngs[i] is None:
-                self._rngs[i], self._seeds[i] = seeding.np_random(sub_seed)
-        self._state, infos = start_runs(self.scenario, self._rngs)
-        self._steps[:] = 0
-        self._time[:] = 0.0
-        self._autoreset[:] = False
+        """Reset the sub-envs to the scenario's start; returns (obs (B, 16), infos).
+
+        options may hold ``reset_mask``, a (B,) bool array: only those sub-envs are reset (and
+        seeded); the others keep their run, and the infos hold only the reset ones.
+        """
+        mask = self._reset_mask(options)
+        envs = np.flatnonzero(mask)
+        seeds = self._sub_seeds(seed)
+        for i in envs:
+            if seeds[i] is not None or self._rngs[i] is None:
+                self._rngs[i], self._seeds[i] = seeding.np_random(seeds[i])
+        fresh, reset_infos = start_runs(self.scenario, [self._rngs[i] for i in envs])
+        self._state = fresh if mask.all() else self._state.with_rows(envs, fresh)
+        self._steps[envs] = 0
+        self._time[envs] = 0.0
+        self._autoreset[envs] = False
+        infos: list[dict] = [{}] * self.num_envs
+        for i, info in zip(envs, reset_infos):
+            infos[i] = info
         return observations(self.scenario, self._state, self._steps, self.budget), \
             self._batch_infos(infos)
 
@@ -147,6 +159,19 @@ class ExcitationVectorEnv(VectorEnv):
         self._autoreset = terminated | truncated
         obs = observations(self.scenario, self._state, self._steps, self.budget)
         return obs, rewards, terminated, truncated, self._batch_infos(infos)
+
+    def _reset_mask(self, options: dict | None) -> np.ndarray:
+        """The (B,) bool mask of the sub-envs to reset: options["reset_mask"], or all."""
+        if not options or "reset_mask" not in options:
+            return np.ones(self.num_envs, dtype=bool)
+        if self._state is None:
+            raise ResetNeededError("the first reset() resets every sub-env: no reset_mask")
+        mask = options["reset_mask"]
+        if not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_
+                and mask.shape == (self.num_envs,) and mask.any()):
+            raise ConfigError(f"options['reset_mask'] must be a ({self.num_envs},) bool array "
+                              f"with a True entry, got {mask!r}")
+        return mask
 
     def _sub_seeds(self, seed) -> list[int | None]:
         """Per-sub-env seeds from None, an int s (s + i) or a sequence of B ints / None."""

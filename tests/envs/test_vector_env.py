@@ -114,6 +114,21 @@ def test_divergence_terminates_one_env_and_autoresets_it_next_step(monkeypatch):
     assert a[3][4]["_cost"].all() and a[3][0][1, -1] == pytest.approx(1 / 5)
 
 
+def test_reset_mask_resets_only_those_envs_as_sync_does():
+    actions = random_actions(2, seed=3)
+    mask = np.array([True, False, True])
+    outcomes = []
+    for mode in ("vector_entry_point", "sync"):
+        venv = gym.make_vec(ENV_ID, num_envs=B, vectorization_mode=mode)
+        rollout = [venv.reset(seed=1), venv.step(actions[0]),
+                   venv.reset(seed=20, options={"reset_mask": mask.copy()}), venv.step(actions[1])]
+        outcomes.append(rollout)
+    assert_same_rollouts(*outcomes)
+    obs, info = outcomes[0][2]
+    assert info["_time"].tolist() == mask.tolist() and obs[1, -1] == pytest.approx(0.01)
+    assert np.all(obs[mask, -1] == 0)
+
+
 def test_make_vec_defaults_to_the_native_env_without_warnings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -168,6 +183,17 @@ def test_invalid_seeds_raise(seed, match):
 def test_invalid_constructor_arguments(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         ExcitationVectorEnv(**kwargs)
+
+
+@pytest.mark.parametrize("mask", [np.array([1, 0]), np.array([False, False]), np.array([True]),
+                                  [True, False]])
+def test_invalid_reset_masks_raise(mask):
+    venv = ExcitationVectorEnv(num_envs=2)
+    with pytest.raises(gym.error.ResetNeeded):
+        venv.reset(options={"reset_mask": np.array([True, False])})
+    venv.reset(seed=0)
+    with pytest.raises(ConfigError, match="reset_mask"):
+        venv.reset(options={"reset_mask": mask})
 
 
 def test_invalid_actions_raise_and_leave_the_envs_unchanged():
