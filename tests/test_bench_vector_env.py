@@ -22,5 +22,8 @@ def test_bench_vector_env_reports_both_walls_their_ratio_and_equal_results():
     ratio = report["wall_s_sync"] / report["wall_s_native"]
     assert abs(report["speedup"] - ratio) <= 1e-9 * ratio
     assert abs(report["cpu_ratio"] - report["cpu_s_sync"] / report["cpu_s_native"]) < 1e-9
+    for split in report["cpu_ms_per_env_step"].values():
+        assert set(split) == {"compiled_loop", "information_metric", "rest"}
+        assert split["compiled_loop"] > 0 and split["information_metric"] > 0
     assert report["num_envs"] == 2 and report["steps"] == 1 and report["threads"] >= 1
     assert report["same_results"] is True
