@@ -237,6 +237,7 @@ def score(case: SpacecraftCase, report: dict) -> dict:
         "named": named, "correct": bool(correct), "mismatch_detected": bool(report["mismatch_detected"]),
         "top_effect": top["name"] if top else None, "top_delta_bic": top["delta_bic"] if top else None,
         "significant": [e["name"] for e in significant],
+        "delta_bic": {e["name"]: e["delta_bic"] for e in report["effects"]},
         "rms_over_noise_after": report["fit_after"].get("rms_over_noise"),
     }
 
