@@ -1,0 +1,198 @@
+"""The Basilisk harness (scripts/basilisk_harness.py, inertia_gym/discrepancy/basilisk.py).
+
+Two kinds of checks. The recording generator's physics, against Basilisk's own bookkeeping:
+the total angular momentum it reports equals R (J w + h) built from the recording's columns and
+the sidecar's nominal, it changes only by the commanded torque held from each row on, and the
+concealed truth is never read by `diagnose`. Then a fixed subset of the harness (30-s
+recordings) scored as the full harness scores it; expectations today's `diagnose` does not meet
+are strict xfails, so they flip to failures (remove the marker) when it improves.
+Skipped when Basilisk (`pip install 'inertia-gym[bsk]'`) is absent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from inertia_gym.discrepancy.basilisk import TRUTH_KEY, SpacecraftCase, equilibrium_inertia, simulate
+from inertia_gym.discrepancy.effects import quat_rotations
+from inertia_gym.discrepancy.recordings import Recording, read_recordings
+from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.errors import ConfigError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+import basilisk_harness as harness  # noqa: E402
+
+
+def _basilisk_importable() -> bool:
+    try:
+        importlib.import_module("Basilisk.simulation.spacecraft")
+    except ImportError:
+        return False
+    return True
+
+
+requires_bsk = pytest.mark.skipif(not _basilisk_importable(),
+                                  reason="Basilisk absent (pip install 'inertia-gym[bsk]')")
+
+
+def _case(name: str, duration: float = 30.0) -> SpacecraftCase:
+    return next(c for c in harness.cases(duration) if c.name == name)
+
+
+def _momentum_from_recording_columns(run, inertia) -> np.ndarray:
+    """(n, 3) R(q) (J w + h), inertial frame, from the noise-free truth rows."""
+    body = run.truth_w @ np.asarray(inertia).T + run.wheel_momentum
+    return np.einsum("nij,nj->ni", quat_rotations(run.truth_q), body)
+
+
+def test_missing_basilisk_is_a_one_line_config_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "Basilisk", None)  # import Basilisk... raises ImportError
+    with pytest.raises(ConfigError, match=r"inertia-gym\[bsk\]"):
+        simulate(_case("control_bus_free"))
+
+
+@requires_bsk
+def test_logged_wheels_and_bursts_obey_the_recording_physics():
+    case = _case("control_bus_logged_wheels_bursts", duration=20.0)
+    run = simulate(case)
+    rec = run.recording
+    assert rec.h is not None and rec.has_momentum and rec.has_torque  # motors and bursts both act
+    nominal = np.asarray(run.sidecar["inertia_nominal"])
+    np.testing.assert_array_equal(nominal, np.asarray(case.hub_inertia))
+    # Basilisk's momentum is J w + h with the nominal and the h columns, at every row
+    from_columns = _momentum_from_recording_columns(run, nominal)
+    scale = np.abs(run.momentum_inertial).max()
+    assert np.abs(from_columns - run.momentum_inertial).max() < 1e-9 * scale
+    # it changes by the commanded torque held from each row on (trapezoid over R, exact in tau)
+    rot = quat_rotations(run.truth_q)
+    step = np.diff(run.momentum_inertial, axis=0)
+    held = 0.5 * (np.einsum("nij,nj->ni", rot[:-1], run.tau[:-1])
+                  + np.einsum("nij,nj->ni", rot[1:], run.tau[:-1])) * case.sample_dt
+    late = np.vstack([np.zeros((1, 3)), held[:-1]])  # the same torque one row late
+    assert np.abs(step - held).max() < 1e-3 * np.abs(step).max()
+    assert np.abs(step - late).max() > 0.3 * np.abs(step).max()
+    np.testing.assert_array_equal(rec.tau, run.tau)
+    np.testing.assert_array_equal(rec.h, run.wheel_momentum)
+
+
+@requires_bsk
+def test_slosh_and_panel_conserve_momentum_and_make_the_hub_nominal_wrong():
+    case = _case("pair_slosh_panel", duration=20.0)
+    at_rest = dataclasses.replace(
+        case, burst_torque=0.0, slosh=tuple(dataclasses.replace(s, rho0=0.0) for s in case.slosh),
+        panels=tuple(dataclasses.replace(p, theta0=0.0) for p in case.panels))
+    run = simulate(at_rest)
+    momentum = run.momentum_inertial
+    assert np.ptp(momentum, axis=0).max() < 1e-9 * np.abs(momentum).max()  # torque-free, dampers internal
+    truth = run.sidecar[TRUTH_KEY]
+    j_eq = np.asarray(truth["inertia_equilibrium"])
+    # at rest, the vehicle is rigid: its momentum is the rigid-equivalent inertia times the rate
+    assert np.abs(_momentum_from_recording_columns(run, j_eq)[0] - momentum[0]).max() \
+        < 1e-9 * np.abs(momentum).max()
+    # the user's nominal is the hub alone; the propellant and panels add mass it leaves out
+    hub = np.asarray(run.sidecar["inertia_nominal"])
+    np.testing.assert_array_equal(hub, np.asarray(case.hub_inertia))
+    assert np.linalg.norm(j_eq - hub) > 0.05 * np.linalg.norm(hub)
+    added = sum(s.mass for s in case.slosh) + sum(p.mass for p in case.panels)
+    assert truth["mass"] == pytest.approx(case.hub_mass + added)
+    np.testing.assert_allclose(equilibrium_inertia(at_rest)[0], j_eq)
+
+
+@requires_bsk
+def test_gyro_reading_is_truth_with_seeded_noise_bias_and_scale():
+    case = dataclasses.replace(_case("scale_smallsat_bursts", duration=20.0), gyro_bias=(1e-3, -2e-3, 5e-4))
+    run = simulate(case)
+    noise = run.recording.w - (run.truth_w * (1.0 + np.asarray(case.gyro_scale)) + np.asarray(case.gyro_bias))
+    # 201 x 3 samples: the standard deviation within 15 % and the mean within 4 sigma/sqrt(n)
+    assert np.std(noise) == pytest.approx(case.gyro_sigma, rel=0.15)
+    assert abs(np.mean(noise)) < 4 * case.gyro_sigma / np.sqrt(noise.size)
+    again = simulate(case)
+    np.testing.assert_array_equal(again.recording.w, run.recording.w)
+    other = simulate(dataclasses.replace(case, seed=case.seed + 1))
+    assert not np.allclose(other.recording.w, run.recording.w)
+
+
+def test_score_follows_the_accepted_table():
+    control = _case("control_bus_free")
+    slosh = _case("slosh_smallsat_free")
+    pair = _case("pair_torque_bias")
+
+    def report(*names, explanation=None):
+        effects = [{"name": n, "delta_bic": 50.0 - i, "significant": True} for i, n in enumerate(names)]
+        effects.append({"name": "aero_drag", "delta_bic": -3.0, "significant": False})
+        out = {"effects": effects, "mismatch_detected": bool(names), "fit_after": {}}
+        if explanation is not None:
+            out["explanation"] = [{"name": n} for n in explanation]
+        return out
+
+    assert harness.score(control, report())["correct"]
+    assert not harness.score(control, report("gyro_bias"))["correct"]
+    for name in harness.MASS_LEFT_OUT:
+        assert harness.score(slosh, report(name, "actuator_scale"))["correct"]
+    assert not harness.score(slosh, report("actuator_scale", "inertia_offset"))["correct"]
+    assert harness.score(pair, report("gyro_bias", "constant_body_torque"))["correct"]
+    assert not harness.score(pair, report("gyro_bias", "gyro_scale", "constant_body_torque"))["correct"]
+    # a compound explanation, where the report has one, is what is scored
+    assert harness.score(pair, report("gyro_bias", explanation=["gyro_bias", "constant_body_torque"]))[
+        "correct"]
+    assert not harness.score(pair, report("gyro_bias", "constant_body_torque",
+                                          explanation=["gyro_bias"]))["correct"]
+    assert harness.components(pair) == ["hidden_torque", "gyro_bias"]
+
+
+# ------------------------------------------------------------------------------------------
+# The fixed subset of the harness: diagnose on 30-s Basilisk recordings
+# ------------------------------------------------------------------------------------------
+
+#: Subset cases today's diagnose gets wrong (measured on this branch), with what it says.
+NOT_YET = {
+    "control_smallsat_bursts": "false alarm (gyro_scale) on a clean 10-Hz recording with bursts: the "
+                               "equation error weights each row's torque over +-half a row around it, so a "
+                               "torque held from the row on looks half a row early (a 90-s run fits "
+                               "actuator_delay 0.05 s)",
+    "slosh_smallsat_bursts": "the 10 % propellant mass missing from the hub-only nominal goes unseen "
+                             "(no significant effect; inertia_offset does not exist yet)",
+    "torque_smallsat_free": "a constant body torque of 1e-4 x the largest moment (15 gyro sigmas of rate "
+                            "change over 30 s) goes unseen",
+}
+
+
+@pytest.fixture(scope="module")
+def subset_rows(tmp_path_factory):
+    """The harness run once over the subset (each case simulated, written, read and diagnosed)."""
+    folder = tmp_path_factory.mktemp("basilisk")
+    return {name: harness.run_case(_case(name), folder) for name in harness.SMOKE}, folder
+
+
+@requires_bsk
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=NOT_YET[n])) if n in NOT_YET else n
+    for n in harness.SMOKE])
+def test_subset_diagnosis_is_correct(subset_rows, name):
+    row = subset_rows[0][name]
+    assert row["correct"], f"{name}: concealed {row['components']}, diagnose named {row['named']}"
+
+
+@requires_bsk
+@pytest.mark.slow
+def test_diagnose_never_reads_the_concealed_truth(subset_rows):
+    name = "slosh_smallsat_bursts"
+    (rec,) = read_recordings(subset_rows[1] / "recordings" / f"{name}.csv")
+    assert TRUTH_KEY in rec.meta
+    blind = Recording(rec.t, rec.w, rec.q, rec.tau, {k: v for k, v in rec.meta.items() if k != TRUTH_KEY},
+                      rec.name, h=rec.h)
+    out = diagnose(blind)
+    report = out[0] if isinstance(out, tuple) else out
+    timing = ("simulate_s", "diagnose_s", "samples")
+    row = {k: v for k, v in subset_rows[0][name].items() if k not in timing}
+    assert row["delta_bic"] and harness.score(_case(name), report) == row
+    side = json.loads((subset_rows[1] / "recordings" / f"{name}.json").read_text())
+    assert set(side) == {"inertia_nominal", "gyro_sigma", "quat_sigma", "simulator", "case", TRUTH_KEY}
