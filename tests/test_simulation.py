@@ -54,3 +54,20 @@ def test_logged_estimate_is_theta_and_delta_method_variance_at_the_last_update(p
         assert np.allclose(trace.theta_var[r, last], np.diag(d @ P[7:, 7:] @ d.T), rtol=1e-9)
         assert np.allclose(trace.theta_var[r, last], np.diag(again.P_theta()[0]), rtol=1e-9)
 
+
+
+def test_with_rows_replaces_only_those_runs_and_copies():
+    import dataclasses
+
+    sc = Scenario()
+    state = initial_state(sc, [np.random.default_rng(s) for s in range(4)])
+    other = initial_state(sc, [np.random.default_rng(s) for s in (10, 11)])
+    merged = state.with_rows([3, 1], other)
+    for field in dataclasses.fields(state):
+        new, old, rows = (getattr(s, field.name) for s in (merged, state, other))
+        np.testing.assert_array_equal(new[[0, 2]], old[[0, 2]])
+        np.testing.assert_array_equal(new[[3, 1]], rows)
+        assert not np.shares_memory(new, old)
+    assert not np.array_equal(merged.x, state.x)
+    mask = np.array([False, True, False, True])
+    np.testing.assert_array_equal(state.with_rows(mask, state.select(mask)).x, state.x)

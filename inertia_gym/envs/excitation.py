@@ -1,7 +1,9 @@
 """`InertiaGym/Excitation-v0`: one step is one excitation episode of Algorithm 1.
 
 A thin Gymnasium shell over :func:`inertia_gym.episode.run_episode`; all physics, estimation
-and the cost live there.
+and the cost live there. The step of B runs (:func:`start_runs`, :func:`step_runs`,
+:func:`observations`, :func:`step_info`) is written once for a batch: the single env steps a
+batch of one, the native vector env (envs/vector.py) a batch of B.
 """
 
 from __future__ import annotations
@@ -209,7 +211,12 @@ class ExcitationEnv(gym.Env):
     **Seeding.** ``reset(seed=...)`` seeds ``self.np_random``, which alone draws dwell times,
     measurement times and noise: a seed and an action sequence fix the run.
 
-    Version history: v0 (first release).
+    **Vectorised.** ``gym.make_vec`` builds the native
+    :class:`~inertia_gym.envs.vector.ExcitationVectorEnv` (one call of the batched loop per
+    step) unless ``vectorization_mode="sync"`` or ``"async"`` asks for copies of this env.
+
+    Version history: v0 (first release; the native vector entry point added within v0: it
+    gives the same results as "sync" mode).
     """
 
     metadata = {"render_modes": []}
