@@ -40,6 +40,8 @@ PAPER_BURST_TIME = 1.0  # s, the paper's longest burst (T_on upper bound)
 #: A guess whose sorted principal moments differ from the truth's by more than this factor is
 #: warned about (ScenarioWarning).
 GUESS_FACTOR_WARNING = 10.0
+#: Largest magnitude of any number in a scenario: its squares and products stay finite.
+MAGNITUDE_LIMIT = 1e100
 #: Relative tolerance of the triangle inequality on principal moments (a flat plate is exact).
 TRIANGLE_TOLERANCE = 1e-6
 
@@ -87,6 +89,9 @@ def _finite_array(name: str, value: Any) -> np.ndarray:
     arr = raw.astype(float)
     if not np.all(np.isfinite(arr)):
         raise ConfigError(f"{name} must be finite, got {raw.tolist()}")
+    if np.any(np.abs(arr) > MAGNITUDE_LIMIT):
+        raise ConfigError(f"{name} must be at most {MAGNITUDE_LIMIT:g} in magnitude (its products and "
+                          f"squares must stay finite), got {raw.tolist()}")
     return arr
 
 
