@@ -117,7 +117,7 @@ def finite(obj) -> bool:
     return not isinstance(obj, float) or math.isfinite(obj)
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenario_files())
 def test_every_scenario_file_is_valid_or_one_line_error(data):
     sc, error = build(data)
@@ -130,7 +130,7 @@ def test_every_scenario_file_is_valid_or_one_line_error(data):
 
 
 @pytest.mark.slow
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenario_files())
 def test_a_valid_fuzzed_scenario_validates_to_finite_numbers(data):
     sc, _ = build(data)
@@ -145,7 +145,7 @@ def test_a_valid_fuzzed_scenario_validates_to_finite_numbers(data):
 
 
 @pytest.mark.slow
-@settings(max_examples=12, deadline=None,
+@settings(max_examples=8, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(data=scenario_files(), as_json=st.booleans())
 def test_cli_on_fuzzed_scenario_files(data, as_json, tmp_path, capsys):
