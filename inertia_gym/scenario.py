@@ -1,8 +1,16 @@
 """Scenario: every physical and estimator constant of one experiment, validated at the boundary.
 
-The defaults are the paper's simulation section (Basu & Sanfelice). A user overrides any field
-from a TOML or JSON file (`Scenario.load`) or a mapping (`Scenario.from_mapping`). Every choice the
-paper leaves open is a field here, with the value we chose and why in its comment.
+The body, actuator and sensors default to the paper's simulation section (Basu & Sanfelice). A
+user overrides any field from a TOML or JSON file (`Scenario.load`, which also takes the name of
+a scenario shipped in ``inertia_gym/scenarios/``) or a mapping (`Scenario.from_mapping`). Every
+choice the paper leaves open is a field here, with the value we chose and why in its comment.
+
+Scale-free defaults: every estimator, metric and schedule constant that carries units defaults to
+None and is then derived from the body's own scales (the guess's trace, the torque limit, the
+sensor noises, the sampling interval; never the truth, which a user does not know) by the rules
+of :func:`derived_defaults`. Each rule is the paper's number times a power of (scale / the paper's
+scale), so the paper's scenario gets exactly the paper's numbers and any other body gets the same
+non-dimensional filter and metric. ``Scenario.derived`` names the fields that were derived.
 """
 
 from __future__ import annotations
@@ -11,6 +19,7 @@ import dataclasses
 import json
 import math
 import tomllib
+import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -21,29 +30,68 @@ from inertia_gym.errors import ConfigError
 PAPER_INERTIA = ((100.0, 6.0, -4.0), (6.0, 80.0, 3.0), (-4.0, 3.0, 70.0))
 PAPER_GUESS = ((85.0, 0.0, 0.0), (0.0, 135.0, 0.0), (0.0, 0.0, 210.0))
 
+# The paper's scales, against which the derived defaults are written (derived_defaults).
+PAPER_GUESS_TRACE = 430.0  # kg·m², trace(PAPER_GUESS)
+PAPER_TAU_MAX = 5.0  # N·m
+PAPER_GYRO_SIGMA = 3e-2  # rad/s
+PAPER_QUAT_SIGMA = 1e-2  # per quaternion component
+PAPER_BURST_TIME = 1.0  # s, the paper's longest burst (T_on upper bound)
 
-def _matrix3(name: str, value: Any, *, spd: bool) -> tuple[tuple[float, ...], ...]:
+#: A guess whose sorted principal moments differ from the truth's by more than this factor is
+#: warned about (ScenarioWarning).
+GUESS_FACTOR_WARNING = 10.0
+#: Largest magnitude of any number in a scenario: its squares and products stay finite.
+MAGNITUDE_LIMIT = 1e100
+#: Relative tolerance of the triangle inequality on principal moments (a flat plate is exact).
+TRIANGLE_TOLERANCE = 1e-6
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario that is valid but implausible (far guess, unidentifiable or too violent torque)."""
+
+
+#: Folder of the example scenarios shipped with the package (``Scenario.load("cubesat-6u")``).
+SHIPPED_SCENARIOS = Path(__file__).parent / "scenarios"
+
+
+def _inertia(name: str, value: Any) -> tuple[tuple[float, ...], ...]:
+    """A physical inertia (3, 3) kg·m²: symmetric, positive definite, and its principal moments
+    obey the triangle inequality (each at most the sum of the other two, TRIANGLE_TOLERANCE).
+    """
     arr = _finite_array(name, value)
     if arr.shape != (3, 3):
         raise ConfigError(f"{name} must be a 3x3 matrix, got shape {arr.shape}")
-    if spd:
-        if not np.allclose(arr, arr.T, rtol=1e-9, atol=1e-12 * np.abs(arr).max()):
-            raise ConfigError(f"{name} must be symmetric, got {arr.tolist()}")
-        eig = np.linalg.eigvalsh(arr)
-        if eig.min() <= 0:
-            raise ConfigError(
-                f"{name} must be positive definite, its eigenvalues are {eig.tolist()}"
-            )
+    if not np.allclose(arr, arr.T, rtol=1e-9, atol=1e-12 * np.abs(arr).max()):
+        raise ConfigError(f"{name} must be symmetric, got {arr.tolist()}")
+    moments = np.linalg.eigvalsh(0.5 * (arr + arr.T))
+    if moments.min() <= 0:
+        raise ConfigError(f"{name} must be positive definite, its eigenvalues are {moments.tolist()}")
+    if moments[2] > (moments[0] + moments[1]) * (1.0 + TRIANGLE_TOLERANCE):
+        raise ConfigError(
+            f"{name} is not a rigid body's inertia: its principal moments {_fmt(moments)} kg·m² "
+            f"break the triangle inequality ({moments[2]:.6g} > {moments[0]:.6g} + {moments[1]:.6g})"
+        )
     return tuple(tuple(float(x) for x in row) for row in arr)
 
 
+def _fmt(values) -> str:
+    return "[" + ", ".join(f"{x:.6g}" for x in values) + "]"
+
+
 def _finite_array(name: str, value: Any) -> np.ndarray:
+    """The value as a float array; ConfigError for text, booleans, ragged or non-finite input."""
     try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
         raise ConfigError(f"{name} must be numeric, got {value!r}") from exc
+    if raw.dtype.kind not in "iuf":
+        raise ConfigError(f"{name} must be numeric (a number or a list of numbers), got {value!r}")
+    arr = raw.astype(float)
     if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{name} must be finite, got {np.asarray(value).tolist()}")
+        raise ConfigError(f"{name} must be finite, got {raw.tolist()}")
+    if np.any(np.abs(arr) > MAGNITUDE_LIMIT):
+        raise ConfigError(f"{name} must be at most {MAGNITUDE_LIMIT:g} in magnitude (its products and "
+                          f"squares must stay finite), got {raw.tolist()}")
     return arr
 
 
@@ -85,8 +133,69 @@ def _p0_theta(value: Any) -> tuple[tuple[float, ...], ...]:
 
 def _matrix6(name: str, arr: np.ndarray) -> tuple[tuple[float, ...], ...]:
     if not np.allclose(arr, arr.T) or np.linalg.eigvalsh(arr).min() <= 0:
-        raise ConfigError(f"{name} must be symmetric positive definite")
+        raise ConfigError(f"{name} must be symmetric positive definite, got {arr.tolist()}")
     return tuple(tuple(float(x) for x in row) for row in arr)
+
+
+def burst_time_scale(guess_trace: float, tau_max: float, gyro_sigma: float,
+                     meas_interval_max: float) -> float:
+    """T_b (s), the longest default burst, from which every default time of the schedule follows.
+
+    At least five of the longest measurement intervals (a burst the filter sees in several
+    readings: the paper's 1 s at 0.1-0.2 s sampling), and long enough that a full burst at
+    tau_max moves the rate of the mean principal moment J_m = guess_trace / 3 by one gyro sigma
+    (J_m sigma_g / tau_max: 0.86 s for the paper, so its 1 s stands), capped at 100 times the first
+    (a torque too weak even then is warned about: ScenarioWarning).
+    """
+    floor = 5.0 * meas_interval_max
+    return min(max(floor, guess_trace / 3.0 * gyro_sigma / tau_max), 100.0 * floor)
+
+
+def derived_defaults(guess_trace: float, tau_max: float, gyro_sigma: float, quat_sigma: float,
+                     dt: float, meas_interval_max: float) -> dict[str, Any]:
+    """Every scale-carrying default, from the body's own scales (the rules of the README).
+
+    guess_trace kg·m² (trace of the estimator's initial inertia: the truth is not known to a
+    user), tau_max N·m, gyro_sigma rad/s, quat_sigma (quaternion component), dt and
+    meas_interval_max s. Each value is the paper's number times a power of (scale / paper's
+    scale), so the paper's scales give exactly the paper's numbers:
+
+    - P0_theta, Q_theta (kg·m²)^2 scale with (trace)^2: the prior and the random walk of the
+      inertia are the same fractions of the body's size (prior sigma 0.28 of the trace).
+    - Q_omega (rad/s)^2 with gyro_sigma^2 and Q_quat with quat_sigma^2: process noise keeps the
+      paper's ratio to the measurement noise it competes with (1.11 and 1).
+    - P0_attitude_rate: 1e-2 times the larger of (gyro_sigma/0.03)^2 and (quat_sigma/0.01)^2, the
+      paper's prior on the first reading, wide against both sensors.
+    - epsilon, epsilon_lambda ((rad/s^2)^2, the Gram's units) with (tau_max / trace)^2 and
+      softmin_beta with its inverse: the smallest eigenvalue the metric scores is the scale
+      direction's, excited only by the torque (Psi theta = tau), so it scales as (tau/J)^2.
+    - t_on = [5 dt (the metric's shortest window, N_T >= 5 samples), T_b]; dwell = [5, 20] T_b
+      and validation_coast = [90, 100] T_b, T_b from burst_time_scale (1 s for the paper).
+    """
+    inertia = guess_trace / PAPER_GUESS_TRACE
+    gyro = gyro_sigma / PAPER_GYRO_SIGMA
+    quat = quat_sigma / PAPER_QUAT_SIGMA
+    accel = (tau_max / PAPER_TAU_MAX) / inertia
+    t_b = burst_time_scale(guess_trace, tau_max, gyro_sigma, meas_interval_max)
+    times = t_b / PAPER_BURST_TIME
+    return {
+        "P0_theta": 15000.0 * inertia ** 2,
+        "Q_theta": 5e-2 * inertia ** 2,
+        "Q_omega": 1e-3 * gyro ** 2,
+        "Q_quat": 1e-4 * quat ** 2,
+        "P0_attitude_rate": 1e-2 * max(gyro, quat) ** 2,
+        "epsilon": 1e-8 * accel ** 2,
+        "epsilon_lambda": 1e-8 * accel ** 2,
+        "softmin_beta": 1.0 / accel ** 2,
+        "t_on": (5.0 * dt, t_b),
+        "dwell": (5.0 * times, 20.0 * times),
+        "validation_coast": (90.0 * times, 100.0 * times),
+    }
+
+
+#: Fields that default to None and are then derived (derived_defaults).
+DERIVED_FIELDS = ("P0_theta", "Q_theta", "Q_omega", "Q_quat", "P0_attitude_rate", "epsilon",
+                  "epsilon_lambda", "softmin_beta", "t_on", "dwell", "validation_coast")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,7 +203,9 @@ class Scenario:
     """One experiment: truth, sensors, actuator limits, schedule, estimator and metric constants.
 
     Units: inertia kg·m², rates rad/s, torques N·m, times s. Matrices are nested tuples so the
-    dataclass stays hashable and frozen; use the ``*_array`` properties for numpy views.
+    dataclass stays hashable and frozen; use the ``*_array`` properties for numpy views. Fields
+    left at None are derived from the body's scales (derived_defaults; ``derived`` lists them);
+    after construction every field holds a number.
     """
 
     # --- truth -------------------------------------------------------------------------------
@@ -104,8 +215,8 @@ class Scenario:
     attitude0_euler_deg: tuple = (0.92, 0.0, 0.5)
     dt: float = 0.01
     # --- sensors -----------------------------------------------------------------------------
-    gyro_sigma: float = 3e-2
-    quat_sigma: float = 1e-2
+    gyro_sigma: float = PAPER_GYRO_SIGMA
+    quat_sigma: float = PAPER_QUAT_SIGMA
     meas_interval: tuple = (0.10, 0.20)
     # Optional eqs. (4)-(5): body-frame gravity and magnetic field vectors (inertial-frame
     # references below), each with its own noise sigma. Off by default, as in the paper's runs.
@@ -115,30 +226,38 @@ class Scenario:
     accel_sigma: float = 0.05
     mag_sigma: float = 0.01
     # --- actuator and schedule ---------------------------------------------------------------
-    tau_max: float = 5.0
+    tau_max: float = PAPER_TAU_MAX
     bursts_per_episode: int = 4
-    dwell: tuple = (5.0, 20.0)
-    t_on: tuple = (0.05, 1.0)
+    # None: [5, 20] T_b (burst_time_scale; the paper's 5-20 s).
+    dwell: tuple | None = None
+    # None: [5 dt, T_b] (the paper's 0.05-1 s).
+    t_on: tuple | None = None
     # Bounds of a and b. None means the paper's formula: a in [0, tau_max/omega_ref] with
-    # omega_ref = max(|omega0|, 1e-3), b in [0, tau_max]. The paper's reported xi* lies outside
-    # those bounds (a = 3.76 > 0.5): pass explicit bounds to search wider.
+    # omega_ref = max(|omega0|, the rate one full burst gives the mean moment), b in
+    # [0, tau_max]. The paper's reported xi* lies outside those bounds (a = 3.76 > 0.5): pass
+    # explicit bounds to search wider.
     a_bounds: tuple | None = None
     b_bounds: tuple | None = None
     # Long-horizon validation: bursts of T_on separated by coasts drawn from this interval.
-    validation_coast: tuple = (90.0, 100.0)
+    # None: [90, 100] T_b (the paper's 90-100 s).
+    validation_coast: tuple | None = None
     # --- estimator ---------------------------------------------------------------------------
     estimator: str = "ekf"  # "ekf" or "ukf"
     inertia_guess: tuple = PAPER_GUESS
-    P0_theta: tuple = tuple(tuple(15000.0 if i == j else 0.0 for j in range(6)) for i in range(6))
-    P0_attitude_rate: float = 1e-2  # variance of each of the 7 (q, omega) components
+    # Prior of theta (kg·m²)²: a scalar, 6 variances or 6x6. None: 15000 (trace/430)^2 I6.
+    P0_theta: Any = None
+    # Variance of each of the 7 (q, omega) components. None: 1e-2 max(gyro/0.03, quat/0.01)^2.
+    P0_attitude_rate: float | None = None
     # Q_k = alpha_k * blkdiag(Qbar, Q_theta); Qbar = blkdiag(1e-3 I3 (omega), 1e-4 I4 (q)).
     # The paper's I3/I4 sizes pair 1e-3 with omega and 1e-4 with q. Q is added once per
     # measurement update (the filter's step), and k counts measurement updates.
-    Q_omega: float = 1e-3
-    Q_quat: float = 1e-4
-    Q_theta: float = 5e-2
+    # None: Q_omega = 1e-3 (gyro_sigma/0.03)^2, Q_quat = 1e-4 (quat_sigma/0.01)^2,
+    # Q_theta = 5e-2 (trace(inertia_guess)/430)^2 (the paper's values for the paper's body).
+    Q_omega: float | None = None
+    Q_quat: float | None = None
+    Q_theta: float | None = None
     alpha_gamma: float = 0.99
-    alpha_qmin: float = 1e-6
+    alpha_qmin: float = 1e-6  # dimensionless floor of alpha_k (a fraction of Q)
     # Covariance inflation when an innovation is inconsistent: NIS > nis_gate * dim(z) inflates
     # the prior covariance (0 disables). Needed from the paper's start, see estimation/ekf.py.
     nis_gate: float = 10.0
@@ -146,24 +265,40 @@ class Scenario:
     # covariance exact for it); 0 disables. See estimation/ekf.py:limit_inertia_step.
     inertia_step_limit: float = 0.05
     # --- information metric ------------------------------------------------------------------
-    epsilon: float = 1e-8  # regularisation of the windowed Gram, eq. (14)
-    epsilon_lambda: float = 1e-8  # floor inside the log of eq. (15)
-    softmin_beta: float = 1.0  # beta of the soft-min, eq. (24)
+    # In the Gram's units (rad/s^2)^2. None: 1e-8 ((tau_max/5) / (trace/430))^2 each, and
+    # softmin_beta = 1 / that ratio squared (the paper's 1e-8, 1e-8 and 1 for its body).
+    epsilon: float | None = None  # regularisation of the windowed Gram, eq. (14)
+    epsilon_lambda: float | None = None  # floor inside the log of eq. (15)
+    softmin_beta: float | None = None  # beta of the soft-min, eq. (24)
     # Which windows enter the soft-min: "burst" (windows that overlap a torque burst) or
     # "episode" (every window of the episode). Torque-free windows carry no information on
     # the inertia's scale by construction (Psi(w, w_dot) theta_hat = 0 there), so "episode"
     # mostly measures how long the coasts are.
     window_set: str = "burst"
+    # Names of the fields derived from the body's scales (not an input).
+    derived: tuple = dataclasses.field(default=(), init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "inertia_true", _matrix3("inertia_true", self.inertia_true, spd=True))
-        set_(self, "inertia_guess", _matrix3("inertia_guess", self.inertia_guess, spd=True))
+        set_(self, "inertia_true", _inertia("inertia_true", self.inertia_true))
+        set_(self, "inertia_guess", _inertia("inertia_guess", self.inertia_guess))
         set_(self, "omega0", _vector("omega0", self.omega0, 3))
         set_(self, "attitude0_euler_deg", _vector("attitude0_euler_deg", self.attitude0_euler_deg, 3))
+        for name in ("dt", "gyro_sigma", "quat_sigma", "tau_max", "accel_sigma", "mag_sigma"):
+            set_(self, name, _positive(name, getattr(self, name)))
+        set_(self, "meas_interval", _interval("meas_interval", self.meas_interval))
+        if self.meas_interval[0] < self.dt:
+            raise ConfigError(
+                f"meas_interval minimum {self.meas_interval[0]} s is shorter than dt {self.dt} s"
+            )
+        rules = derived_defaults(self.guess_trace, self.tau_max, self.gyro_sigma, self.quat_sigma,
+                                 self.dt, self.meas_interval[1])
+        derived = tuple(name for name in DERIVED_FIELDS if getattr(self, name) is None)
+        for name in derived:
+            set_(self, name, rules[name])
+        set_(self, "derived", derived)
         set_(self, "P0_theta", _p0_theta(self.P0_theta))
-        for name in ("dt", "gyro_sigma", "quat_sigma", "tau_max", "accel_sigma", "mag_sigma",
-                     "P0_attitude_rate", "epsilon", "epsilon_lambda", "softmin_beta"):
+        for name in ("P0_attitude_rate", "epsilon", "epsilon_lambda", "softmin_beta"):
             set_(self, name, _positive(name, getattr(self, name)))
         for name in ("Q_omega", "Q_quat", "Q_theta", "alpha_qmin", "nis_gate",
                      "inertia_step_limit"):
@@ -172,7 +307,7 @@ class Scenario:
         if gamma > 1:
             raise ConfigError(f"alpha_gamma must lie in [0, 1], got {gamma}")
         set_(self, "alpha_gamma", gamma)
-        for name in ("meas_interval", "dwell", "t_on", "validation_coast"):
+        for name in ("dwell", "t_on", "validation_coast"):
             set_(self, name, _interval(name, getattr(self, name)))
         for name in ("a_bounds", "b_bounds"):
             if getattr(self, name) is not None:
@@ -182,16 +317,46 @@ class Scenario:
         n = self.bursts_per_episode
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ConfigError(f"bursts_per_episode must be an integer >= 1, got {n!r}")
-        if self.estimator not in ("ekf", "ukf"):
+        if not isinstance(self.use_vector_sensors, (bool, np.bool_)):
+            raise ConfigError(f"use_vector_sensors must be true or false, got {self.use_vector_sensors!r}")
+        if not isinstance(self.estimator, str) or self.estimator not in ("ekf", "ukf"):
             raise ConfigError(f"estimator must be 'ekf' or 'ukf', got {self.estimator!r}")
-        if self.window_set not in ("burst", "episode"):
+        if not isinstance(self.window_set, str) or self.window_set not in ("burst", "episode"):
             raise ConfigError(f"window_set must be 'burst' or 'episode', got {self.window_set!r}")
-        if self.meas_interval[0] < self.dt:
-            raise ConfigError(
-                f"meas_interval minimum {self.meas_interval[0]} s is shorter than dt {self.dt} s"
-            )
         if self.t_on[0] < self.dt:
             raise ConfigError(f"t_on minimum {self.t_on[0]} s is shorter than dt {self.dt} s")
+        for message in self.implausibilities():
+            warnings.warn(message, ScenarioWarning, stacklevel=3)
+
+    def implausibilities(self) -> list[str]:
+        """Why this valid scenario looks physically implausible (empty when it does not).
+
+        The guess's sorted principal moments differ from the truth's by more than
+        GUESS_FACTOR_WARNING; the longest burst at tau_max moves the rate of the guessed mean
+        moment by less than a tenth of gyro_sigma (the scale cannot be identified); or the rate
+        after an episode of full bursts turns the body by more than 0.5 rad per step dt (the
+        torque is implausible for the inertia, or dt too coarse).
+        """
+        out = []
+        truth = np.linalg.eigvalsh(self.inertia_true_array)
+        guess = np.linalg.eigvalsh(self.inertia_guess_array)
+        ratio = guess / truth
+        factor = max(ratio.max(), 1.0 / ratio.min())
+        if factor > GUESS_FACTOR_WARNING:
+            out.append(f"inertia_guess's principal moments {_fmt(guess)} kg·m² are off the "
+                       f"inertia_true's {_fmt(truth)} by a factor up to {factor:.3g} (more than "
+                       f"{GUESS_FACTOR_WARNING:g}): is the guess for this body?")
+        kick = self.tau_max * self.t_on[1] / (self.guess_trace / 3.0)
+        if kick < 0.1 * self.gyro_sigma:
+            out.append(f"a full burst (tau_max {self.tau_max:.3g} N·m for t_on {self.t_on[1]:.3g} s) "
+                       f"changes the guessed body's rate by {kick:.3g} rad/s, under a tenth of "
+                       f"gyro_sigma {self.gyro_sigma:.3g} rad/s: the inertia's scale will not be identified")
+        fastest = float(np.linalg.norm(self.omega0)) + self.bursts_per_episode * kick
+        if fastest * self.dt > 0.5:
+            out.append(f"the rate after an episode of full bursts, up to {fastest:.3g} rad/s, turns "
+                       f"the body {fastest * self.dt:.3g} rad per dt = {self.dt:.3g} s (over 0.5): "
+                       "tau_max is implausible for this inertia, or dt too coarse")
+        return out
 
     # --- derived quantities ------------------------------------------------------------------
     @property
@@ -205,9 +370,22 @@ class Scenario:
         return np.array(self.inertia_guess)
 
     @property
+    def guess_trace(self) -> float:
+        """trace(inertia_guess) in kg·m², the inertia scale of the derived defaults."""
+        return float(np.trace(self.inertia_guess_array))
+
+    @property
+    def burst_time(self) -> float:
+        """T_b in s (burst_time_scale), the time scale of the derived schedule defaults."""
+        return burst_time_scale(self.guess_trace, self.tau_max, self.gyro_sigma, self.meas_interval[1])
+
+    @property
     def omega_ref(self) -> float:
-        """max(|omega0|, 1e-3) in rad/s, the paper's reference rate for the bound of a."""
-        return max(float(np.linalg.norm(self.omega0)), 1e-3)
+        """Reference rate in rad/s for the bound of a: |omega0| (the paper's), or for a body near
+        rest the rate a full burst of T_b at tau_max gives the guessed mean moment.
+        """
+        return max(float(np.linalg.norm(self.omega0)),
+                   self.tau_max * self.burst_time / (self.guess_trace / 3.0))
 
     @property
     def xi_bounds(self) -> np.ndarray:
@@ -217,41 +395,70 @@ class Scenario:
         return np.array([[a[0], b[0], self.t_on[0]], [a[1], b[1], self.t_on[1]]])
 
     def replace(self, **changes: Any) -> "Scenario":
-        """Return a copy with some fields changed (validated again)."""
-        return dataclasses.replace(self, **changes)
+        """Return a copy with some fields changed (validated again). Fields that were derived
+        and are not in ``changes`` are derived again from the new scales.
+        """
+        fields = {f.name: None if f.name in self.derived else getattr(self, f.name)
+                  for f in dataclasses.fields(self) if f.init}
+        return type(self)(**{**fields, **changes})
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain-JSON form (lists instead of tuples)."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        """Plain-JSON form of every input field as used (lists instead of tuples, derived values
+        filled in; ``derived`` is not included).
+        """
+        return json.loads(json.dumps({f.name: getattr(self, f.name)
+                                      for f in dataclasses.fields(self) if f.init}))
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "Scenario":
         """Build from a mapping of field overrides; unknown keys raise ConfigError."""
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - fields)
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"a scenario must be a table/mapping of fields, got {type(data).__name__}")
+        fields = {f.name for f in dataclasses.fields(cls) if f.init}
+        unknown = sorted(str(k) for k in set(data) - fields)
         if unknown:
             raise ConfigError(f"unknown scenario field(s) {unknown}; known fields: {sorted(fields)}")
         return cls(**dict(data))
 
     @classmethod
     def load(cls, path: str | Path | None) -> "Scenario":
-        """Load overrides from a TOML or JSON file; None gives the paper's scenario."""
+        """Load overrides from a TOML or JSON file, or the name of a shipped scenario
+        (shipped_scenarios(): e.g. "cubesat-6u"); None gives the paper's scenario.
+        """
         if path is None:
             return cls()
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"scenario file {path} does not exist")
-        text = path.read_text()
+        path = scenario_path(path)
         try:
+            text = path.read_text()
             if path.suffix.lower() == ".toml":
                 data = tomllib.loads(text)
             else:
                 data = json.loads(text)
-        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-            raise ConfigError(f"scenario file {path} is not valid {path.suffix[1:]}: {exc}") from exc
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            kind = path.suffix[1:] or "JSON"
+            raise ConfigError(f"scenario file {path} is not valid {kind}: {exc}") from exc
+        except OSError as exc:
+            raise ConfigError(f"scenario file {path} cannot be read: {exc}") from exc
         if not isinstance(data, dict):
             raise ConfigError(f"scenario file {path} must hold a table/object of fields")
         return cls.from_mapping(data)
+
+
+def shipped_scenarios() -> list[str]:
+    """Names of the example scenarios shipped in inertia_gym/scenarios/ (without .toml)."""
+    return sorted(p.stem for p in SHIPPED_SCENARIOS.glob("*.toml"))
+
+
+def scenario_path(path: str | Path) -> Path:
+    """The file a --scenario value names: an existing file, else a shipped scenario's name."""
+    given = Path(path)
+    if given.is_file():
+        return given
+    shipped = SHIPPED_SCENARIOS / f"{given.name}.toml"
+    if given.suffix == "" and given.parent == Path(".") and shipped.is_file():
+        return shipped
+    raise ConfigError(f"scenario file {given} does not exist (shipped scenarios: "
+                      f"{', '.join(shipped_scenarios())})")
 
 
 def steps(duration: float, dt: float) -> int:

@@ -71,9 +71,9 @@ class ValidationResult:
             "xi": None if self.xi is None else list(self.xi),
             "duration": self.duration,
             "seeds": list(self.seeds),
-            "rel_errors": [float(x) for x in self.rel_errors],
+            "rel_errors": finite_or_none(self.rel_errors),
             "median_rel_error": float(np.median(self.rel_errors[ok])) if ok.any() else None,
-            "ratio_rel_errors": [float(x) for x in self.ratio_rel_errors],
+            "ratio_rel_errors": finite_or_none(self.ratio_rel_errors),
             "median_ratio_rel_error": (
                 float(np.median(self.ratio_rel_errors[ok])) if ok.any() else None
             ),
@@ -82,7 +82,7 @@ class ValidationResult:
             "scale_identified": bool(ok.any() and self.scale_identified[ok].mean() > 0.5),
             "scale_identified_per_seed": [bool(x) for x in self.scale_identified],
             "inertia_true": self.inertia_true.tolist(),
-            "inertia_hat": self.inertia_hat.tolist(),
+            "inertia_hat": finite_or_none(self.inertia_hat),
             "wall_s": self.wall_s,
             **(self.refined.summary(ok) if self.refined is not None else {}),
         }
@@ -110,15 +110,25 @@ class RefinedScores:
         good = ok & np.isfinite(self.rel_errors)
         eff = self.rel_errors[good] / self.crlb[good]
         return {
-            "crlb_rel_errors": [None if not np.isfinite(x) else float(x) for x in self.crlb],
-            "refined_rel_errors": [None if not np.isfinite(x) else float(x) for x in self.rel_errors],
+            "crlb_rel_errors": finite_or_none(self.crlb),
+            "refined_rel_errors": finite_or_none(self.rel_errors),
             "refined_median_rel_error": float(np.median(self.rel_errors[good])) if good.any() else None,
             "refined_ci95_coverage": float(self.covered[good].mean()) if good.any() else None,
             "efficiency": float(np.median(eff)) if good.any() else None,
             "refined_errors_are_ratios": not self.scale_fitted,
-            "refined_inertia": [x.tolist() for x in self.inertia],
+            "refined_inertia": finite_or_none(self.inertia),
             "refined_wall_s": self.wall_s,
         }
+
+
+def finite_or_none(values) -> list:
+    """An array as nested lists for JSON, each non-finite number (a diverged or unrefined run)
+    as None: result.json never holds NaN.
+    """
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim == 0:
+        return float(arr) if np.isfinite(arr) else None
+    return [finite_or_none(x) for x in arr]
 
 
 def relative_error(j_hat, j_true) -> np.ndarray:

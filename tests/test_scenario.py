@@ -12,7 +12,7 @@ from inertia_gym.excitation import (
     validation_schedule,
 )
 from inertia_gym.information import theta_from_inertia
-from inertia_gym.scenario import Scenario
+from inertia_gym.scenario import Scenario, ScenarioWarning, shipped_scenarios
 
 
 def test_paper_defaults_and_bounds_formula(paper):
@@ -54,7 +54,8 @@ def test_bad_scenario_fields_name_the_field(field, value):
 
 def test_load_toml_and_json(tmp_path):
     (tmp_path / "s.toml").write_text('tau_max = 0.02\ninertia_true = [[1.0,0,0],[0,2.0,0],[0,0,2.5]]\n')
-    sc = Scenario.load(tmp_path / "s.toml")
+    with pytest.warns(ScenarioWarning, match="inertia_guess"):  # the paper's guess for this body
+        sc = Scenario.load(tmp_path / "s.toml")
     assert sc.tau_max == 0.02 and sc.inertia_true[2][2] == 2.5
     (tmp_path / "s.json").write_text(json.dumps({"omega0": [0.1, 0.2, 0.3]}))
     assert Scenario.load(tmp_path / "s.json").omega0 == (0.1, 0.2, 0.3)
@@ -110,3 +111,128 @@ def test_schedules_respect_bounds(paper, rng):
     segs = validation_schedule(paper, 1.0, 1000.0, rng)
     assert sum(s.n_steps for s in segs) == 100_000
     assert 9 <= sum(len(s.bursts) for s in segs) <= 11
+
+
+# --- scale-free defaults ------------------------------------------------------------------------
+
+PAPER_NUMBERS = dict(P0_theta=15000.0, Q_theta=5e-2, Q_omega=1e-3, Q_quat=1e-4, P0_attitude_rate=1e-2,
+                     epsilon=1e-8, epsilon_lambda=1e-8, softmin_beta=1.0, t_on=(0.05, 1.0),
+                     dwell=(5.0, 20.0), validation_coast=(90.0, 100.0))
+
+
+def test_paper_scenario_derives_exactly_the_papers_numbers(paper):
+    for name, value in PAPER_NUMBERS.items():
+        got = np.array(paper.P0_theta) if name == "P0_theta" else getattr(paper, name)
+        expected = value * np.eye(6) if name == "P0_theta" else value
+        assert np.array_equal(got, expected), name  # bit-identical, not approximately
+    assert set(paper.derived) == set(PAPER_NUMBERS)
+    assert paper == Scenario(**PAPER_NUMBERS) and paper.burst_time == 1.0
+
+
+def test_derived_defaults_follow_their_rules():
+    """Each rule written out from its definition (README, "Scenarios") on a non-paper body."""
+    guess = np.diag([0.085, 0.2, 0.15])
+    sc = Scenario(inertia_true=np.diag([0.1, 0.12, 0.05]), inertia_guess=guess, omega0=(0.03, 0.1, 0.02),
+                  tau_max=1e-3, gyro_sigma=1e-3, quat_sigma=2e-3, meas_interval=(0.05, 0.1))
+    size = np.trace(guess)  # 0.435 kg·m²
+    accel = 1e-3 / size  # the torque's angular acceleration scale, rad/s²
+    burst = max(5 * 0.1, size / 3 * 1e-3 / 1e-3)  # 0.5 s: five longest sampling intervals
+    assert np.allclose(np.array(sc.P0_theta), (0.2848 * size) ** 2 * np.eye(6), rtol=1e-3)
+    assert sc.Q_theta == pytest.approx(5e-2 / 430**2 * size**2)
+    assert sc.Q_omega == pytest.approx(1e-3 / 0.03**2 * 1e-3**2)
+    assert sc.Q_quat == pytest.approx(2e-3**2)
+    assert sc.P0_attitude_rate == pytest.approx(1e-2 * (2e-3 / 1e-2) ** 2)
+    assert sc.epsilon == pytest.approx(1e-8 * (accel / (5.0 / 430)) ** 2)
+    assert sc.epsilon_lambda == sc.epsilon and sc.softmin_beta == pytest.approx(1e-8 / sc.epsilon)
+    assert sc.burst_time == pytest.approx(burst)
+    assert sc.t_on == pytest.approx((0.05, burst))
+    assert sc.dwell == pytest.approx((5 * burst, 20 * burst))
+    assert sc.validation_coast == pytest.approx((90 * burst, 100 * burst))
+    # A weak actuator lengthens the bursts until a full one moves the mean moment's rate by
+    # one gyro sigma, and the schedule with them.
+    weak = sc.replace(tau_max=1e-5)
+    assert weak.burst_time == pytest.approx(size / 3 * 1e-3 / 1e-5)
+    assert weak.tau_max * weak.t_on[1] / (size / 3) == pytest.approx(weak.gyro_sigma)
+    assert weak.dwell[0] == pytest.approx(5 * weak.burst_time)
+
+
+def test_given_fields_are_kept_and_replace_derives_the_others_again(paper):
+    sc = Scenario(Q_theta=1e-3)
+    assert sc.Q_theta == 1e-3 and "Q_theta" not in sc.derived
+    with pytest.warns(ScenarioWarning, match="factor up to 80"):  # the truth kept its size
+        small = sc.replace(inertia_guess=np.array(paper.inertia_guess) * 1e-2)
+    assert small.Q_theta == 1e-3  # given: kept
+    assert small.P0_theta[0][0] == pytest.approx(15000.0 * 1e-4)  # derived: derived again
+    back = small.replace(inertia_guess=paper.inertia_guess)
+    assert back == sc
+    assert Scenario.from_mapping(sc.to_dict()) == sc and "derived" not in sc.to_dict()
+
+
+def test_scaled_body_gives_the_same_non_dimensional_filter_and_metric(paper):
+    """J and tau times s: the motion is the same (w_dot = J^-1 (tau - w x J w)), so every derived
+    constant must map to the paper's in the filter's scale-shape coordinates and the metric."""
+    s = 1e-4
+    small = paper.replace(inertia_true=np.array(paper.inertia_true) * s,
+                          inertia_guess=np.array(paper.inertia_guess) * s, tau_max=paper.tau_max * s)
+    assert small.Q_theta == pytest.approx(paper.Q_theta * s**2)
+    assert np.allclose(small.P0_theta, np.array(paper.P0_theta) * s**2)
+    for name in ("epsilon", "epsilon_lambda", "softmin_beta", "Q_omega", "Q_quat", "P0_attitude_rate",
+                 "t_on", "dwell", "validation_coast"):
+        assert getattr(small, name) == pytest.approx(getattr(paper, name), rel=1e-12), name
+    assert np.allclose(small.xi_bounds[:, 1:], paper.xi_bounds[:, 1:] * [s, 1])
+
+
+# --- physical validity and plausibility ---------------------------------------------------------
+
+@pytest.mark.parametrize("inertia", [
+    np.diag([0.1, 0.1, 0.5]),  # the issue's impossible body: 0.5 > 0.1 + 0.1
+    np.diag([3.0, 1.0, 1.0]),
+])
+def test_triangle_inequality_is_enforced(inertia):
+    for field in ("inertia_true", "inertia_guess"):
+        with pytest.raises(ConfigError, match=rf"^{field} .*triangle inequality") as err:
+            Scenario(**{field: inertia})
+        assert "\n" not in str(err.value)
+
+
+def test_triangle_inequality_uses_principal_moments():
+    rot = np.linalg.qr(np.random.default_rng(0).standard_normal((3, 3)))[0]
+    with pytest.raises(ConfigError, match="0.5 > 0.1 \\+ 0.1"):
+        Scenario(inertia_true=rot @ np.diag([0.1, 0.1, 0.5]) @ rot.T)
+    plate = rot @ np.diag([1.0, 2.0, 3.0]) @ rot.T  # a thin plate: equality holds, allowed
+    assert np.allclose(Scenario(inertia_true=plate, inertia_guess=plate).inertia_true, plate)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("tau_max", "5 N*m"), ("tau_max", True), ("gyro_sigma", [0.01, "a"]), ("omega0", {"x": 1.0}),
+    ("inertia_true", [[1.0, 0.0, 0.0], [0.0, 1.0]]), ("use_vector_sensors", "yes"), ("estimator", ["ekf"]),
+    ("P0_theta", "big"), ("Q_theta", -1.0), ("dwell", [1.0]),
+])
+def test_wrong_types_are_one_line_errors_naming_the_field(field, value):
+    with pytest.raises(ConfigError, match=field) as err:
+        Scenario(**{field: value})
+    assert "\n" not in str(err.value)
+
+
+def test_implausible_scenarios_warn(paper):
+    cubesat = dict(inertia_true=np.diag([0.1, 0.12, 0.05]), omega0=(0.03, 0.1, 0.02), gyro_sigma=1e-3)
+    with pytest.warns(ScenarioWarning, match="inertia_guess's principal moments .* factor up to"):
+        Scenario(**cubesat, tau_max=1e-3)  # the paper's 85-210 kg·m² guess for a CubeSat
+    with pytest.warns(ScenarioWarning, match="will not be identified"):
+        paper.replace(tau_max=1e-6, t_on=(0.05, 1.0))
+    with pytest.warns(ScenarioWarning, match="tau_max is implausible"):
+        Scenario(**cubesat, inertia_guess=np.diag([0.085, 0.2, 0.15]), tau_max=5.0)
+    assert paper.implausibilities() == []
+
+
+def test_shipped_scenarios_load_by_name_and_are_plausible(tmp_path, paper):
+    assert {"paper", "cubesat-6u", "upper-stage"} <= set(shipped_scenarios())
+    assert Scenario.load("paper") == paper
+    for name in shipped_scenarios():
+        sc = Scenario.load(name)
+        assert sc.implausibilities() == [] and set(sc.derived) == set(PAPER_NUMBERS), name
+    with pytest.raises(ConfigError, match="cubesat-6u"):  # the message lists the shipped names
+        Scenario.load("cubesat")
+    (tmp_path / "bin.toml").write_bytes(b"\xff\xfe\x00tau")
+    with pytest.raises(ConfigError, match="not valid toml"):
+        Scenario.load(tmp_path / "bin.toml")

@@ -5,25 +5,41 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.scenario import Scenario
+from inertia_gym.scenario import Scenario, ScenarioWarning, shipped_scenarios
 
 
 def add_scenario_option(parser: argparse.ArgumentParser) -> None:
-    """--scenario FILE: TOML or JSON overriding fields of the paper's scenario."""
+    """--scenario FILE|NAME: TOML or JSON overriding fields of the paper's scenario, or the name
+    of a shipped example.
+    """
     parser.add_argument(
-        "--scenario", metavar="FILE", default=None,
-        help="TOML or JSON file overriding any scenario field (default: the paper's scenario)",
+        "--scenario", metavar="FILE|NAME", default=None,
+        help="TOML or JSON file overriding any scenario field, or a shipped scenario "
+             f"({', '.join(shipped_scenarios())}); default: the paper's scenario",
     )
 
 
 def load_scenario(args: argparse.Namespace) -> Scenario:
-    """The scenario selected by --scenario."""
-    return Scenario.load(args.scenario)
+    """The scenario selected by --scenario; its implausibilities (ScenarioWarning) are printed
+    on stderr as one line each, "warning: ...".
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ScenarioWarning)
+        sc = Scenario.load(args.scenario)
+    command = getattr(args, "command", None) or "scenario"
+    for w in caught:
+        if issubclass(w.category, ScenarioWarning):
+            print(f"inertia-gym {command}: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return sc
 
 
 def add_recording_argument(parser: argparse.ArgumentParser) -> None:

@@ -62,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
     write_json(out / "result.json", summary)
     plot_validation(result, out / "validation.png")
     plot_error_histories(result, out / "error_history.png")
+    if summary["median_rel_error"] is None:
+        print(f"validate xi={args.xi}: every run diverged ({summary['diverged']} of {args.seeds}); "
+              f"no error to report ({summary['wall_s']:.1f} s) -> {out}")
+        return 0
     print(
         f"validate xi={args.xi}: median error {summary['median_rel_error']:.4%}, "
         f"trace-normalised {summary['median_ratio_rel_error']:.4%}, "
