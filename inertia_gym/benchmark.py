@@ -41,6 +41,8 @@ from inertia_gym.optimization import (
     DEFAULT_COST,
     evaluate_many,
     optimize,
+    recommendation_checkpoints,
+    recommendation_path,
     validated_error,
 )
 from inertia_gym.scenario import Scenario
@@ -183,7 +185,11 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
     error after each evaluation); xi_star (the recommended xi), cost_star (its GP-predicted
     cost), recommendation (the rule); xi_observed_best and best_cost (the lowest observed cost);
     reeval_cost and reeval_cost_observed_best (from-start cost of xi* and of the observed best
-    over the evaluation seeds); val_rel_error / val_rel_errors / val_diverged /
+    over the evaluation seeds); recommended_curve {"evaluations": checkpoints i, "reeval_cost":
+    the re-evaluated cost of the xi the agent would have recommended after i evaluations} (its
+    learning curve, free of the noise of single episodes); xi_recommended and
+    reeval_cost_recommended (= xi_star and reeval_cost, their names before xi_star was the
+    recommendation); val_rel_error / val_rel_errors / val_diverged /
     val_scale_identified (validation of xi*); wall_s (the optimisation), score_wall_s
     (re-evaluation and validation), settings_key.
     Grid record: agent "grid", seed None, n_points, xi_star (the best grid point), reeval_cost,
@@ -206,8 +212,12 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
         result = optimize(task.agent, sc, settings.budget, task.seed, cost=settings.cost,
                           carry_over=settings.carry_over)
         t1 = time.perf_counter()
-        reeval, _ = reevaluate(sc, np.stack([result.xi_star, result.xi_observed_best]),
-                               settings.eval_seeds, settings.cost)
+        checkpoints = recommendation_checkpoints(settings.budget)
+        path = recommendation_path(sc, result, checkpoints)  # path[-1] is xi_star's index
+        best = int(np.argmin(result.costs))
+        scored = np.unique(np.append(path, best))
+        reeval, _ = reevaluate(sc, result.xis[scored], settings.eval_seeds, settings.cost)
+        cost_of = dict(zip(scored.tolist(), reeval.tolist()))
         record = {
             "agent": task.agent, "seed": task.seed, "budget": int(settings.budget),
             "costs": result.costs.tolist(), "xis": result.xis.tolist(),
@@ -216,7 +226,12 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
             "recommendation": result.recommendation,
             "xi_observed_best": result.xi_observed_best.tolist(),
             "best_cost": float(result.cost_observed_best),
-            "reeval_cost": float(reeval[0]), "reeval_cost_observed_best": float(reeval[1]),
+            "reeval_cost": cost_of[int(path[-1])], "reeval_cost_observed_best": cost_of[best],
+            # The names these had when xi_star was the observed best (contracts: never renamed).
+            "xi_recommended": result.xi_star.tolist(),
+            "reeval_cost_recommended": cost_of[int(path[-1])],
+            "recommended_curve": {"evaluations": checkpoints.tolist(),
+                                  "reeval_cost": [cost_of[int(k)] for k in path]},
         }
         record.update(_validation(settings, result.xi_star))
         record["wall_s"] = float(result.wall_s)
@@ -259,11 +274,12 @@ def summarize(records: list[dict]) -> dict:
     Returns {"grid": the grid record or None, "reference_cost": its re-evaluated cost or None,
     "runs": the agent records (sorted by agent, then seed) with ``regret`` and
     ``regret_observed_best`` added (re-evaluated cost of xi* / of the observed best minus the
-    grid optimum's; None without a grid), "agents": {agent: {"runs", "seeds", "best_cost",
-    "reeval_cost", "reeval_cost_observed_best", "regret", "regret_observed_best",
-    "val_rel_error", "wall_s" (each median/q25/q75/n), "val_diverged", "win_rate": {other agent:
-    share of the shared seeds won on the re-evaluated cost of xi*}, "win_seeds": {other agent:
-    how many seeds that share rests on}}}}.
+    grid optimum's; None without a grid; ``regret_recommended`` = ``regret``, its old name),
+    "agents": {agent: {"runs", "seeds", "best_cost", "reeval_cost",
+    "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error", "wall_s"
+    (each median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of the shared
+    seeds won on the re-evaluated cost of xi*}, "win_seeds": {other agent: how many seeds that
+    share rests on}}}}.
     """
     grid = next((r for r in records if r["agent"] == GRID), None)
     ref = None if grid is None else grid["reeval_cost"]
@@ -275,6 +291,7 @@ def summarize(records: list[dict]) -> dict:
                 "regret": None if ref is None else r["reeval_cost"] - ref,
                 "regret_observed_best": (None if ref is None
                                          else r["reeval_cost_observed_best"] - ref),
+                "regret_recommended": None if ref is None else r["reeval_cost"] - ref,
             }
     agents, runs = {}, []
     for name, by_seed in by_agent.items():

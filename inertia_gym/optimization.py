@@ -189,6 +189,31 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = DEFAU
     )
 
 
+def recommendation_checkpoints(budget: int, count: int = 8) -> np.ndarray:
+    """Evaluation counts (1-based, ascending, the last = budget) at which a learning curve
+    asks for the recommendation: about `count` of them, spaced geometrically from 2.
+    """
+    start = min(2, budget)
+    return np.unique(np.round(np.geomspace(start, budget, num=min(budget, count))).astype(int))
+
+
+def recommendation_path(sc: Scenario, result: OptimizationResult, checkpoints) -> np.ndarray:
+    """Index of the recommended evaluation had the run stopped after each of `checkpoints`.
+
+    The agent's own rule (:meth:`~inertia_gym.agents.base.Agent.recommend`) applied to the first
+    i evaluations of `result` (a run on `sc`), for i in checkpoints (1-based counts). Returns
+    (len(checkpoints),) indices; at i = budget it is xi_star's.
+    """
+    from inertia_gym.agents import make_agent
+    from inertia_gym.envs.excitation import xi_to_action
+
+    agent = make_agent(result.agent, result.seed, result.budget)
+    actions = np.array([xi_to_action(sc, x) for x in result.xis], dtype=float)
+    with torch_threads(1):
+        return np.array([agent.recommend(actions[:i], result.costs[:i])[0]
+                         for i in checkpoints], dtype=int)
+
+
 def validated_error(sc: Scenario, xi, duration: float, seeds) -> dict:
     """Long-horizon validation of xi (3,) (None: no torque): does applying it identify the inertia?
 

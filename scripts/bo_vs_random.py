@@ -6,8 +6,7 @@ reference through the library (inertia_gym.benchmark_store.run_sweep: resumable,
 run; inertia_gym.benchmark_report.write_report: benchmark.json, summary.md, plots) into
 OUT/<mode>/. On top of the benchmark's scores, every evaluated xi of every run is re-evaluated
 from the start on the benchmark's fresh seeds, giving the number of evaluations an agent needs
-before it has evaluated a xi within 5 % of the grid optimum's cost, and
-OUT/<mode>/true_cost_curves.png (running best of the re-evaluated cost).
+before it has evaluated a xi within 5 % of the grid optimum's cost.
 
     python scripts/bo_vs_random.py --seeds 16 --budget 100 --out runs/bo_vs_random
 """
@@ -24,7 +23,6 @@ from inertia_gym.benchmark import SweepSettings, reevaluate, sweep_tasks
 from inertia_gym.benchmark_report import write_report
 from inertia_gym.benchmark_store import run_sweep
 from inertia_gym.optimization import DEFAULT_COST
-from inertia_gym.plots import plot_cost_curves
 from inertia_gym.scenario import Scenario
 
 AGENTS = ["bo", "random", "grid"]
@@ -62,8 +60,6 @@ def main():
             true_costs, _ = reevaluate(sc, r["xis"], settings.eval_seeds, settings.cost)
             true_runs.append({**r, "costs": true_costs.tolist(),
                               "evals_to_5pct": evals_to_within(true_costs, target)})
-        plot_cost_curves(true_runs, report["summary"], settings, out / "true_cost_curves.png",
-                         quantity="re-evaluated cost of the evaluated xi")
         summary = {}
         for agent in ("bo", "random"):
             rows = [r for r in true_runs if r["agent"] == agent]

@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 
+from inertia_gym.agents.random_search import RandomAgent
 from inertia_gym.benchmark import (
     GRID,
     SweepSettings,
@@ -15,9 +16,10 @@ from inertia_gym.benchmark import (
     win_rate,
 )
 from inertia_gym.benchmark_report import explanation, table_markdown
+from inertia_gym.envs.excitation import xi_to_action
 from inertia_gym.errors import ConfigError
+from inertia_gym.optimization import evaluate_many, optimize, recommendation_checkpoints
 from inertia_gym.plots import moving_mean
-from inertia_gym.optimization import evaluate_many, optimize
 from inertia_gym.scenario import Scenario
 from inertia_gym.validation import validate
 
@@ -95,6 +97,17 @@ def test_agent_task_scores_its_xi_by_the_definitions(tiny):
                              tiny.eval_seeds, tiny.cost)
     assert rec["reeval_cost"] == pytest.approx(costs[0].mean(), rel=1e-12)
     assert rec["reeval_cost_observed_best"] == pytest.approx(costs[1].mean(), rel=1e-12)
+    assert rec["xi_recommended"] == rec["xi_star"]
+    assert rec["reeval_cost_recommended"] == rec["reeval_cost"]
+    # The learning curve: the recommendation after the first i evaluations, re-evaluated.
+    curve = rec["recommended_curve"]
+    assert curve["evaluations"][-1] == tiny.budget and curve["reeval_cost"][-1] == rec["reeval_cost"]
+    i = curve["evaluations"][0]
+    agent = RandomAgent(1)
+    first, _ = agent.recommend([xi_to_action(tiny.scenario, x) for x in rec["xis"][:i]],
+                               rec["costs"][:i])
+    c, _ = evaluate_many(tiny.scenario, np.array([rec["xis"][first]]), tiny.eval_seeds, tiny.cost)
+    assert curve["reeval_cost"][0] == pytest.approx(c[0].mean(), rel=1e-12)
     val = validate(tiny.scenario, np.array(rec["xi_star"]), tiny.val_duration, tiny.val_seeds,
                    record_torque=False)
     assert rec["val_rel_error"] == pytest.approx(float(np.median(val.rel_errors)), rel=1e-12)
@@ -170,3 +183,9 @@ def test_moving_mean_is_the_mean_of_the_last_window_costs():
     for i in range(25):
         np.testing.assert_allclose(got[:, i], costs[:, max(0, i - 9):i + 1].mean(axis=1),
                                    rtol=1e-12)
+
+
+@pytest.mark.parametrize("budget, expected", [(1, [1]), (2, [2]), (5, [2, 3, 4, 5]),
+                                              (100, [2, 3, 6, 11, 19, 33, 57, 100])])
+def test_recommendation_checkpoints_end_at_the_budget(budget, expected):
+    assert recommendation_checkpoints(budget).tolist() == expected

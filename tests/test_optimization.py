@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from inertia_gym.cli import main
-from inertia_gym.errors import ConfigError
 from inertia_gym.agents.bo import posterior_best
+from inertia_gym.cli import main
 from inertia_gym.envs.excitation import xi_to_action
+from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import (
     AGENTS,
     DEFAULT_CARRY_OVER,
