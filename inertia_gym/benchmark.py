@@ -7,17 +7,20 @@ their own runs:
 
 * **re-evaluated cost**: the mean cost of one episode from the scenario's start over fixed
   evaluation seeds (common random numbers, :func:`~inertia_gym.optimization.evaluate_many`), for
-  xi* (Algorithm 1, line 24: the lowest observed cost) and for the GP-recommended xi (lowest GP
-  posterior mean over the evaluated points);
+  xi* (the xi the agent recommends: lowest GP posterior mean over its evaluated points) and for
+  the observed best (Algorithm 1, line 24: the lowest observed cost);
 * **validated inertia error**: median over fixed validation seeds of ||J_hat - J||_F / ||J||_F
-  after a long-horizon validation of xi* (:func:`~inertia_gym.validation.validate`).
+  after a long-horizon validation of xi*
+  (:func:`~inertia_gym.optimization.validated_error`).
 
 The dense-grid reference ``grid`` scores every point of an n x n x n grid over the bounds of xi
 the same way and keeps the best: the attainable optimum. An agent's **regret** is its re-evaluated
 cost minus the grid optimum's (negative when it found a better xi between the grid's points).
 
-Each finished task is one JSON record (:func:`run_task`); the sweep driver lives in
-``inertia_gym/commands/benchmark.py`` and the backends in :mod:`inertia_gym.executors`.
+Each finished task is one JSON record (:func:`run_task`); the resumable store and the sweep
+driver live in :mod:`inertia_gym.benchmark_store`, the report in
+:mod:`inertia_gym.benchmark_report`, the figures in :mod:`inertia_gym.plots` and the backends in
+:mod:`inertia_gym.executors`.
 """
 
 from __future__ import annotations
@@ -33,9 +36,16 @@ from inertia_gym.envs.excitation import check_seed
 from inertia_gym.episode import COSTS
 from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import AGENTS as OPTIMIZER_AGENTS
-from inertia_gym.optimization import evaluate_many, optimize
+from inertia_gym.optimization import (
+    DEFAULT_CARRY_OVER,
+    DEFAULT_COST,
+    evaluate_many,
+    optimize,
+    recommendation_checkpoints,
+    recommendation_path,
+    validated_error,
+)
 from inertia_gym.scenario import Scenario
-from inertia_gym.validation import validate
 
 GRID = "grid"
 AGENTS = (*OPTIMIZER_AGENTS, GRID)
@@ -50,15 +60,17 @@ class SweepSettings:
     scenario : the experiment.  budget : M evaluations per agent run.  cost : "info" (the paper's
     J) or "posterior".  carry_over : the estimator carries over from one evaluation to the next
     (Algorithm 1) or every evaluation restarts from the scenario's start (a stationary
-    objective).  eval_seeds : seeds of the from-start re-evaluation (common to all agents).
-    val_seeds, val_duration (s) : the long-horizon validation of xi*.  grid_points : points per
-    axis of the dense-grid reference.
+    objective); cost and carry_over default to the optimiser's defaults (from-start episodes,
+    posterior cost); the paper's Algorithm 1 is cost="info", carry_over=True.
+    eval_seeds : seeds of the from-start re-evaluation (common to all agents).
+    val_seeds, val_duration (s) : the long-horizon validation of xi*.
+    grid_points : points per axis of the dense-grid reference.
     """
 
     scenario: Scenario
     budget: int
-    cost: str = "info"
-    carry_over: bool = True
+    cost: str = DEFAULT_COST
+    carry_over: bool = DEFAULT_CARRY_OVER
     eval_seeds: tuple = tuple(range(10_000, 10_008))
     val_seeds: tuple = (0, 1, 2, 3)
     val_duration: float = 1000.0
@@ -166,30 +178,20 @@ def reevaluate(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndarray
     return np.concatenate(costs), np.concatenate(errors)
 
 
-def validated_error(settings: SweepSettings, xi) -> dict:
-    """Long-horizon validation of xi (3,) over the settings' validation seeds.
-
-    Returns {"val_rel_error": median over the runs that did not diverge (None if all did),
-    "val_rel_errors": per seed (None where diverged), "val_diverged": count}.
-    """
-    res = validate(settings.scenario, np.asarray(xi, dtype=float), settings.val_duration,
-                   settings.val_seeds, record_torque=False)
-    ok = ~res.diverged
-    return {
-        "val_rel_error": float(np.median(res.rel_errors[ok])) if ok.any() else None,
-        "val_rel_errors": [float(e) if k else None for e, k in zip(res.rel_errors, ok)],
-        "val_diverged": int(res.diverged.sum()),
-    }
-
-
 def run_task(settings: SweepSettings, task: Task) -> dict:
     """Run one task and score it; returns its JSON record (plain types only).
 
-    Agent record: agent, seed, budget, best_cost (lowest observed cost), costs (M,), xis (M, 3),
-    xi_star, xi_recommended, rel_errors (M,) (true inertia error after each evaluation),
-    reeval_cost and reeval_cost_recommended (from-start cost of xi* and of the GP-recommended
-    xi over the evaluation seeds), val_rel_error / val_rel_errors / val_diverged (validation of
-    xi*), wall_s (the optimisation), score_wall_s (re-evaluation and validation), settings_key.
+    Agent record: agent, seed, budget, costs (M,), xis (M, 3), rel_errors (M,) (true inertia
+    error after each evaluation); xi_star (the recommended xi), cost_star (its GP-predicted
+    cost), recommendation (the rule); xi_observed_best and best_cost (the lowest observed cost);
+    reeval_cost and reeval_cost_observed_best (from-start cost of xi* and of the observed best
+    over the evaluation seeds); recommended_curve {"evaluations": checkpoints i, "reeval_cost":
+    the re-evaluated cost of the xi the agent would have recommended after i evaluations} (its
+    learning curve, free of the noise of single episodes); xi_recommended and
+    reeval_cost_recommended (= xi_star and reeval_cost, their names before xi_star was the
+    recommendation); val_rel_error / val_rel_errors / val_diverged /
+    val_scale_identified (validation of xi*); wall_s (the optimisation), score_wall_s
+    (re-evaluation and validation), settings_key.
     Grid record: agent "grid", seed None, n_points, xi_star (the best grid point), reeval_cost,
     top (the ten best points with their costs), the validation of xi*, wall_s.
     """
@@ -204,27 +206,44 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
             "xi_star": xis[order[0]].tolist(), "reeval_cost": float(costs[order[0]]),
             "top": [[*xis[k].tolist(), float(costs[k])] for k in order[:10]],
         }
-        record.update(validated_error(settings, xis[order[0]]))
+        record.update(_validation(settings, xis[order[0]]))
         record["wall_s"] = time.perf_counter() - t0
     else:
         result = optimize(task.agent, sc, settings.budget, task.seed, cost=settings.cost,
                           carry_over=settings.carry_over)
         t1 = time.perf_counter()
-        candidates = np.stack([result.xi_star, result.xi_recommended if
-                               result.xi_recommended is not None else result.xi_star])
-        reeval, _ = reevaluate(sc, candidates, settings.eval_seeds, settings.cost)
+        checkpoints = recommendation_checkpoints(settings.budget)
+        path = recommendation_path(sc, result, checkpoints)  # path[-1] is xi_star's index
+        best = int(np.argmin(result.costs))
+        scored = np.unique(np.append(path, best))
+        reeval, _ = reevaluate(sc, result.xis[scored], settings.eval_seeds, settings.cost)
+        cost_of = dict(zip(scored.tolist(), reeval.tolist()))
         record = {
             "agent": task.agent, "seed": task.seed, "budget": int(settings.budget),
-            "best_cost": float(result.cost_star), "costs": result.costs.tolist(),
-            "xis": result.xis.tolist(), "xi_star": result.xi_star.tolist(),
-            "xi_recommended": candidates[1].tolist(), "rel_errors": result.rel_errors.tolist(),
-            "reeval_cost": float(reeval[0]), "reeval_cost_recommended": float(reeval[1]),
+            "costs": result.costs.tolist(), "xis": result.xis.tolist(),
+            "rel_errors": result.rel_errors.tolist(),
+            "xi_star": result.xi_star.tolist(), "cost_star": float(result.cost_star),
+            "recommendation": result.recommendation,
+            "xi_observed_best": result.xi_observed_best.tolist(),
+            "best_cost": float(result.cost_observed_best),
+            "reeval_cost": cost_of[int(path[-1])], "reeval_cost_observed_best": cost_of[best],
+            # The names these had when xi_star was the observed best (contracts: never renamed).
+            "xi_recommended": result.xi_star.tolist(),
+            "reeval_cost_recommended": cost_of[int(path[-1])],
+            "recommended_curve": {"evaluations": checkpoints.tolist(),
+                                  "reeval_cost": [cost_of[int(k)] for k in path]},
         }
-        record.update(validated_error(settings, result.xi_star))
+        record.update(_validation(settings, result.xi_star))
         record["wall_s"] = float(result.wall_s)
         record["score_wall_s"] = time.perf_counter() - t1
     record["settings_key"] = settings.key()
     return record
+
+
+def _validation(settings: SweepSettings, xi) -> dict:
+    """The validation keys of a record (the settings' duration and seeds are in settings.json)."""
+    res = validated_error(settings.scenario, xi, settings.val_duration, settings.val_seeds)
+    return {k: v for k, v in res.items() if k not in ("val_duration", "val_seeds")}
 
 
 def _quartiles(values) -> dict | None:
@@ -254,11 +273,13 @@ def summarize(records: list[dict]) -> dict:
 
     Returns {"grid": the grid record or None, "reference_cost": its re-evaluated cost or None,
     "runs": the agent records (sorted by agent, then seed) with ``regret`` and
-    ``regret_recommended`` added (re-evaluated cost minus the grid optimum's; None without a
-    grid), "agents": {agent: {"runs", "seeds", "best_cost", "reeval_cost",
-    "reeval_cost_recommended", "regret", "regret_recommended", "val_rel_error", "wall_s" (each
-    median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of seeds won on the
-    re-evaluated cost of xi*}}}}.
+    ``regret_observed_best`` added (re-evaluated cost of xi* / of the observed best minus the
+    grid optimum's; None without a grid; ``regret_recommended`` = ``regret``, its old name),
+    "agents": {agent: {"runs", "seeds", "best_cost", "reeval_cost",
+    "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error", "wall_s"
+    (each median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of the shared
+    seeds won on the re-evaluated cost of xi*}, "win_seeds": {other agent: how many seeds that
+    share rests on}}}}.
     """
     grid = next((r for r in records if r["agent"] == GRID), None)
     ref = None if grid is None else grid["reeval_cost"]
@@ -268,7 +289,9 @@ def summarize(records: list[dict]) -> dict:
             by_agent.setdefault(r["agent"], {})[r["seed"]] = {
                 **r,
                 "regret": None if ref is None else r["reeval_cost"] - ref,
-                "regret_recommended": None if ref is None else r["reeval_cost_recommended"] - ref,
+                "regret_observed_best": (None if ref is None
+                                         else r["reeval_cost_observed_best"] - ref),
+                "regret_recommended": None if ref is None else r["reeval_cost"] - ref,
             }
     agents, runs = {}, []
     for name, by_seed in by_agent.items():
@@ -280,15 +303,17 @@ def summarize(records: list[dict]) -> dict:
 
         agents[name] = {
             "runs": len(rows), "seeds": sorted(by_seed),
-            **{key: stat(key) for key in ("best_cost", "reeval_cost", "reeval_cost_recommended",
-                                          "regret", "regret_recommended", "val_rel_error",
+            **{key: stat(key) for key in ("best_cost", "reeval_cost", "reeval_cost_observed_best",
+                                          "regret", "regret_observed_best", "val_rel_error",
                                           "wall_s")},
             "val_diverged": int(sum(r["val_diverged"] for r in rows)),
             "win_rate": {other: win_rate(by_seed, by_agent[other]) for other in by_agent
                          if other != name},
+            "win_seeds": {other: len(set(by_seed) & set(by_agent[other])) for other in by_agent
+                          if other != name},
         }
     return {"grid": grid, "reference_cost": ref, "runs": runs, "agents": agents}
 
 
 __all__ = ["AGENTS", "GRID", "SweepSettings", "Task", "dense_grid", "reevaluate", "run_task",
-           "summarize", "sweep_tasks", "validated_error", "win_rate"]
+           "summarize", "sweep_tasks", "win_rate"]

@@ -1,7 +1,9 @@
-"""Algorithm 1 end to end: run an agent against the excitation env for a budget of M episodes.
+"""Optimise the excitation: run an agent against the excitation env for a budget of M episodes.
 
-`optimize` is what `inertia-gym optimize` and `inertia-gym benchmark` call; `evaluate_xi` scores a
-fixed xi fairly (one episode from the scenario's start, averaged over fresh seeds).
+`optimize` is what `inertia-gym optimize` and `inertia-gym benchmark` call: it returns the xi
+the agent recommends (xi_star) next to the lowest observed cost (Algorithm 1, line 24).
+`evaluate_many` / `evaluate_xi` score a fixed xi fairly (one episode from the scenario's start,
+averaged over fresh seeds); `validated_error` validates it over a long horizon.
 """
 
 from __future__ import annotations
@@ -20,20 +22,33 @@ from inertia_gym.episode import COSTS, run_episode
 from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
 from inertia_gym.simulation import initial_state
+from inertia_gym.validation import validate
 
 AGENTS = tuple(AGENT_REGISTRY)  # "bo", "random", "sac", "td3", "ppo"
 
 
+#: The objective `optimize` and `benchmark` use unless told otherwise, chosen by measurement
+#: (README, "Choosing the default objective"): every evaluation is one episode from the
+#: scenario's start (a stationary objective), scored by the posterior cost (change of
+#: log det P_theta). The paper's Algorithm 1 is ``cost="info", carry_over=True``.
+DEFAULT_COST = "posterior"
+DEFAULT_CARRY_OVER = False
+
+
 @dataclasses.dataclass(frozen=True)
 class OptimizationResult:
-    """One run of Algorithm 1.
+    """One optimisation run: M evaluations of the excitation env and the xi to use.
 
-    xi_star (3,) (a, b, T_on) with the lowest observed cost (Algorithm 1, line 24); cost_star its
-    cost; costs (M,) the cost of each evaluation in order; xis (M, 3) the xi of each evaluation;
-    wall_s the wall-clock seconds of the whole run. rel_errors (M,) the true relative inertia
-    error after each evaluation (the simulation knows the truth). xi_recommended (3,) the
-    evaluated xi with the lowest GP posterior mean cost (inertia_gym.agents.bo.posterior_best): the same
-    noise-robust rule for every agent, next to the paper's argmin of the observed cost.
+    xi_star (3,) (a, b, T_on): the recommended xi, the one a user should apply, picked from
+    the evaluated xi by the agent's rule (:meth:`inertia_gym.agents.base.Agent.recommend`:
+    lowest GP posterior mean cost); cost_star its predicted cost (that posterior mean, in the
+    units of `costs`). xi_observed_best (3,) and cost_observed_best: the evaluation with the
+    lowest observed cost (Algorithm 1, line 24), kept for comparison. costs (M,) the cost of
+    each evaluation in order; xis (M, 3) the xi of each evaluation; wall_s the wall-clock
+    seconds of the whole run; rel_errors (M,) the true relative inertia error after each
+    evaluation (the simulation knows the truth); carry_over: the estimator carried over between
+    evaluations (Algorithm 1) or every evaluation started from the scenario's start;
+    recommendation: the rule behind xi_star, in words.
     """
 
     agent: str
@@ -45,27 +60,41 @@ class OptimizationResult:
     costs: np.ndarray
     xis: np.ndarray
     wall_s: float
-    rel_errors: np.ndarray | None = None
-    xi_recommended: np.ndarray | None = None
+    rel_errors: np.ndarray
+    xi_observed_best: np.ndarray
+    cost_observed_best: float
+    carry_over: bool
+    recommendation: str
+
+    @property
+    def xi_recommended(self) -> np.ndarray:
+        """The recommended xi (3,): xi_star (the name result.json used before xi_star was it)."""
+        return self.xi_star
+
+    @property
+    def star_index(self) -> int:
+        """0-based index of xi_star among the evaluations."""
+        return int(np.flatnonzero(np.all(self.xis == self.xi_star, axis=1))[0])
 
     def to_json(self) -> dict:
         """Return the keys of docs/contracts.md (optimize's result.json) as plain JSON."""
-        out = {
+        return {
             "agent": self.agent,
             "budget": int(self.budget),
             "seed": int(self.seed),
             "cost_kind": self.cost_kind,
+            "carry_over": bool(self.carry_over),
             "xi_star": [float(x) for x in self.xi_star],
             "cost_star": float(self.cost_star),
+            "recommendation": self.recommendation,
+            "xi_recommended": [float(x) for x in self.xi_star],
+            "xi_observed_best": [float(x) for x in self.xi_observed_best],
+            "cost_observed_best": float(self.cost_observed_best),
             "costs": [float(c) for c in self.costs],
             "xis": np.asarray(self.xis, dtype=float).tolist(),
+            "rel_errors": [float(e) for e in self.rel_errors],
             "wall_s": float(self.wall_s),
         }
-        if self.rel_errors is not None:
-            out["rel_errors"] = [float(e) for e in self.rel_errors]
-        if self.xi_recommended is not None:
-            out["xi_recommended"] = [float(x) for x in self.xi_recommended]
-        return out
 
 
 class EvaluationLog(gym.Wrapper):
@@ -103,7 +132,8 @@ def torch_threads(n: int = 1):
         torch.set_num_threads(before)
 
 
-def make_env(sc: Scenario, budget: int, cost: str = "info", carry_over: bool = True) -> gym.Env:
+def make_env(sc: Scenario, budget: int, cost: str = DEFAULT_COST,
+             carry_over: bool = DEFAULT_CARRY_OVER) -> gym.Env:
     """``gym.make`` of the excitation env on `sc`, truncated after `budget` steps."""
     return gym.make(ENV_ID, scenario=sc, cost=cost, budget=budget, carry_over=carry_over,
                     max_episode_steps=budget)
@@ -116,20 +146,21 @@ def _check_common(sc: Scenario, cost: str) -> None:
         raise ConfigError(f"cost must be one of {COSTS}, got {cost!r}")
 
 
-def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = "info",
-             progress: bool = False, carry_over: bool = True,
+def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = DEFAULT_COST,
+             progress: bool = False, carry_over: bool = DEFAULT_CARRY_OVER,
              **agent_options) -> OptimizationResult:
-    """Run `agent` for `budget` episodes of the env built on `sc` (Algorithm 1).
+    """Run `agent` for `budget` episodes of the env built on `sc`; recommend the xi to use.
 
     agent : one of AGENTS.  budget : M >= 1 evaluations.  seed : integer >= 0; it seeds the env
     (dwell times, measurement times and noise) and the agent.  cost : "info" (the paper's J) or
-    "posterior" (change of log det P_theta).  carry_over : False restarts the estimator at
-    every evaluation (a stationary objective) instead of Algorithm 1's carry-over.
-    agent_options : passed to the agent's constructor (e.g. ``kappa`` or ``refit_every``).
+    "posterior" (change of log det P_theta).  carry_over : True carries the estimator over from
+    one evaluation to the next (Algorithm 1), False restarts it at every evaluation (a stationary
+    objective).  The defaults are DEFAULT_COST and DEFAULT_CARRY_OVER; the paper's Algorithm 1
+    is cost="info", carry_over=True.  agent_options : passed to the agent's constructor (e.g.
+    ``kappa`` or ``refit_every``).
     """
     from inertia_gym.agents import make_agent
-    from inertia_gym.agents.bo import posterior_best
-    from inertia_gym.envs.excitation import action_to_xi, xi_to_action
+    from inertia_gym.envs.excitation import xi_to_action
 
     _check_common(sc, cost)
     if agent not in AGENTS:
@@ -142,19 +173,67 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = "info
     t0 = time.perf_counter()
     env = EvaluationLog(make_env(sc, budget, cost, carry_over))
     with torch_threads(1):
-        make_agent(agent, seed, budget, **agent_options).run(env, budget, progress=progress)
+        runner = make_agent(agent, seed, budget, **agent_options)
+        runner.run(env, budget, progress=progress)
         env.close()
         costs, xis = np.array(env.costs[:budget]), np.array(env.xis[:budget])
         actions = np.array([xi_to_action(sc, x) for x in xis], dtype=float)
-        recommended = (action_to_xi(sc, posterior_best(actions, costs, seed)) if budget >= 2
-                       else None)
+        star, cost_star = runner.recommend(actions, costs)
     best = int(np.argmin(costs))
     return OptimizationResult(
-        agent=agent, budget=int(budget), seed=seed, cost_kind=cost, xi_star=xis[best],
-        cost_star=float(costs[best]), costs=costs, xis=xis,
-        wall_s=time.perf_counter() - t0, rel_errors=np.array(env.rel_errors[:budget]),
-        xi_recommended=recommended,
+        agent=agent, budget=int(budget), seed=seed, cost_kind=cost, xi_star=xis[star],
+        cost_star=cost_star, costs=costs, xis=xis, wall_s=time.perf_counter() - t0,
+        rel_errors=np.array(env.rel_errors[:budget]), xi_observed_best=xis[best],
+        cost_observed_best=float(costs[best]), carry_over=bool(carry_over),
+        recommendation=runner.recommendation_rule,
     )
+
+
+def recommendation_checkpoints(budget: int, count: int = 8) -> np.ndarray:
+    """Evaluation counts (1-based, ascending, the last = budget) at which a learning curve
+    asks for the recommendation: about `count` of them, spaced geometrically from 2.
+    """
+    start = min(2, budget)
+    return np.unique(np.round(np.geomspace(start, budget, num=min(budget, count))).astype(int))
+
+
+def recommendation_path(sc: Scenario, result: OptimizationResult, checkpoints) -> np.ndarray:
+    """Index of the recommended evaluation had the run stopped after each of `checkpoints`.
+
+    The agent's own rule (:meth:`~inertia_gym.agents.base.Agent.recommend`) applied to the first
+    i evaluations of `result` (a run on `sc`), for i in checkpoints (1-based counts). Returns
+    (len(checkpoints),) indices; at i = budget it is xi_star's.
+    """
+    from inertia_gym.agents import make_agent
+    from inertia_gym.envs.excitation import xi_to_action
+
+    agent = make_agent(result.agent, result.seed, result.budget)
+    actions = np.array([xi_to_action(sc, x) for x in result.xis], dtype=float)
+    with torch_threads(1):
+        return np.array([agent.recommend(actions[:i], result.costs[:i])[0]
+                         for i in checkpoints], dtype=int)
+
+
+def validated_error(sc: Scenario, xi, duration: float, seeds) -> dict:
+    """Long-horizon validation of xi (3,) (None: no torque): does applying it identify the inertia?
+
+    Runs :func:`~inertia_gym.validation.validate` for `duration` s on each of `seeds` (no torque
+    record, no batch-ML refinement) and returns {"val_rel_error": median of ||J_hat - J||_F /
+    ||J||_F over the runs that did not diverge (None if all did), "val_rel_errors": per seed
+    (None where diverged), "val_diverged": count, "val_scale_identified": the scale was
+    identified on most runs that did not diverge, "val_duration": s, "val_seeds": list}.
+    """
+    xi = None if xi is None else np.asarray(xi, dtype=float)
+    res = validate(sc, xi, duration, seeds, record_torque=False)
+    ok = ~res.diverged
+    return {
+        "val_rel_error": float(np.median(res.rel_errors[ok])) if ok.any() else None,
+        "val_rel_errors": [float(e) if k else None for e, k in zip(res.rel_errors, ok)],
+        "val_diverged": int(res.diverged.sum()),
+        "val_scale_identified": bool(ok.any() and res.scale_identified[ok].mean() > 0.5),
+        "val_duration": float(duration),
+        "val_seeds": [int(s) for s in res.seeds],
+    }
 
 
 def evaluate_many(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,6 @@
-"""Figures written to files (matplotlib, Agg backend): the paper's Figures 2 and 3."""
+"""Every figure the package writes (matplotlib, Agg backend): the paper's Figures 1-3,
+identify's figures, and the optimisation and benchmark figures.
+"""
 
 from __future__ import annotations
 
@@ -117,3 +119,177 @@ def plot_identification(result, folder: str | Path) -> list[Path]:
     fig.savefig(inertia_path, dpi=110)
     plt.close(fig)
     return [fit_path, inertia_path]
+
+
+# --- optimisation and benchmark figures ----------------------------------------------------
+
+#: Evaluations in the moving mean of the cost curves (where an agent is sampling).
+MOVING_WINDOW = 10
+
+
+def cost_label(cost_kind: str) -> str:
+    """Axis label of a cost: "info" (the paper's J) or "posterior" (change of log det P_theta)."""
+    return "cost J (info)" if cost_kind == "info" else "change of log det P_theta (posterior)"
+
+
+def moving_mean(costs, window: int = MOVING_WINDOW) -> np.ndarray:
+    """Mean of the last `window` costs at each evaluation (fewer at the start); (..., M) -> same.
+
+    It shows where an agent samples: flat for random search, falling for an agent that learns.
+    """
+    c = np.asarray(costs, dtype=float)
+    csum = np.cumsum(c, axis=-1)
+    shifted = np.concatenate([np.zeros(c.shape[:-1] + (window,)), csum], axis=-1)[..., :c.shape[-1]]
+    counts = np.minimum(np.arange(1, c.shape[-1] + 1), window)
+    return (csum - shifted) / counts
+
+
+def plot_costs(result, path: str | Path) -> Path:
+    """Figure 1 for one optimisation run: cost of each evaluation, its running best and moving
+    mean, xi* (the recommended xi) marked with its predicted cost. result: OptimizationResult.
+    """
+    path = Path(path)
+    i = np.arange(1, len(result.costs) + 1)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    ax.plot(i, result.costs, color="k", lw=0.8, marker=".", ms=3, label="cost of evaluation i")
+    ax.plot(i, np.minimum.accumulate(result.costs), color="g", lw=2.0,
+            label="running best (observed)")
+    ax.plot(i, moving_mean(result.costs), color="C0", lw=2.0,
+            label=f"mean of the last {MOVING_WINDOW}")
+    ax.plot(result.star_index + 1, result.cost_star, "r*", ms=14,
+            label="xi* (recommended) at its predicted cost")
+    ax.set_xlabel("function evaluation i")
+    ax.set_ylabel(cost_label(result.cost_kind))
+    xi = ", ".join(f"{x:.3g}" for x in result.xi_star)
+    mode = "carry-over (Algorithm 1)" if result.carry_over else "from-start episodes"
+    ax.set_title(f"{result.agent}, seed {result.seed}, {mode}: xi* = ({xi})", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_cost_curves(runs: list[dict], summary: dict, settings, path: str | Path) -> Path:
+    """Learning curves of a benchmark, per agent (median over seeds, band 25-75 %).
+
+    Left: the re-evaluated cost (mean over the fresh re-evaluation seeds, from the scenario's
+    start) of the xi the agent would recommend after i evaluations (records'
+    ``recommended_curve``), with the grid optimum for scale: what the agent has learned, free
+    of single-episode noise. Right: running best of the observed cost, the curve of the
+    paper's Figure 1 (under carry-over it is set by the first episodes). runs: benchmark
+    records; summary: benchmark.summarize(); settings: benchmark.SweepSettings.
+    """
+    path = Path(path)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for k, name in enumerate(summary["agents"]):
+        rows = [r for r in runs if r["agent"] == name]
+        learned = np.array([r["recommended_curve"]["reeval_cost"] for r in rows], dtype=float)
+        steps = rows[0]["recommended_curve"]["evaluations"]
+        observed = np.minimum.accumulate(np.array([r["costs"] for r in rows], dtype=float), 1)
+        for ax, i, curves in ((axes[0], steps, learned),
+                              (axes[1], np.arange(1, observed.shape[1] + 1), observed)):
+            ax.plot(i, np.median(curves, 0), color=f"C{k}", lw=2, marker="o" if ax is axes[0]
+                    else None, ms=4, label=name)
+            ax.fill_between(i, np.quantile(curves, 0.25, 0), np.quantile(curves, 0.75, 0),
+                            color=f"C{k}", alpha=0.2)
+    if summary["reference_cost"] is not None:
+        axes[0].axhline(summary["reference_cost"], color="k", ls=":", label="grid optimum")
+    n_eval = len(settings.eval_seeds)
+    axes[0].set_title(f"recommended xi after i evaluations: its cost re-evaluated\n"
+                      f"from the start (mean of {n_eval} fresh episodes)", fontsize=10)
+    axes[0].set_xscale("log")
+    axes[1].set_title("running best of the observed cost (single noisy episodes)", fontsize=10)
+    axes[0].set_ylabel(cost_label(settings.cost))
+    mode = "carry-over (Algorithm 1)" if settings.carry_over else "from-start episodes"
+    fig.suptitle(f"learning curves, {mode}, cost {settings.cost} (median over seeds, band "
+                 f"25-75 %)")
+    for ax in axes:
+        ax.set_xlabel("evaluation i")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _per_agent_strip(ax, runs, agents, key):
+    """Dots per seed and a bar at the median of runs' `key`, one column per agent."""
+    data = [[r[key] for r in runs if r["agent"] == a and r[key] is not None] for a in agents]
+    for k, values in enumerate(data):
+        if values:
+            x = k + np.linspace(-0.15, 0.15, len(values))
+            ax.scatter(x, values, color=f"C{k}", s=14, alpha=0.7)
+            ax.hlines(np.median(values), k - 0.3, k + 0.3, color=f"C{k}", lw=2)
+    ax.set_xticks(range(len(agents)), agents)
+
+
+def plot_regret(runs: list[dict], summary: dict, path: str | Path) -> Path | None:
+    """Regret of xi* (recommended) and of the observed best per agent (dots: seeds; bar:
+    median); None without a grid reference.
+    """
+    if summary["reference_cost"] is None:
+        return None
+    path = Path(path)
+    agents = list(summary["agents"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
+    for ax, key, title in ((axes[0], "regret", "xi* (recommended: lowest GP posterior mean)"),
+                           (axes[1], "regret_observed_best", "observed best (lowest observed cost)")):
+        _per_agent_strip(ax, runs, agents, key)
+        ax.axhline(0.0, color="k", ls=":", lw=1)
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0].set_ylabel("regret: re-evaluated cost − grid optimum")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_validated_error(runs: list[dict], summary: dict, path: str | Path) -> Path:
+    """Validated relative inertia error of xi* per agent (dots: seeds; bar: median)."""
+    path = Path(path)
+    agents = list(summary["agents"])
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    _per_agent_strip(ax, runs, agents, "val_rel_error")
+    grid = summary["grid"]
+    if grid is not None and grid["val_rel_error"] is not None:
+        ax.axhline(grid["val_rel_error"], color="k", ls=":", label="grid optimum's xi")
+        ax.legend()
+    ax.set_yscale("log")
+    ax.set_ylabel("||J_hat − J||_F / ||J||_F after validation")
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_cost_vs_error(mean_costs: dict, validated_errors, episode_errors, correlations: dict,
+                       path: str | Path) -> Path:
+    """Does an episode's cost predict the inertia error? One panel per cost kind.
+
+    mean_costs {kind: (K,) mean from-start cost of each xi}; validated_errors (K,) median error
+    after a long validation of each xi; episode_errors (K,) median error at the end of its
+    episode; correlations {kind: {"rho_episode_error_xi_means", "rho_validated_error_1000s"}}
+    (Spearman rho, printed in the titles).
+    """
+    path = Path(path)
+    fig, axes = plt.subplots(1, len(mean_costs), figsize=(5.5 * len(mean_costs), 4.5),
+                             squeeze=False)
+    for ax, (kind, cost) in zip(axes[0], mean_costs.items()):
+        ax.scatter(cost, validated_errors, s=14, label="long validation (median)")
+        ax.scatter(cost, episode_errors, s=14, marker="x", label="end of the episode (median)")
+        ax.set_yscale("log")
+        ax.set_xlabel(f"{kind} cost of one episode from the start (mean over seeds)")
+        ax.set_ylabel("relative inertia error")
+        r = correlations[kind]
+        ax.set_title(f"{kind}: rho = {r['rho_episode_error_xi_means']:.2f} (episode), "
+                     f"{r['rho_validated_error_1000s']:.2f} (validation)", fontsize=9)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

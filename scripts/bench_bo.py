@@ -35,7 +35,7 @@ from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from inertia_gym.agents.base import AskTellAgent
 from inertia_gym.agents.bo import BOAgent, posterior_best
-from inertia_gym.envs.excitation import action_to_xi, xi_to_action
+from inertia_gym.envs.excitation import xi_to_action
 from inertia_gym.optimization import EvaluationLog, evaluate_xi, make_env, torch_threads
 from inertia_gym.scenario import Scenario
 
@@ -75,13 +75,13 @@ class StockBO(AskTellAgent):
 
 
 def run_loop(agent, sc, budget):
-    env = EvaluationLog(make_env(sc, budget, carry_over=False))
+    env = EvaluationLog(make_env(sc, budget, cost="info", carry_over=False))
     t0 = time.perf_counter()
     agent.run(env, budget)
     wall = time.perf_counter() - t0
     costs = np.array(env.costs)
     actions = np.array([xi_to_action(sc, x) for x in env.xis], dtype=float)
-    rec = action_to_xi(sc, posterior_best(actions, costs, agent.seed))
+    rec = np.asarray(env.xis[posterior_best(actions, costs, agent.seed)[0]])
     return {"wall_s": wall, "best_cost": float(costs.min()),
             "xi_best": env.xis[int(np.argmin(costs))].tolist(), "xi_rec": rec.tolist(),
             "reeval_rec": evaluate_xi(sc, rec, EVAL_SEEDS), "costs": costs.tolist()}

@@ -17,19 +17,16 @@ import json
 from pathlib import Path
 
 import gymnasium as gym
-import matplotlib
+import numpy as np
+import torch
+from scipy.stats import spearmanr
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from scipy.stats import spearmanr  # noqa: E402
-
-import inertia_gym  # noqa: E402,F401
-from inertia_gym.envs import ENV_ID  # noqa: E402
-from inertia_gym.optimization import evaluate_many  # noqa: E402
-from inertia_gym.scenario import Scenario  # noqa: E402
-from inertia_gym.validation import validate  # noqa: E402
+import inertia_gym  # noqa: F401
+from inertia_gym.envs import ENV_ID
+from inertia_gym.optimization import evaluate_many
+from inertia_gym.plots import plot_cost_vs_error
+from inertia_gym.scenario import Scenario
+from inertia_gym.validation import validate
 
 
 def rho(x, y):
@@ -72,7 +69,8 @@ def main():
     # B: along Algorithm 1 with random xi.
     rows = {"info": [], "posterior": [], "err": []}
     for seed in range(args.runs):
-        env = gym.make(ENV_ID, scenario=sc, budget=args.budget, max_episode_steps=args.budget)
+        env = gym.make(ENV_ID, scenario=sc, budget=args.budget, max_episode_steps=args.budget,
+                       carry_over=True)
         env.reset(seed=seed)
         rng = np.random.default_rng([seed, 99])
         for i in range(args.budget):
@@ -88,22 +86,8 @@ def main():
     }
     print(json.dumps(report, indent=1))
     (out / "cost_vs_error.json").write_text(json.dumps(report, indent=1))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    for ax, kind in zip(axes, ("info", "posterior")):
-        ax.scatter(costs[kind].mean(1), val_err, s=14, label="1000 s validation (median)")
-        ax.scatter(costs[kind].mean(1), np.median(errs, 1), s=14, marker="x",
-                   label="end of the episode (median)")
-        ax.set_yscale("log")
-        ax.set_xlabel(f"{kind} cost of one episode from the start (mean over seeds)")
-        ax.set_ylabel("relative inertia error")
-        r = report["A_from_start"][kind]
-        ax.set_title(f"{kind}: rho = {r['rho_episode_error_xi_means']:.2f} (episode), "
-                     f"{r['rho_validated_error_1000s']:.2f} (1000 s)", fontsize=9)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "cost_vs_error.png", dpi=110)
-    plt.close(fig)
-
+    plot_cost_vs_error({k: costs[k].mean(1) for k in ("info", "posterior")}, val_err,
+                       np.median(errs, 1), report["A_from_start"], out / "cost_vs_error.png")
 
 if __name__ == "__main__":
     main()

@@ -1,7 +1,7 @@
 """Reproduce the paper's simulation section: Algorithm 1 (M = 100), Figures 1-3, side by side.
 
-1. optimize: BO with PI/kappa on the paper's scenario, M = 100 (Figure 1: cost per evaluation and
-   running best);
+1. optimize: BO with PI/kappa on the paper's scenario, M = 100, as Algorithm 1 runs it
+   (carry-over, info cost; Figure 1: cost per evaluation and running best);
 2. validate xi* over 1000 s on 16 seeds (Figure 2), for xi* by Algorithm 1's rule (lowest
    observed cost) and for the GP-recommended xi;
 3. informative (xi*) against non-informative (no torque) input (Figure 3);
@@ -21,9 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.commands.optimize import plot_costs
 from inertia_gym.optimization import evaluate_many, optimize
-from inertia_gym.plots import plot_informative_vs_not, plot_validation
+from inertia_gym.plots import plot_costs, plot_informative_vs_not, plot_validation
 from inertia_gym.scenario import Scenario
 from inertia_gym.validation import validate
 
@@ -47,11 +46,11 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sc = Scenario()
-    res = optimize("bo", sc, args.budget, args.seed, progress=True)
+    res = optimize("bo", sc, args.budget, args.seed, cost="info", carry_over=True, progress=True)
     plot_costs(res, out / "figure1_bo_cost.png")
     seeds = range(args.val_seeds)
-    val_star = validate(sc, res.xi_star, 1000.0, seeds)
-    val_rec = validate(sc, res.xi_recommended, 1000.0, seeds)
+    val_star = validate(sc, res.xi_observed_best, 1000.0, seeds)
+    val_rec = validate(sc, res.xi_star, 1000.0, seeds)
     val_none = validate(sc, None, 1000.0, seeds)
     plot_validation(val_star, out / "figure2_validation_xi_star.png")
     plot_validation(val_rec, out / "figure2_validation_xi_rec.png")
@@ -60,11 +59,11 @@ def main():
     paper_val = validate(wide, PAPER_XI, 1000.0, seeds)
     from_start = {
         name: float(evaluate_many(wide, xi[None], EVAL_SEEDS)[0].mean())
-        for name, xi in (("xi_star", res.xi_star), ("xi_rec", res.xi_recommended),
+        for name, xi in (("xi_star", res.xi_observed_best), ("xi_rec", res.xi_star),
                          ("paper_xi", PAPER_XI))
     }
     episode_windows = float(evaluate_many(wide.replace(window_set="episode"),
-                                          res.xi_star[None], EVAL_SEEDS)[0].mean())
+                                          res.xi_observed_best[None], EVAL_SEEDS)[0].mean())
     s_star, s_rec, s_none, s_paper = (v.summary() for v in (val_star, val_rec, val_none,
                                                              paper_val))
     numbers = {
@@ -86,9 +85,9 @@ bounds of xi = (a, b, T_on): {fmt(lo)} to {fmt(hi)} (the paper's formula a <= ta
 
 | quantity | paper | here | why they differ |
 |---|---|---|---|
-| xi* (Algorithm 1, lowest observed J) | (3.76, 3.87, 0.99) | {fmt(res.xi_star)} (evaluation {numbers['argmin_evaluation']} of {args.budget}) | a = 3.76 violates the paper's own bound a <= tau_max/|w0| = {hi[0]:.3f}; the first episode, run with the worst inertia guess, has by far the lowest J (below) |
-| GP-recommended xi (lowest posterior mean) | - | {fmt(res.xi_recommended)} | what BO learned; median xi of its last {args.budget // 2} evaluations: {fmt(np.median(res.xis[args.budget // 2:], axis=0))} |
-| J(xi*) | 14 | {res.cost_star:.3g} (median J over evaluations {np.median(costs):.3g}, last 10: {costs[-10:].mean():.3g}) | J's absolute level depends on unreported choices (eps, eps_lambda, beta, which windows enter eq. 24); with every window of the episode J(xi*) = {episode_windows:.3g} from the start |
+| xi* (Algorithm 1, lowest observed J) | (3.76, 3.87, 0.99) | {fmt(res.xi_observed_best)} (evaluation {numbers['argmin_evaluation']} of {args.budget}) | a = 3.76 violates the paper's own bound a <= tau_max/|w0| = {hi[0]:.3f}; the first episode, run with the worst inertia guess, has by far the lowest J (below) |
+| GP-recommended xi (lowest posterior mean) | - | {fmt(res.xi_star)} | what BO learned; median xi of its last {args.budget // 2} evaluations: {fmt(np.median(res.xis[args.budget // 2:], axis=0))} |
+| J(xi*) | 14 | {res.cost_observed_best:.3g} (median J over evaluations {np.median(costs):.3g}, last 10: {costs[-10:].mean():.3g}) | J's absolute level depends on unreported choices (eps, eps_lambda, beta, which windows enter eq. 24); with every window of the episode J(xi*) = {episode_windows:.3g} from the start |
 | median inertia error, 1000 s, xi* | converges (Fig. 2) | {s_star['median_rel_error']:.3%} over {args.val_seeds} seeds, {s_star['diverged']} diverged | - |
 | median inertia error, 1000 s, GP-recommended xi | - | {s_rec['median_rel_error']:.3%} | - |
 | median inertia error, 1000 s, paper's xi* (a bound widened to 4) | converges | {s_paper['median_rel_error']:.3%} | - |

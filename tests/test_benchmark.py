@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 
+from inertia_gym.agents.random_search import RandomAgent
 from inertia_gym.benchmark import (
     GRID,
     SweepSettings,
@@ -14,8 +15,11 @@ from inertia_gym.benchmark import (
     sweep_tasks,
     win_rate,
 )
+from inertia_gym.benchmark_report import explanation, table_markdown
+from inertia_gym.envs.excitation import xi_to_action
 from inertia_gym.errors import ConfigError
-from inertia_gym.optimization import evaluate_many, optimize
+from inertia_gym.optimization import evaluate_many, optimize, recommendation_checkpoints
+from inertia_gym.plots import moving_mean
 from inertia_gym.scenario import Scenario
 from inertia_gym.validation import validate
 
@@ -74,22 +78,36 @@ def test_settings_key_changes_with_anything_that_changes_a_result(tiny):
     assert SweepSettings.from_json(json.loads(json.dumps(tiny.to_json()))) == tiny
     assert SweepSettings(scenario=Scenario(), **TINY).key() == tiny.key()
     others = [SweepSettings(scenario=Scenario(), **{**TINY, "budget": 11}),
-              SweepSettings(scenario=Scenario(), **TINY, carry_over=False),
-              SweepSettings(scenario=Scenario(), **TINY, cost="posterior"),
+              SweepSettings(scenario=Scenario(), **TINY, carry_over=True),
+              SweepSettings(scenario=Scenario(), **TINY, cost="info"),
               SweepSettings(scenario=Scenario(tau_max=4.0), **TINY)]
     assert len({tiny.key(), *(o.key() for o in others)}) == 5
 
 
 def test_agent_task_scores_its_xi_by_the_definitions(tiny):
     rec = run_task(tiny, Task("random", 1))
-    again = optimize("random", tiny.scenario, tiny.budget, 1)
+    again = optimize("random", tiny.scenario, tiny.budget, 1, cost=tiny.cost,
+                     carry_over=tiny.carry_over)
     assert rec["costs"] == pytest.approx(list(again.costs), rel=1e-12)
     assert rec["xi_star"] == pytest.approx(list(again.xi_star))
+    assert rec["cost_star"] == pytest.approx(again.cost_star, rel=1e-9)
+    assert rec["xi_observed_best"] == pytest.approx(rec["xis"][int(np.argmin(rec["costs"]))])
     assert rec["best_cost"] == pytest.approx(min(rec["costs"]))
-    costs, _ = evaluate_many(tiny.scenario, np.array([rec["xi_star"], rec["xi_recommended"]]),
-                             tiny.eval_seeds)
+    costs, _ = evaluate_many(tiny.scenario, np.array([rec["xi_star"], rec["xi_observed_best"]]),
+                             tiny.eval_seeds, tiny.cost)
     assert rec["reeval_cost"] == pytest.approx(costs[0].mean(), rel=1e-12)
-    assert rec["reeval_cost_recommended"] == pytest.approx(costs[1].mean(), rel=1e-12)
+    assert rec["reeval_cost_observed_best"] == pytest.approx(costs[1].mean(), rel=1e-12)
+    assert rec["xi_recommended"] == rec["xi_star"]
+    assert rec["reeval_cost_recommended"] == rec["reeval_cost"]
+    # The learning curve: the recommendation after the first i evaluations, re-evaluated.
+    curve = rec["recommended_curve"]
+    assert curve["evaluations"][-1] == tiny.budget and curve["reeval_cost"][-1] == rec["reeval_cost"]
+    i = curve["evaluations"][0]
+    agent = RandomAgent(1)
+    first, _ = agent.recommend([xi_to_action(tiny.scenario, x) for x in rec["xis"][:i]],
+                               rec["costs"][:i])
+    c, _ = evaluate_many(tiny.scenario, np.array([rec["xis"][first]]), tiny.eval_seeds, tiny.cost)
+    assert curve["reeval_cost"][0] == pytest.approx(c[0].mean(), rel=1e-12)
     val = validate(tiny.scenario, np.array(rec["xi_star"]), tiny.val_duration, tiny.val_seeds,
                    record_torque=False)
     assert rec["val_rel_error"] == pytest.approx(float(np.median(val.rel_errors)), rel=1e-12)
@@ -100,7 +118,7 @@ def test_agent_task_scores_its_xi_by_the_definitions(tiny):
 def test_grid_task_keeps_the_best_grid_point(tiny):
     rec = run_task(tiny, Task(GRID, None))
     xis = dense_grid(tiny.scenario, tiny.grid_points)
-    costs, _ = evaluate_many(tiny.scenario, xis, tiny.eval_seeds)
+    costs, _ = evaluate_many(tiny.scenario, xis, tiny.eval_seeds, tiny.cost)
     best = int(np.argmin(costs.mean(axis=1)))
     assert rec["n_points"] == 8
     assert rec["xi_star"] == pytest.approx(list(xis[best]))
@@ -110,7 +128,7 @@ def test_grid_task_keeps_the_best_grid_point(tiny):
 
 def _rec(agent, seed, reeval, best=1.0, val=0.01):
     return {"agent": agent, "seed": seed, "reeval_cost": reeval,
-            "reeval_cost_recommended": reeval + 0.5, "best_cost": best, "val_rel_error": val,
+            "reeval_cost_observed_best": reeval + 0.5, "best_cost": best, "val_rel_error": val,
             "val_diverged": 0, "wall_s": 1.0}
 
 
@@ -133,8 +151,41 @@ def test_summary_states_regret_against_the_grid_optimum():
     assert regret["median"] == pytest.approx(np.median(expected))
     assert regret["q25"] == pytest.approx(np.quantile(expected, 0.25))
     assert regret["q75"] == pytest.approx(np.quantile(expected, 0.75))
-    assert s["agents"]["bo"]["regret_recommended"]["median"] == pytest.approx(np.median(expected) + 0.5)
+    assert s["agents"]["bo"]["regret_observed_best"]["median"] == pytest.approx(
+        np.median(expected) + 0.5)
     assert s["agents"]["bo"]["win_rate"]["random"] == 1.0
+    assert s["agents"]["bo"]["win_seeds"] == {"random": 4}
     assert s["agents"]["random"]["win_rate"]["bo"] == 0.0
     no_grid = summarize(recs)
     assert no_grid["reference_cost"] is None and no_grid["agents"]["bo"]["regret"] is None
+
+
+def test_report_explains_regret_the_grid_row_and_the_seeds_behind_win_rates(tiny):
+    grid = {"agent": GRID, "seed": None, "reeval_cost": 0.25, "n_points": 8,
+            "val_rel_error": 0.15, "wall_s": 3.0}
+    recs = [_rec("bo", s, c) for s, c in enumerate([1.0, 2.0, 3.0])]
+    recs += [_rec("random", s, c) for s, c in enumerate([2.0, 3.0])]
+    s = summarize([grid, *recs])
+    table = table_markdown(s)
+    assert "| grid (8 xi) | 1 | – | 0.25 | 0 (the reference) |" in table
+    assert "| bo | – | 1.00 (2) |" in table and "| random | 0.00 (2) | – |" in table
+    text = explanation(tiny, s)
+    assert "**regret** = re-evaluated cost" in text and "**the grid row**" in text
+    assert f"{8 * len(tiny.eval_seeds)} episodes" in text
+    assert "win rates** rest on 2 seed(s)" in text and "(0.5 here)" in text
+    assert "grid row" not in explanation(tiny, summarize(recs))
+
+
+def test_moving_mean_is_the_mean_of_the_last_window_costs():
+    rng = np.random.default_rng(0)
+    costs = rng.normal(size=(3, 25))
+    got = moving_mean(costs, window=10)
+    for i in range(25):
+        np.testing.assert_allclose(got[:, i], costs[:, max(0, i - 9):i + 1].mean(axis=1),
+                                   rtol=1e-12)
+
+
+@pytest.mark.parametrize("budget, expected", [(1, [1]), (2, [2]), (5, [2, 3, 4, 5]),
+                                              (100, [2, 3, 6, 11, 19, 33, 57, 100])])
+def test_recommendation_checkpoints_end_at_the_budget(budget, expected):
+    assert recommendation_checkpoints(budget).tolist() == expected

@@ -19,9 +19,29 @@ class Agent(abc.ABC):
     """
 
     name: str = "agent"
+    #: How :meth:`recommend` picks the xi a user should use, in words (reports print it).
+    recommendation_rule: str = ("the evaluated xi with the lowest GP posterior mean cost "
+                                "(a GP fitted to all M evaluations)")
 
     def __init__(self, seed: int):
         self.seed = int(seed)
+
+    def recommend(self, actions, costs) -> tuple[int, float]:
+        """The evaluation whose xi a user should use: (its index, its predicted cost).
+
+        actions (M, 3) in [-1, 1] and costs (M,) are the run's evaluations in order. The rule,
+        the same for every agent so that agents are compared on one footing: the evaluated
+        point with the lowest posterior mean of a GP fitted to all M costs (seeded by the
+        agent's seed), with that posterior mean as its predicted cost, in the costs' units.
+        Unlike the lowest observed cost (Algorithm 1, line 24) it does not chase one lucky
+        noisy draw. With M = 1 the only evaluation and its cost.
+        """
+        costs = np.asarray(costs, dtype=float)
+        if len(costs) == 1:
+            return 0, float(costs[0])
+        from inertia_gym.agents.bo import posterior_best
+
+        return posterior_best(actions, costs, self.seed)
 
     @abc.abstractmethod
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:

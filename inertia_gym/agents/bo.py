@@ -56,11 +56,13 @@ def hyperparameters(model: SingleTaskGP) -> dict:
             if k.startswith(_HYPER_PREFIXES)}
 
 
-def posterior_best(actions, costs, seed: int = 0) -> np.ndarray:
-    """Return the evaluated action (3,) whose GP posterior mean cost is lowest.
+def posterior_best(actions, costs, seed: int = 0) -> tuple[int, float]:
+    """Return (index, posterior mean cost) of the evaluated action with the lowest GP mean.
 
-    A recommendation that does not chase one lucky noisy evaluation; it depends only on the
-    history, so it can score any agent's evaluations the same way. actions (n, 3) in [-1, 1].
+    actions (n, 3) in [-1, 1], costs (n,), n >= 2. A recommendation that does not chase one lucky
+    noisy evaluation: a GP like BO's surrogate (fitted afresh, seeded) smooths the costs, and the
+    evaluated point it predicts cheapest is returned with that prediction (in the costs' units).
+    It depends only on the history, so it scores any agent's evaluations the same way.
     """
     actions = np.asarray(actions, dtype=float)
     x = torch.tensor((actions + 1.0) / 2.0, dtype=torch.double)
@@ -70,7 +72,8 @@ def posterior_best(actions, costs, seed: int = 0) -> np.ndarray:
         model = fit_gp(x, y)
         with torch.no_grad():
             mean = model.posterior(x).mean.squeeze(-1).numpy()
-    return actions[int(np.argmin(mean))]
+    best = int(np.argmin(mean))
+    return best, float(mean[best])
 
 
 class BOAgent(AskTellAgent):

@@ -26,6 +26,30 @@ def add_scenario_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_objective_options(parser: argparse.ArgumentParser) -> None:
+    """--cost and --carry-over / --restart-each-episode: what one evaluation of xi is.
+
+    Defaults: the measured ones of inertia_gym.optimization (DEFAULT_COST, DEFAULT_CARRY_OVER);
+    ``--carry-over --cost info`` is the paper's Algorithm 1. Sets args.cost and args.carry_over.
+    """
+    from inertia_gym.episode import COSTS
+    from inertia_gym.optimization import DEFAULT_CARRY_OVER, DEFAULT_COST
+
+    parser.add_argument("--cost", choices=COSTS, default=DEFAULT_COST,
+                        help=f"posterior: change of log det P_theta over the episode; info: the "
+                             f"paper's J ({DEFAULT_COST})")
+    objective = parser.add_mutually_exclusive_group()
+    default = "carry-over" if DEFAULT_CARRY_OVER else "restart-each-episode"
+    objective.add_argument("--carry-over", dest="carry_over", action="store_true",
+                           help="the estimator carries over from one evaluation to the next, "
+                                "as in the paper's Algorithm 1 (with --cost info: Algorithm 1 "
+                                f"itself) (default: {default})")
+    objective.add_argument("--restart-each-episode", dest="carry_over", action="store_false",
+                           help="every evaluation is one episode from the scenario's start: a "
+                                f"stationary objective (default: {default})")
+    parser.set_defaults(carry_over=DEFAULT_CARRY_OVER)
+
+
 def load_scenario(args: argparse.Namespace) -> Scenario:
     """The scenario selected by --scenario; its implausibilities (ScenarioWarning) are printed
     on stderr as one line each, "warning: ...".

@@ -1,88 +1,80 @@
-"""`inertia-gym optimize`: Algorithm 1 (BO-EKF episodic excitation) or a baseline agent.
+"""`inertia-gym optimize`: optimise the excitation xi = (a, b, T_on) with an agent, validate it.
 
 Writes DIR/result.json (docs/contracts.md: agent, budget, seed, xi_star, cost_star, costs,
-wall_s; plus cost_kind, xis, rel_errors, xi_recommended) and DIR/optimize.png (Figure 1 style:
-the cost of each evaluation and its running best).
+wall_s; plus cost_kind, carry_over, xis, rel_errors, recommendation, xi_recommended,
+xi_observed_best, cost_observed_best and the validation of xi*: val_rel_error, val_rel_errors,
+val_diverged, val_scale_identified, val_duration, val_seeds) and DIR/optimize.png (Figure 1
+style: the cost of each evaluation, its running best and moving mean, xi* marked).
+
+xi* is the xi the agent recommends (the evaluated xi with the lowest GP posterior mean cost);
+cost_star its predicted cost. By default every evaluation is one episode from the scenario's
+start scored by the posterior cost (the mode that identified the inertia best, README);
+`--carry-over --cost info` is the paper's Algorithm 1.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from inertia_gym.commands.common import (  # noqa: E402
+from inertia_gym.commands.common import (
+    add_objective_options,
     add_scenario_option,
     load_scenario,
     nonnegative_int,
+    positive_float,
     positive_int,
     prepare_out_dir,
     write_json,
 )
-from inertia_gym.episode import COSTS  # noqa: E402
-from inertia_gym.optimization import AGENTS, OptimizationResult, optimize  # noqa: E402
+from inertia_gym.optimization import AGENTS, optimize, validated_error
+from inertia_gym.plots import plot_costs
 
 
 def add_parser(sub) -> None:
     """Register the sub-command."""
-    p = sub.add_parser("optimize", help="Algorithm 1: optimise the excitation xi = (a, b, T_on)",
+    p = sub.add_parser("optimize", help="optimise the excitation xi = (a, b, T_on), validate xi*",
                        description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--agent", choices=AGENTS, default="bo", help="optimiser (bo)")
     p.add_argument("--budget", type=positive_int, default=100,
                    help="evaluation budget M, one excitation episode each (100)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of env and agent (0)")
-    p.add_argument("--cost", choices=COSTS, default="info",
-                   help="info: the paper's J; posterior: change of log det P_theta (info)")
-    p.add_argument("--restart-each-episode", action="store_true",
-                   help="start every evaluation from the scenario's start (a stationary "
-                        "objective) instead of carrying the estimator over (Algorithm 1)")
+    add_objective_options(p)
+    p.add_argument("--val-seeds", type=nonnegative_int, default=4,
+                   help="seeds 0..N-1 of the long-horizon validation of xi* (4; 0: none)")
+    p.add_argument("--val-duration", type=positive_float, default=1000.0,
+                   help="seconds of the validation of xi* (1000)")
     p.add_argument("--out", default="runs/optimize", help="output folder (runs/optimize)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_scenario_option(p)
     p.set_defaults(func=run)
 
 
-def plot_costs(result: OptimizationResult, path: str | Path) -> Path:
-    """Figure 1: cost of each evaluation (black) and the running best (green)."""
-    path = Path(path)
-    i = np.arange(1, len(result.costs) + 1)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    ax.plot(i, result.costs, color="k", lw=1.0, marker=".", ms=3, label="J(xi^i)")
-    ax.plot(i, np.minimum.accumulate(result.costs), color="g", lw=2.0, label="running best")
-    ax.set_xlabel("function evaluation i")
-    ax.set_ylabel("cost J" if result.cost_kind == "info" else "change of log det P_theta")
-    xi = ", ".join(f"{x:.3g}" for x in result.xi_star)
-    ax.set_title(f"{result.agent}, seed {result.seed}: xi* = ({xi}), "
-                 f"J(xi*) = {result.cost_star:.3g}")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def run(args: argparse.Namespace) -> int:
-    """Optimise, write result.json and the plot, print a one-line summary."""
+    """Optimise, validate xi*, write result.json and the plot, print a summary."""
     sc = load_scenario(args)
     out = prepare_out_dir(args.out)
     result = optimize(args.agent, sc, args.budget, args.seed, cost=args.cost,
-                      progress=not args.no_progress,
-                      carry_over=not args.restart_each_episode)
+                      progress=not args.no_progress, carry_over=args.carry_over)
     data = result.to_json()
-    data["carry_over"] = not args.restart_each_episode
+    if args.val_seeds:
+        data.update(validated_error(sc, result.xi_star, args.val_duration, range(args.val_seeds)))
     write_json(out / "result.json", data)
     plot_costs(result, out / "optimize.png")
+    mode = "carry-over" if args.carry_over else "from-start"
     xi = ", ".join(f"{x:.4g}" for x in result.xi_star)
-    rec = ", ".join(f"{x:.4g}" for x in result.xi_recommended)
-    print(f"optimize {args.agent} M={args.budget} seed={args.seed} cost={args.cost}: "
-          f"xi* = ({xi}) J = {result.cost_star:.4g} (evaluation "
-          f"{int(np.argmin(result.costs)) + 1}); GP-recommended xi = ({rec}); "
-          f"final inertia error {result.rel_errors[-1]:.3%} ({result.wall_s:.1f} s) -> {out}")
+    best = ", ".join(f"{x:.4g}" for x in result.xi_observed_best)
+    print(f"optimize {args.agent} M={args.budget} seed={args.seed} cost={args.cost} {mode} "
+          f"({result.wall_s:.1f} s):\n"
+          f"  xi* = ({xi}) (evaluation {result.star_index + 1}, recommended: lowest GP posterior "
+          f"mean; predicted cost {result.cost_star:.4g})\n"
+          f"  observed best: ({best}) cost {result.cost_observed_best:.4g}")
+    if args.val_seeds:
+        err = data["val_rel_error"]
+        text = "every run diverged" if err is None else (
+            f"median inertia error {err:.3%}, scale "
+            f"{'identified' if data['val_scale_identified'] else 'NOT identified'}")
+        print(f"  validation of xi* over {args.val_duration:g} s, {args.val_seeds} seeds: {text}"
+              f" ({data['val_diverged']} diverged)")
+    print(f"  -> {out}")
     return 0

@@ -79,9 +79,23 @@ def test_posterior_best_ignores_one_lucky_draw():
     lucky = int(np.argmax(costs))
     costs[lucky] = -1.0  # one absurdly good noisy evaluation far from the optimum
     with torch_threads(1):
-        rec = posterior_best(u, costs)
-    assert not np.allclose(rec, u[lucky])
+        index, mean = posterior_best(u, costs)
+    rec = u[index]
+    assert index != lucky
     assert np.sum((rec - OPT) ** 2) < np.quantile(np.sum((u - OPT) ** 2, axis=1), 0.2)
+    # The predicted cost is the GP's smoothing of the bowl there, not the lucky -1.
+    assert 0.0 < mean < np.quantile(costs, 0.2)
+
+
+@pytest.mark.parametrize("agent", [RandomAgent(5), BOAgent(5)])
+def test_every_agent_recommends_by_the_posterior_mean_rule(agent):
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-1, 1, (30, 3))
+    costs = np.sum((u - OPT) ** 2, axis=1) + 0.02 * rng.standard_normal(30)
+    with torch_threads(1):
+        assert agent.recommend(u, costs) == posterior_best(u, costs, seed=5)
+        assert agent.recommend(u[:1], costs[:1]) == (0, costs[0])
+    assert "GP posterior mean" in agent.recommendation_rule
 
 
 @pytest.mark.parametrize("kwargs", [{"acquisition": "ei"}, {"incumbent": "median"},
