@@ -42,6 +42,8 @@ COLUMN_NAMES = ("t",) + GYRO + QUAT + TORQUE + MOMENTUM
 PHYPHOX_COLUMNS = ("Time (s)", "Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")
 MAX_PLAUSIBLE_RATE = 200.0  # rad/s; larger gyro values almost surely are deg/s or mdps
 MIN_SAMPLES = 10
+#: Largest magnitude accepted in any column: squares and products of such values stay finite.
+MAX_MAGNITUDE = 1e100
 #: Seconds per unit of the time column, and rad/s per unit of the gyro columns.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 RATE_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
@@ -136,6 +138,11 @@ def _check_arrays(path, t, w, q, tau, labels, first_row=2, h=None, *, time_unit=
         if bad.any():
             r, c = np.argwhere(bad)[0]
             raise _fail(path, "value is NaN or infinite", first_row + r, labels[cols[c]])
+        huge = np.abs(arr) > MAX_MAGNITUDE
+        if huge.any():
+            r, c = np.argwhere(huge)[0]
+            raise _fail(path, f"value {float(arr[r, c]):.3g} is beyond any physical scale (|x| > "
+                              f"{MAX_MAGNITUDE:.0e})", first_row + r, labels[cols[c]])
     with np.errstate(over="ignore", invalid="ignore"):
         dt = np.diff(t)
     if np.any(dt <= 0):
