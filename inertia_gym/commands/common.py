@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.errors import ConfigError
+from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.scenario import Scenario, ScenarioWarning, shipped_scenarios
 
 
@@ -67,22 +67,67 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
 
 
 def add_recording_argument(parser: argparse.ArgumentParser) -> None:
-    """The positional REC of the commands that read a recording."""
+    """The positional REC of the commands that read a recording, with --columns and the units."""
+    from inertia_gym.discrepancy.recordings import RATE_UNITS, TIME_UNITS
+
     parser.add_argument("rec", metavar="REC",
                         help="project CSV/Parquet (+ sidecar JSON) or a phyphox export "
                              "folder/'Raw Data.csv'")
+    parser.add_argument("--columns", metavar="MAP", default=None,
+                        help="the file's own column names, e.g. t=time,wx=gx,wy=gy,wz=gz "
+                             "(format name=file name, comma separated)")
+    parser.add_argument("--time-unit", choices=tuple(TIME_UNITS), default=None,
+                        help="unit of the time column, converted to s (default: s, and time "
+                             "evidently in ms or us is refused)")
+    parser.add_argument("--rate-unit", choices=tuple(RATE_UNITS), default=None,
+                        help="unit of the gyro columns, converted to rad/s (default: rad/s, and "
+                             "rates evidently in deg/s are refused)")
 
 
-def recording_folders(rec_path: str, out: str | Path):
-    """Read every recording (segment) of rec_path; yield (recording, its output folder): out
-    itself for a single recording, else one sub-folder per segment named after it.
+def parse_column_map(text: str | None) -> dict[str, str] | None:
+    """--columns 't=time,wx=gx' -> {'t': 'time', 'wx': 'gx'} (None for None); ConfigError on
+    a pair without '=', an empty name or a format name given twice.
+    """
+    if text is None:
+        return None
+    mapping: dict[str, str] = {}
+    for pair in text.split(","):
+        target, sep, source = (part.strip() for part in pair.partition("="))
+        if not sep or not target or not source:
+            raise ConfigError(f"--columns: expected NAME=COLUMN pairs separated by commas, got {pair!r}")
+        if target in mapping:
+            raise ConfigError(f"--columns: {target!r} is mapped twice")
+        mapping[target] = source
+    return mapping
+
+
+def recording_folders(args: argparse.Namespace):
+    """Read every recording (segment) of args.rec (with args.columns, args.time_unit,
+    args.rate_unit); yield (recording, its output folder): args.out itself for a single
+    recording, else one sub-folder per segment named after it.
     """
     from inertia_gym.discrepancy.recordings import read_recordings
 
-    recs = read_recordings(rec_path)
-    folder = prepare_out_dir(out)
+    recs = read_recordings(args.rec, parse_column_map(args.columns), args.time_unit, args.rate_unit)
+    folder = prepare_out_dir(args.out)
     for rec in recs:
         yield rec, folder if len(recs) == 1 else prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", rec.name))
+
+
+def check_physical_inertia(inertia, what: str) -> None:
+    """Refuse (RecordingError) a result inertia (3, 3) kg·m² that no body can have: not finite,
+    not symmetric positive definite, or principal moments breaking the triangle inequality
+    (each at most the sum of the others, to 1e-6 of the largest). what names it in the message.
+    """
+    j = np.asarray(inertia, dtype=float)
+    fix = ("the recording does not support a rigid body: check the units (--time-unit, --rate-unit) "
+           "and the column mapping (--columns)")
+    if j.shape != (3, 3) or not np.all(np.isfinite(j)):
+        raise RecordingError(f"{what}: the fitted inertia is not a finite 3x3 matrix; {fix}")
+    moments = np.linalg.eigvalsh(0.5 * (j + j.T))
+    if moments[0] <= 0 or moments[2] > (moments[0] + moments[1]) * (1 + 1e-6):
+        raise RecordingError(f"{what}: the fitted inertia has principal moments "
+                             f"{np.array2string(moments, precision=4)}, which no body has; {fix}")
 
 
 def prepare_out_dir(path: str | Path) -> Path:
@@ -95,9 +140,11 @@ def prepare_out_dir(path: str | Path) -> Path:
 
 
 def write_json(path: Path, data: dict) -> None:
-    """Write JSON atomically (temporary file, then rename), numpy values converted."""
+    """Write JSON atomically (temporary file, then rename), numpy values converted; NaN and
+    infinity are refused (ValueError) rather than written as invalid JSON.
+    """
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_to_builtin) + "\n")
+    tmp.write_text(json.dumps(data, indent=2, default=_to_builtin, allow_nan=False) + "\n")
     tmp.replace(path)
 
 

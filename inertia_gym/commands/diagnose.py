@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from inertia_gym.commands.common import add_recording_argument, recording_folders, write_json
+from inertia_gym.commands.common import (
+    add_recording_argument,
+    check_physical_inertia,
+    recording_folders,
+    write_json,
+)
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
 
 
@@ -19,8 +24,9 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Diagnose each recording (each phyphox window on its own); one sub-folder per window."""
-    for rec, sub in recording_folders(args.rec, args.out):
+    for rec, sub in recording_folders(args):
         report, arrays = diagnose(rec)
+        check_physical_inertia(report["fit_after"]["inertia"], rec.name)
         plots = [] if args.no_plots else write_plots(sub, report, arrays)
         write_json(sub / "report.json", report)
         (sub / "summary.md").write_text(markdown(report, plots))

@@ -6,7 +6,12 @@ import argparse
 
 import numpy as np
 
-from inertia_gym.commands.common import add_recording_argument, recording_folders, write_json
+from inertia_gym.commands.common import (
+    add_recording_argument,
+    check_physical_inertia,
+    recording_folders,
+    write_json,
+)
 from inertia_gym.identification import METHODS, identify, markdown
 from inertia_gym.plots import plot_identification
 
@@ -26,9 +31,10 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Identify each recording (each phyphox window on its own); one sub-folder per window."""
-    for rec, sub in recording_folders(args.rec, args.out):
+    for rec, sub in recording_folders(args):
         result = identify(rec, args.method)
         summary = result.summary()
+        check_physical_inertia(summary["inertia"], rec.name)
         plots = [] if args.no_plots else plot_identification(result, sub)
         write_json(sub / "identify.json", summary)
         (sub / "summary.md").write_text(markdown(summary, [p.name for p in plots]))

@@ -17,7 +17,10 @@ h_z) is refused. The JSON sidecar REC.json next to REC.csv holds metadata (inert
 gyro_sigma, quat_sigma, simulation truth ...); keys it does not know (provenance) are kept.
 
 Every reader validates its input and raises RecordingError naming the file, row and column;
-readers never write to the input.
+readers never write to the input. Columns named otherwise are mapped with ``columns`` (target ->
+source, e.g. {"t": "time", "wx": "gx"}); units that are evidently not s and rad/s are refused
+(check_units; the rule is in README.md, "Recording format") unless stated with ``time_unit`` /
+``rate_unit``, which also converts them.
 """
 
 from __future__ import annotations
@@ -29,15 +32,37 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.errors import RecordingError
+from inertia_gym.errors import ConfigError, RecordingError
 
 GYRO = ("wx", "wy", "wz")
 QUAT = ("qw", "qx", "qy", "qz")
 TORQUE = ("tau_x", "tau_y", "tau_z")
 MOMENTUM = ("h_x", "h_y", "h_z")
+COLUMN_NAMES = ("t",) + GYRO + QUAT + TORQUE + MOMENTUM
 PHYPHOX_COLUMNS = ("Time (s)", "Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")
 MAX_PLAUSIBLE_RATE = 200.0  # rad/s; larger gyro values almost surely are deg/s or mdps
 MIN_SAMPLES = 10
+#: Largest magnitude accepted in any column: squares and products of such values stay finite.
+MAX_MAGNITUDE = 1e100
+#: Seconds per unit of the time column, and rad/s per unit of the gyro columns.
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+RATE_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+#: rad the body may turn between two samples at its median rate: more and no logger in seconds
+#: with a rad/s gyro resolves the motion (unless the rates barely change, see below).
+MAX_TURN_PER_SAMPLE = 1.0
+#: Relative change of the rates per radian turned below which a body that turns more than
+#: MAX_TURN_PER_SAMPLE between samples is taken for a unit error: a tumbling rigid body's rates
+#: change by a fair share of themselves per radian (Euler: |w_dot| ~ asymmetry * |w|^2).
+MIN_RATE_CHANGE_PER_RADIAN = 0.05
+#: Gyro-integrated over attitude-measured rotation beyond these bounds is a unit error.
+ATTITUDE_RATIO_BOUNDS = (1.0 / 3.0, 3.0)
+#: Suspected unit errors: name, factor by which it inflates the rotation per sample, the fix.
+UNIT_SUSPECTS = (
+    ("rates in deg/s", 180.0 / np.pi, "convert the rates to rad/s (x pi/180) or pass --rate-unit deg/s"),
+    ("time in ms", 1e3, "convert t to seconds (/1000) or pass --time-unit ms"),
+    ("time in us", 1e6, "convert t to seconds (/1e6) or pass --time-unit us"),
+    ("time in ms and rates in deg/s", 1e3 * 180.0 / np.pi, "pass --time-unit ms --rate-unit deg/s"),
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,32 +121,43 @@ def _fail(path, message, row=None, column=None) -> RecordingError:
     return RecordingError(f"{where}: {message}")
 
 
-def _check_arrays(path, t, w, q, tau, columns, first_row=2, h=None) -> None:
-    """Validate finiteness, time order, length and plausible units. Row numbers are file lines."""
+def _check_arrays(path, t, w, q, tau, labels, first_row=2, h=None, *, time_unit=None,
+                  rate_unit=None) -> None:
+    """Validate finiteness, time order, length and plausible units. Row numbers are file lines.
+
+    labels maps each column name of the format (COLUMN_NAMES) to the file's own name for it.
+    """
     if t.size < MIN_SAMPLES:
         raise _fail(path, f"only {t.size} samples; at least {MIN_SAMPLES} are needed")
-    named = [("t", t[:, None], ("t",)), ("gyro", w, columns[1:4])]
-    if q is not None:
-        named.append(("q", q, QUAT))
-    if tau is not None:
-        named.append(("tau", tau, TORQUE))
-    if h is not None:
-        named.append(("h", h, MOMENTUM))
-    for _, arr, cols in named:
+    named = [(t[:, None], ("t",)), (w, GYRO)]
+    for arr, cols in ((q, QUAT), (tau, TORQUE), (h, MOMENTUM)):
+        if arr is not None:
+            named.append((arr, cols))
+    for arr, cols in named:
         bad = ~np.isfinite(arr)
         if bad.any():
             r, c = np.argwhere(bad)[0]
-            raise _fail(path, "value is NaN or infinite", first_row + r, cols[c])
-    dt = np.diff(t)
+            raise _fail(path, "value is NaN or infinite", first_row + r, labels[cols[c]])
+        huge = np.abs(arr) > MAX_MAGNITUDE
+        if huge.any():
+            r, c = np.argwhere(huge)[0]
+            raise _fail(path, f"value {float(arr[r, c]):.3g} is beyond any physical scale (|x| > "
+                              f"{MAX_MAGNITUDE:.0e})", first_row + r, labels[cols[c]])
+    with np.errstate(over="ignore", invalid="ignore"):
+        dt = np.diff(t)
     if np.any(dt <= 0):
         r = int(np.argmax(dt <= 0)) + 1
-        raise _fail(path, f"time does not increase ({t[r - 1]!r} then {t[r]!r})", first_row + r, columns[0])
+        raise _fail(path, f"time does not increase ({float(t[r - 1])!r} then {float(t[r])!r})",
+                    first_row + r, labels["t"])
+    if not np.all(np.isfinite(dt)):
+        raise _fail(path, f"time span {float(t[0])!r} to {float(t[-1])!r} overflows", column=labels["t"])
     big = np.abs(w) > MAX_PLAUSIBLE_RATE
-    if big.any():
+    if rate_unit is None and big.any():
         r, c = np.argwhere(big)[0]
         raise _fail(
-            path, f"gyro value {w[r, c]!r} exceeds {MAX_PLAUSIBLE_RATE} rad/s: units look like deg/s "
-            "(convert to rad/s)", first_row + r, columns[1 + c],
+            path, f"gyro value {float(w[r, c]):.6g} exceeds {MAX_PLAUSIBLE_RATE} rad/s: units look like "
+            "deg/s "
+            "(convert to rad/s, or state the unit: --rate-unit deg/s)", first_row + r, labels[GYRO[c]],
         )
     if q is not None:
         norm = np.linalg.norm(q, axis=1)
@@ -129,7 +165,99 @@ def _check_arrays(path, t, w, q, tau, columns, first_row=2, h=None) -> None:
         if bad.any():
             r = int(np.argmax(bad))
             raise _fail(path, f"quaternion norm {norm[r]:.3g} is not close to 1 (units or column order?)",
-                        first_row + r, "qw")
+                        first_row + r, labels["qw"])
+        q = q / norm[:, None]
+    check_units(path, t, w, q, time_unit=time_unit, rate_unit=rate_unit)
+
+
+def check_units(path, t, w, q=None, *, time_unit=None, rate_unit=None) -> None:
+    """Refuse time evidently not in seconds or rates evidently not in rad/s (RecordingError).
+
+    t (n,) strictly increasing, w (n, 3), q (n, 4) unit quaternions or None. A unit stated
+    (time_unit / rate_unit not None) is trusted; with both stated nothing is checked here. Two
+    cues, each sufficient (the magnitude cue, |w| > MAX_PLAUSIBLE_RATE, is _check_arrays'):
+
+    * attitude: with q recorded, the gyro integrated over spans in which the attitude turns
+      0.2-1.5 rad must turn as far, within ATTITUDE_RATIO_BOUNDS (ms instead of s gives 1000);
+    * dynamics: at its median rate the body turns more than MAX_TURN_PER_SAMPLE rad between
+      samples, yet its rates change by less than MIN_RATE_CHANGE_PER_RADIAN of themselves per
+      radian turned: the logger resolved the motion far more finely than the units claim.
+
+    Scaling time by c or the rates by k scales both observations by c k, so the message names
+    the suspects (UNIT_SUSPECTS) whose factor explains what was seen.
+    """
+    suspects = [s for s in UNIT_SUSPECTS
+                if (time_unit is None or "time" not in s[0]) and (rate_unit is None or "rates" not in s[0])]
+    if not suspects:
+        return
+    keep = "; if the units are right, state them (--time-unit s --rate-unit rad/s)"
+    ratio = None if q is None else _gyro_over_attitude(t, w, q)
+    if ratio is not None and not ATTITUDE_RATIO_BOUNDS[0] <= ratio <= ATTITUDE_RATIO_BOUNDS[1]:
+        name, factor, fix = min(suspects, key=lambda s: abs(np.log(s[1])
+                                                           - np.log(np.clip(ratio, 1e-300, 1e300))))
+        guess = f"{name}? {fix}" if factor / 2.0 < ratio < factor * 2.0 else \
+            "check the units of t and of the gyro, and that q is this body's attitude"
+        raise _fail(path, f"the gyro turns {ratio:.3g} times as far as the attitude quaternions "
+                          f"do over the same spans: {guess}{keep}")
+    speed = np.linalg.norm(w, axis=1)
+    typical = float(np.median(speed))
+    if typical <= 0.0:
+        return
+    with np.errstate(over="ignore"):
+        turn = typical * float(np.median(np.diff(t)))
+    change = float(np.median(np.linalg.norm(np.diff(w, axis=0), axis=1))) / typical
+    if turn > MAX_TURN_PER_SAMPLE and change < MIN_RATE_CHANGE_PER_RADIAN * turn:
+        fitting = [s for s in suspects if turn / s[1] <= MAX_TURN_PER_SAMPLE]
+        guess = f"{fitting[0][0]}? {fitting[0][2]}" if fitting else "check the units of t and of the gyro"
+        raise _fail(path, f"at its median rate {typical:.3g} rad/s the body would turn {turn:.3g} rad "
+                          f"between samples (median step {np.median(np.diff(t)):.3g} s), yet its rates "
+                          f"change by only {change:.2g} of themselves per sample: {guess}{keep}")
+
+
+def _gyro_over_attitude(t, w, q) -> float | None:
+    """Median gyro-integrated rotation over median attitude rotation across the same spans of
+    `lag` samples, lag the first power of two at which the attitude turns 0.2 rad (median);
+    None when the attitude never turns that far (too slow or too short to compare) or already
+    turns more than 1.5 rad per sample (too coarse to compare).
+    """
+    lag = 1
+    while lag <= t.size // 4:
+        dot = np.abs(np.sum(q[:-lag] * q[lag:], axis=1))
+        attitude = float(np.median(2.0 * np.arccos(np.clip(dot, 0.0, 1.0))))
+        if attitude >= 0.2:
+            if attitude > 1.5:
+                return None
+            with np.errstate(over="ignore", invalid="ignore"):
+                steps = np.vstack([np.zeros(3), np.cumsum(w[:-1] * np.diff(t)[:, None], axis=0)])
+                gyro = float(np.median(np.linalg.norm(steps[lag:] - steps[:-lag], axis=1)))
+            return gyro / attitude if np.isfinite(gyro) else np.inf
+        lag *= 2
+    return None
+
+
+def _apply_column_map(path, header: list[str], columns: dict | None) -> tuple[list[str], dict]:
+    """The header with each mapped source column renamed to its target (columns: target ->
+    source), and the labels (target -> the file's name) for messages. Unknown targets and
+    sources not in the header are refused, naming them.
+    """
+    labels = {name: name for name in COLUMN_NAMES}
+    if not columns:
+        return header, labels
+    unknown = [target for target in columns if target not in COLUMN_NAMES]
+    if unknown:
+        raise ConfigError(f"--columns: unknown column name(s) {unknown}; known: {', '.join(COLUMN_NAMES)}")
+    absent = [source for source in columns.values() if source not in header]
+    if absent:
+        raise _fail(path, f"--columns: column(s) {absent} not in the header {header}", 1, absent[0])
+    sources = list(columns.values())
+    twice = sorted({s for s in sources if sources.count(s) > 1})
+    if twice:
+        raise ConfigError(f"--columns: column(s) {twice} mapped to more than one name")
+    renamed = {source: target for target, source in columns.items()}
+    # a column already carrying a mapped target's name gives way to the mapped one
+    out = [renamed.get(name, f"{name} (unmapped)" if name in columns else name) for name in header]
+    labels.update(columns)
+    return out, labels
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
@@ -168,7 +296,8 @@ def _columns(path, header, data, names, required, label=None):
     if missing and (required or len(missing) < len(names)):
         what = "" if required or label is None else \
             f"{label} given in part ({', '.join(names)} go together): "
-        raise _fail(path, f"{what}missing column(s) {missing}; the header is {header}", 1, missing[0])
+        hint = f" (map the file's names with --columns {missing[0]}=NAME,...)" if required else ""
+        raise _fail(path, f"{what}missing column(s) {missing}; the header is {header}{hint}", 1, missing[0])
     if missing:
         return None
     return np.stack([data[:, header.index(n)] for n in names], axis=1)
@@ -205,27 +334,45 @@ def _is_numeric(value) -> bool:
     return True
 
 
-def read_csv_recording(path: str | Path) -> Recording:
-    """Read the project's CSV format (README.md, "Recording format") and its sidecar."""
+def read_csv_recording(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
+                       rate_unit: str | None = None) -> Recording:
+    """Read the project's CSV format (README.md, "Recording format") and its sidecar.
+
+    columns, time_unit, rate_unit: as for read_recordings.
+    """
     path = Path(path)
     header, data = _read_table(path)
-    return _from_columns(path, header, data, read_sidecar(path))
+    return _from_columns(path, header, data, read_sidecar(path), columns, time_unit, rate_unit)
 
 
-def _from_columns(path, header, data, meta) -> Recording:
-    t_col = _columns(path, header, data, ("t",), True)[:, 0]
-    w = _columns(path, header, data, GYRO, True)
+def _unit_factor(option: str, unit: str | None, units: dict) -> float:
+    if unit is None:
+        return 1.0
+    if unit not in units:
+        raise ConfigError(f"{option}: unknown unit {unit!r}; known: {', '.join(units)}")
+    return units[unit]
+
+
+def _from_columns(path, header, data, meta, columns=None, time_unit=None, rate_unit=None) -> Recording:
+    header, labels = _apply_column_map(path, header, columns)
+    seconds = _unit_factor("--time-unit", time_unit, TIME_UNITS)
+    t_col = _columns(path, header, data, ("t",), True)[:, 0] * seconds
+    w = _columns(path, header, data, GYRO, True) * _unit_factor("--rate-unit", rate_unit, RATE_UNITS)
     q = _columns(path, header, data, QUAT, False, "attitude quaternion")
     tau = _columns(path, header, data, TORQUE, False, "commanded torque")
     h = _columns(path, header, data, MOMENTUM, False, "internal angular momentum")
-    _check_arrays(path, t_col, w, q, tau, ("t",) + GYRO, h=h)
+    _check_arrays(path, t_col, w, q, tau, labels, h=h, time_unit=time_unit, rate_unit=rate_unit)
     if q is not None:
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
     return Recording(t_col, w, q, tau, meta, path.stem, h=h)
 
 
-def read_parquet_recording(path: str | Path) -> Recording:
-    """Read a Parquet file with the CSV format's column names (and the same sidecar)."""
+def read_parquet_recording(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
+                           rate_unit: str | None = None) -> Recording:
+    """Read a Parquet file with the CSV format's column names (and the same sidecar).
+
+    columns, time_unit, rate_unit: as for read_recordings.
+    """
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -240,7 +387,7 @@ def read_parquet_recording(path: str | Path) -> Recording:
         data = np.stack([np.asarray(table[c].to_numpy(), dtype=float) for c in header], axis=1)
     except (TypeError, ValueError) as exc:
         raise _fail(path, f"non-numeric column: {exc}") from exc
-    return _from_columns(path, header, data, read_sidecar(path))
+    return _from_columns(path, header, data, read_sidecar(path), columns, time_unit, rate_unit)
 
 
 def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]]:
@@ -261,24 +408,27 @@ def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]]:
     return out
 
 
-def read_phyphox(path: str | Path) -> list[Recording]:
+def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
+                 rate_unit: str | None = None) -> list[Recording]:
     """A phyphox export: "Raw Data.csv" (or its folder). With meta/segments.csv, each kept
     free-flight window [start, end] becomes its own recording; otherwise the whole file.
+    columns (t, wx, wy, wz only) replace phyphox's own names; units as for read_recordings.
     """
     path = Path(path)
     csv_path = path / "Raw Data.csv" if path.is_dir() else path
     folder = csv_path.parent
     header, data = _read_table(csv_path)
-    missing = [c for c in PHYPHOX_COLUMNS if c not in header]
+    mapping = dict(zip(("t",) + GYRO, PHYPHOX_COLUMNS)) | dict(columns or {})
+    missing = [source for target, source in mapping.items()
+               if source not in header and target not in (columns or {})]
     if missing:
         raise _fail(csv_path, f"missing phyphox column(s) {missing}", 1, missing[0])
-    cols = [header.index(c) for c in PHYPHOX_COLUMNS]
-    t, w = data[:, cols[0]], data[:, cols[1:]]
-    _check_arrays(csv_path, t, w, None, None, PHYPHOX_COLUMNS)
+    rec = _from_columns(csv_path, header, data, {"source": str(csv_path)}, mapping, time_unit, rate_unit)
+    t, w = rec.t, rec.w
     label = folder.name
     segments = _phyphox_segments(folder)
     if not segments:
-        return [Recording(t, w, meta={"source": str(csv_path)}, name=label)]
+        return [Recording(t, w, meta=rec.meta, name=label)]
     recs = []
     for seg, start, end in segments:
         mask = (t >= start) & (t <= end)
@@ -291,22 +441,30 @@ def read_phyphox(path: str | Path) -> list[Recording]:
     return recs
 
 
-def read_recordings(path: str | Path) -> list[Recording]:
-    """Any supported input: project CSV, Parquet, phyphox file or folder. Returns one or more."""
+def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
+                    rate_unit: str | None = None) -> list[Recording]:
+    """Any supported input: project CSV, Parquet, phyphox file or folder. Returns one or more.
+
+    columns: {format name: the file's column name}, e.g. {"t": "time", "wx": "gx"}: format names
+        as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
+    time_unit: "s", "ms" or "us"; rate_unit: "rad/s" or "deg/s". None (default): seconds and
+        rad/s, refused when evidently otherwise (check_units). Stated: converted and trusted.
+    """
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file or folder")
+    units = dict(columns=columns, time_unit=time_unit, rate_unit=rate_unit)
     if path.is_dir():
         if (path / "Raw Data.csv").exists():
-            return read_phyphox(path)
+            return read_phyphox(path, **units)
         raise RecordingError(f"{path}: a folder must be a phyphox export holding 'Raw Data.csv'")
     if path.suffix.lower() == ".parquet":
-        return [read_parquet_recording(path)]
+        return [read_parquet_recording(path, **units)]
     with path.open(errors="replace") as fh:
         first = fh.readline()
     if "Gyroscope x" in first:
-        return read_phyphox(path)
-    return [read_csv_recording(path)]
+        return read_phyphox(path, **units)
+    return [read_csv_recording(path, **units)]
 
 
 def write_recording(path: str | Path, rec: Recording, sidecar: dict | None = None) -> None:

@@ -1,0 +1,195 @@
+"""Fuzz `identify` and `diagnose` over damaged recordings (issue 12, must-show 5).
+
+A simulated recording (gyro, attitude, torque, rotor momentum) is written with its time in
+µs or ms, its rates in °/s, columns renamed (mapped back with --columns or not), columns
+dropped, cells replaced by NaN, infinity or junk, scales over many decades, a constant
+clock or a handful of rows. Every outcome must be a valid result (exit 0, strict JSON with
+finite numbers, a physically possible inertia) or one line on stderr with exit 2: never a
+traceback, an internal error (exit 1), a RuntimeWarning, or nonsense with exit 0.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from inertia_gym.cli import main
+from inertia_gym.discrepancy.recordings import COLUMN_NAMES
+from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.scenario import Scenario
+
+ROWS = 101  # 1 s at 100 Hz: enough for both commands, small enough to fuzz
+
+
+@pytest.fixture(scope="module")
+def base() -> tuple[dict[str, np.ndarray], dict]:
+    """Columns of a 1-s recording of the paper's body with torque bursts and a rotor, and its sidecar."""
+    rec, side = simulate_recording(Scenario(), (ROWS - 1) * 0.01, seed=4, rotor_h_max=5.0)
+    arrays = np.hstack([rec.t[:, None], rec.w, rec.q, rec.tau, rec.h])
+    return dict(zip(COLUMN_NAMES, arrays.T, strict=True)), side
+
+
+def _json_constant(name):
+    raise ValueError(f"{name} in JSON output")
+
+
+def _finite_numbers(value) -> bool:
+    if isinstance(value, dict):
+        return all(_finite_numbers(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_finite_numbers(v) for v in value)
+    return not isinstance(value, float) or np.isfinite(value)
+
+
+def _physical(inertia) -> bool:
+    moments = np.linalg.eigvalsh(np.asarray(inertia, dtype=float))
+    return bool(moments[0] > 0 and moments[2] <= (moments[0] + moments[1]) * (1 + 1e-6))
+
+
+def _sometimes(draw, strategy, default):
+    """Draw from strategy one time in three, else the default: most plans keep most things whole."""
+    return draw(strategy) if draw(st.integers(0, 2)) == 1 else default
+
+
+@st.composite
+def damaged(draw):
+    """A plan of damage to the base recording (see _write)."""
+    return dict(
+        n=_sometimes(draw, st.sampled_from([1, 5, 12, 40]), ROWS),
+        time_unit=_sometimes(draw, st.sampled_from(["ms", "us"]), "s"),
+        rate_unit=_sometimes(draw, st.just("deg/s"), "rad/s"),
+        stated=_sometimes(draw, st.sampled_from(["time", "rate", "both", "wrong"]), "none"),
+        scales={group: 10.0 ** _sometimes(draw, st.integers(-8, 8), 0) for group in ("t", "w", "tau", "h")},
+        constant_time=_sometimes(draw, st.booleans(), False) and draw(st.booleans()),
+        keep=_sometimes(draw, st.lists(st.sampled_from(COLUMN_NAMES), unique=True,
+                                       max_size=len(COLUMN_NAMES)), list(COLUMN_NAMES)),
+        renamed=_sometimes(draw, st.dictionaries(
+            st.sampled_from(COLUMN_NAMES), st.sampled_from(["time", "gx", "gy", "gz", "Tx", "q0", "col"]),
+            max_size=4), {}),
+        map_back=_sometimes(draw, st.sampled_from(["no", "unknown target", "missing source"]), "yes"),
+        cells=_sometimes(draw, st.lists(st.tuples(st.integers(0, ROWS - 1), st.sampled_from(COLUMN_NAMES),
+                                                  st.sampled_from(["nan", "inf", "-inf", "", "abc", "1e308",
+                                                                   "-1e308"])), max_size=3), []),
+        sidecar=_sometimes(draw, st.sampled_from(["none", "bad sigma"]), "keep"),
+    )
+
+
+def _write(folder: Path, plan: dict, base) -> list[str]:
+    """Write the damaged recording into folder; return the CLI arguments that read it."""
+    columns, side = base
+    factor = {"s": 1.0, "ms": 1e3, "us": 1e6}[plan["time_unit"]]
+    table = {}
+    for name in plan["keep"]:
+        values = columns[name][: plan["n"]].copy()
+        if name == "t":
+            values = np.full_like(values, 3.0) if plan["constant_time"] else values
+            values = values * factor * plan["scales"]["t"]
+        elif name in ("wx", "wy", "wz"):
+            values = values * (180.0 / np.pi if plan["rate_unit"] == "deg/s" else 1.0) * plan["scales"]["w"]
+        elif name.startswith("tau"):
+            values = values * plan["scales"]["tau"]
+        elif name.startswith("h_"):
+            values = values * plan["scales"]["h"]
+        table[name] = [f"{v:.10g}" for v in values]
+    for row, name, text in plan["cells"]:
+        if name in table and row < len(table[name]):
+            table[name][row] = text
+    header = {name: plan["renamed"].get(name, name) for name in table}
+    if len(set(header.values())) < len(header):  # two columns renamed alike: keep the names
+        header = {name: name for name in table}
+    path = folder / "rec.csv"
+    lines = [",".join(header[name] for name in table)]
+    lines += [",".join(table[name][i] for name in table) for i in range(plan["n"])]
+    path.write_text("\n".join(lines) + "\n")
+    if plan["sidecar"] != "none":
+        meta = dict(side, gyro_sigma=-1.0) if plan["sidecar"] == "bad sigma" else side
+        (folder / "rec.json").write_text(json.dumps(meta))
+    args = [str(path)]
+    mapping = {target: source for target, source in header.items() if target != source}
+    if plan["map_back"] == "unknown target":
+        mapping["omega_x"] = header.get("wx", "wx")
+    elif plan["map_back"] == "missing source":
+        mapping["wx"] = "no_such_column"
+    if mapping and plan["map_back"] != "no":
+        args += ["--columns", ",".join(f"{t}={s}" for t, s in mapping.items())]
+    stated = plan["stated"]
+    if stated in ("time", "both"):
+        args += ["--time-unit", plan["time_unit"]]
+    if stated in ("rate", "both"):
+        args += ["--rate-unit", plan["rate_unit"]]
+    if stated == "wrong":
+        args += ["--time-unit", "s" if plan["time_unit"] != "s" else "ms"]
+    return args
+
+
+def _check_outcome(command: str, folder: Path, args: list[str], capsys) -> int:
+    out = folder / "out"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main([command, *args, "--no-plots", "--out", str(out)])
+    err = capsys.readouterr().err
+    runtime = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert not runtime, runtime
+    assert "Traceback" not in err and "Warning" not in err, err
+    assert code in (0, 2), err
+    event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else command}")
+    if code == 2:
+        assert err.strip() and err.strip().count("\n") == 0, err
+        assert err.startswith(f"inertia-gym {command}: error: "), err
+        return code
+    reports = sorted(out.rglob("identify.json" if command == "identify" else "report.json"))
+    assert reports
+    for path in reports:
+        report = json.loads(path.read_text(), parse_constant=_json_constant)
+        assert _finite_numbers(report)
+        inertia = report["inertia"] if command == "identify" else report["fit_after"]["inertia"]
+        assert _physical(inertia), inertia
+    return code
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(plan=damaged())
+def test_identify_on_damaged_recordings_gives_a_result_or_one_line(plan, base, tmp_path_factory, capsys):
+    folder = tmp_path_factory.mktemp("fuzz")
+    _check_outcome("identify", folder, _write(folder, plan, base), capsys)
+
+
+@pytest.mark.slow
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(plan=damaged())
+def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, tmp_path_factory, capsys):
+    folder = tmp_path_factory.mktemp("fuzz")
+    _check_outcome("diagnose", folder, _write(folder, plan, base), capsys)
+
+
+@pytest.mark.parametrize("time_factor, rate_factor, stated, expected", [
+    (1e6, 1.0, [], "time in us"),
+    (1e3, 1.0, [], "time in ms"),
+    (1.0, 180.0 / np.pi, [], "deg/s"),
+    (1e3, 1.0, ["--time-unit", "ms"], None),
+    (1.0, 180.0 / np.pi, ["--rate-unit", "deg/s"], None),
+])
+def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
+                                                                  rate_factor, stated, expected):
+    """The reported cases: t in µs (was a traceback), rates in °/s (was an indefinite inertia)."""
+    columns, side = base
+    data = np.stack([columns[name] * (time_factor if name == "t" else rate_factor if name[0] == "w" else 1.0)
+                     for name in COLUMN_NAMES], axis=1)
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, data, delimiter=",", header=",".join(COLUMN_NAMES), comments="", fmt="%.10g")
+    (tmp_path / "rec.json").write_text(json.dumps(side))
+    code = _check_outcome("identify", tmp_path, [str(path), *stated], capsys)
+    if expected is None:
+        assert code == 0
+        summary = json.loads((tmp_path / "out" / "identify.json").read_text())
+        inertia, truth = np.array(summary["inertia"]), Scenario().inertia_true_array
+        shape_error = np.linalg.norm(inertia / np.trace(inertia) - truth / np.trace(truth))
+        assert shape_error < 0.05 * np.linalg.norm(truth / np.trace(truth)), shape_error
+    else:
+        assert code == 2
