@@ -61,7 +61,9 @@ TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 class NoiseModel:
     """How the residuals were treated: kind 'white' or 'coloured'; sigma (3,) rad/s gyro noise
     used for weighting and its source; hac_lags (0 for white); inflation = the factor by which
-    the intervals widened over the white-noise Fisher bound (1 for white noise).
+    the intervals widened over the white-noise Fisher bound (1 for white noise);
+    disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
+    model error (0: none; see model_error_covariance).
     """
 
     kind: str
@@ -69,15 +71,22 @@ class NoiseModel:
     source: str
     hac_lags: int
     inflation: float
+    disturbance_q: float = 0.0
 
     def describe(self) -> str:
         """One sentence for reports."""
         sig = ", ".join(f"{s:.3g}" for s in self.sigma)
         if self.kind == "white":
             return f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
-        return (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
-                f"sigma = ({sig}) rad/s ({self.source}), covariance by the Bartlett/Newey-West "
-                f"sandwich over {self.hac_lags} lags, intervals {self.inflation:.2f}x the white bound")
+        text = (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
+                f"sigma = ({sig}) rad/s ({self.source}), ")
+        if self.disturbance_q > 0:
+            text += ("covariance = the noise's Fisher bound plus the model error's, the model "
+                     "error represented as a white disturbance torque of intensity "
+                     f"{self.disturbance_q:.3g} N²·m²·s estimated from the residuals' excess")
+        else:
+            text += f"covariance by the Bartlett/Newey-West sandwich over {self.hac_lags} lags"
+        return text + f"; intervals {self.inflation:.2f}x the white bound"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,6 +207,60 @@ def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     return 0.5 * (cov + cov.T)
 
 
+def model_error_covariance(prob: ml.Problem, p, ev: ml.Evaluation) -> tuple[float, np.ndarray]:
+    """The parameters' covariance (n, n) caused by an unmodelled disturbance torque, and its
+    intensity q (N²·m²·s) estimated from the residuals.
+
+    Model error is represented as a white torque d(t) on the total momentum L (the filter's
+    process noise), E d(s) d(s')^T = q I delta(s - s'). It perturbs the outputs by
+    dy(t) = sum_{s<=t} (dy(t)/dx(s)) d(s) ds with x = L (and the attitude where measured);
+    the transition dy(t)/dx(s) = M(t) Phi(s, 0)^-1 comes from the sensitivities to the
+    initial rate and attitude already in ev.jac (Phi(t, 0) = [[J G J^-1, 0], [G_a J^-1, G_q]],
+    G = dw/dw0, G_a, G_q the attitude's to w0 and dq0). The fit absorbs part of dy into the
+    parameters: dp = A^-1 sum_s C_s d(s) ds with A = J^T J and C_s = sum_{t>=s} J_t^T M(t)
+    Phi(s, 0)^-1[:, :3], so cov = q A^-1 (sum_s C_s C_s^T ds) A^-1. q follows from the residuals'
+    excess over the white noise at prob.sigma: E |r|^2 = (R - n) + q tr((I - P) K) with K the
+    disturbance's output covariance per unit q and P the fit's hat matrix (method of moments;
+    q = 0 when the residuals show no excess). ev: the evaluation (with Jacobian) at p (n,).
+    """
+    m = ev.e_w.shape[0]
+    n = prob.n_params
+    free = prob.free()
+    jm = inertia_from_theta(theta_from_phi(np.ascontiguousarray(p[:6])))
+    jinv = np.linalg.inv(jm)
+    blocks = 2 if prob.with_att else 1
+    jb = ev.jac.reshape(blocks, m, 3, n)
+    n_state = 6 if prob.with_att else 3
+    # M(t): weighted outputs per unit change of the initial state (L0 (3), attitude (3)).
+    out_state = np.zeros((m, 3 * blocks, n_state))
+    out_state[:, :3, :3] = jb[0][:, :, 6:9] @ jinv
+    g = -jb[0][:, :, 6:9] * prob.sigma_w[None, :, None]  # dw/dw0 (m, 3, 3)
+    phi_ll_inv = np.linalg.inv(jm @ g @ jinv)  # (dL(s)/dL0)^-1
+    back = np.zeros((m, n_state, 3))  # Phi(s, 0)^-1[:, :3]
+    back[:, :3] = phi_ll_inv
+    if prob.with_att:
+        out_state[:, 3:, :3] = jb[1][:, :, 6:9] @ jinv
+        out_state[:, :3, 3:] = jb[0][:, :, 9:12]
+        out_state[:, 3:, 3:] = jb[1][:, :, 9:12]
+        g_att_w = -jb[1][:, :, 6:9] * prob.sigma_att
+        g_att_q = -jb[1][:, :, 9:12] * prob.sigma_att
+        back[:, 3:] = -np.linalg.solve(g_att_q, g_att_w @ jinv @ phi_ll_inv)
+    ds = np.gradient(prob.t_grid[prob.meas_idx]) if m > 1 else np.ones(1)
+    rows = jb.transpose(1, 0, 2, 3).reshape(m, 3 * blocks, n)[:, :, free]
+    later = np.cumsum(np.einsum("mrn,mrs->mns", rows, out_state)[::-1], axis=0)[::-1]
+    c = np.einsum("mns,msk->mnk", later, back)
+    b = np.einsum("mnk,mlk,m->nl", c, c, ds)
+    a_inv = ml.jacobian_covariance(ev.jac, free)[np.ix_(free, free)]
+    walk = np.cumsum(np.einsum("msk,mtk,m->mst", back, back, ds), axis=0)
+    trace_k = float(np.einsum("mrs,mst,mrt->", out_state, walk, out_state))
+    trace_pk = float(np.trace(a_inv @ b))
+    excess = float(ev.r @ ev.r) - (ev.r.size - int(free.sum()))
+    q = max(0.0, excess / max(trace_k - trace_pk, 1e-300))
+    cov = np.zeros((n, n))
+    cov[np.ix_(free, free)] = q * (a_inv @ b @ a_inv)
+    return q, 0.5 * (cov + cov.T)
+
+
 # ------------------------------------------------------------------------------------------
 # The fit, shared by identify() and validate's refinement
 # ------------------------------------------------------------------------------------------
@@ -260,11 +323,23 @@ def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
         cov = fisher_cov * max(1.0, rms_ratio ** 2)
         noise = NoiseModel("white", prob.sigma_w, sigma_source, 0, max(1.0, rms_ratio))
     else:
-        cov = np.zeros_like(fisher_cov)
-        cov[np.ix_(free, free)] = sandwich_covariance(ev.jac[:, free], ev.r, m, lags)
+        # Coloured residuals. Where they exceed the noise level (sigma given, not fitted), the
+        # excess is model error: the noise contributes the Fisher covariance and the model error,
+        # as a disturbance torque sized by the excess, its own (which includes the part the fit
+        # absorbed into the parameters, invisible in the residuals). A sandwich over the same
+        # residuals would count the model error twice. Without an excess the correlated noise
+        # is all there is: the Bartlett/Newey-West sandwich.
+        used = prob.window(m) if m < prob.meas_idx.size else prob
+        q_dist, cov_model = model_error_covariance(used, fit.p, ev)
+        if q_dist > 0:
+            cov = fisher_cov + cov_model
+        else:
+            cov = np.zeros_like(fisher_cov)
+            cov[np.ix_(free, free)] = sandwich_covariance(ev.jac[:, free], ev.r, m, lags)
         ratio = np.sqrt(np.clip(np.diag(cov)[:6][free[:6]], 0, None)
                         / np.clip(np.diag(fisher_cov)[:6][free[:6]], 1e-300, None))
-        noise = NoiseModel("coloured", prob.sigma_w, sigma_source, lags, float(np.median(ratio)))
+        noise = NoiseModel("coloured", prob.sigma_w, sigma_source, lags, float(np.median(ratio)),
+                           q_dist)
     phi = fit.p[:6]
     estimate = inertia_estimate(phi, cov[:6, :6], prob.fix_scale, trace_ref)
     bound = inertia_estimate(phi, fisher_cov[:6, :6], prob.fix_scale, trace_ref)
@@ -322,6 +397,7 @@ class Identification:
             "rms_over_noise": float(self.rms_over_noise),
             "noise_model": self.noise.describe(),
             "noise_kind": self.noise.kind,
+            "disturbance_q": float(self.noise.disturbance_q),
             "gyro_bias": None if self.bias is None else self.bias.tolist(),
             "converged": bool(self.converged),
             "n_samples": int(self.t.size),

@@ -56,23 +56,26 @@ GIVE_UP_FACTOR = 10.0
 
 
 @nb.njit(cache=True, nogil=True)
-def _rate(y, h, tau, jm, jinv, jj, with_sens, with_att, dy, s_w):
-    """Right-hand side of the augmented state y = [L (3), S_L (3x12), q (4), S_att (3x12)].
+def _rate(y, h, tau, jm, jinv, jj, drag, nd, with_sens, with_att, dy, s_w):
+    """Right-hand side of the augmented state y = [L (3), S_L (3 x nd), q (4), S_att (3 x nd)].
 
-    h, tau (3,) at the stage time; jm, jinv (3, 3); jj (6, 3, 3) dJ/dphi_j. Writes dy and the
-    rate sensitivity s_w (3, 12); returns nothing.
+    h, tau (3,) at the stage time; jm, jinv (3, 3); jj (6, 3, 3) dJ/dphi_j; drag (3,) N·m·s²
+    the body-axis aerodynamic damping c (torque -c_i |w| w_i); nd sensitivity columns (12, or
+    15 with the drag's own three). Writes dy and the rate sensitivity s_w (3, nd); returns w.
     """
     lx, ly, lz = y[0], y[1], y[2]
     ax, ay, az = lx - h[0], ly - h[1], lz - h[2]
     wx = jinv[0, 0] * ax + jinv[0, 1] * ay + jinv[0, 2] * az
     wy = jinv[1, 0] * ax + jinv[1, 1] * ay + jinv[1, 2] * az
     wz = jinv[2, 0] * ax + jinv[2, 1] * ay + jinv[2, 2] * az
-    dy[0] = tau[0] - (wy * lz - wz * ly)
-    dy[1] = tau[1] - (wz * lx - wx * lz)
-    dy[2] = tau[2] - (wx * ly - wy * lx)
+    wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+    dy[0] = tau[0] - (wy * lz - wz * ly) - drag[0] * wn * wx
+    dy[1] = tau[1] - (wz * lx - wx * lz) - drag[1] * wn * wy
+    dy[2] = tau[2] - (wx * ly - wy * lx) - drag[2] * wn * wz
+    inv_wn = 1.0 / wn if wn > 0.0 else 0.0
     if with_sens:
-        for p in range(N_DYN):
-            sx, sy, sz = y[3 + p], y[3 + N_DYN + p], y[3 + 2 * N_DYN + p]
+        for p in range(nd):
+            sx, sy, sz = y[3 + p], y[3 + nd + p], y[3 + 2 * nd + p]
             vx = jinv[0, 0] * sx + jinv[0, 1] * sy + jinv[0, 2] * sz
             vy = jinv[1, 0] * sx + jinv[1, 1] * sy + jinv[1, 2] * sz
             vz = jinv[2, 0] * sx + jinv[2, 1] * sy + jinv[2, 2] * sz
@@ -84,12 +87,18 @@ def _rate(y, h, tau, jm, jinv, jj, with_sens, with_att, dy, s_w):
                 vy -= jinv[1, 0] * ux + jinv[1, 1] * uy + jinv[1, 2] * uz
                 vz -= jinv[2, 0] * ux + jinv[2, 1] * uy + jinv[2, 2] * uz
             s_w[0, p], s_w[1, p], s_w[2, p] = vx, vy, vz
-            # d/dp (-w x L) = L x S_w - w x S_L
-            dy[3 + p] = (ly * vz - lz * vy) - (wy * sz - wz * sy)
-            dy[3 + N_DYN + p] = (lz * vx - lx * vz) - (wz * sx - wx * sz)
-            dy[3 + 2 * N_DYN + p] = (lx * vy - ly * vx) - (wx * sy - wy * sx)
+            # d/dp (-w x L) = L x S_w - w x S_L;  d/dp (-c_i |w| w_i) = -c_i (|w| v_i + w_i w.v/|w|)
+            wv = (wx * vx + wy * vy + wz * vz) * inv_wn
+            dy[3 + p] = (ly * vz - lz * vy) - (wy * sz - wz * sy) - drag[0] * (wn * vx + wx * wv)
+            dy[3 + nd + p] = (lz * vx - lx * vz) - (wz * sx - wx * sz) - drag[1] * (wn * vy + wy * wv)
+            dy[3 + 2 * nd + p] = ((lx * vy - ly * vx) - (wx * sy - wy * sx)
+                                  - drag[2] * (wn * vz + wz * wv))
+        if nd > N_DYN:  # the drag coefficients' own columns: d/dc_i of -c_i |w| w_i
+            dy[3 + N_DYN] -= wn * wx
+            dy[3 + nd + N_DYN + 1] -= wn * wy
+            dy[3 + 2 * nd + N_DYN + 2] -= wn * wz
     if with_att:
-        o = 3 + 3 * N_DYN
+        o = 3 + 3 * nd
         qw, qx, qy, qz = y[o], y[o + 1], y[o + 2], y[o + 3]
         dy[o] = 0.5 * (-qx * wx - qy * wy - qz * wz)
         dy[o + 1] = 0.5 * (qw * wx + qy * wz - qz * wy)
@@ -97,25 +106,32 @@ def _rate(y, h, tau, jm, jinv, jj, with_sens, with_att, dy, s_w):
         dy[o + 3] = 0.5 * (qw * wz + qx * wy - qy * wx)
         if with_sens:
             a = o + 4
-            for p in range(N_DYN):
-                ex, ey, ez = y[a + p], y[a + N_DYN + p], y[a + 2 * N_DYN + p]
+            for p in range(nd):
+                ex, ey, ez = y[a + p], y[a + nd + p], y[a + 2 * nd + p]
                 dy[a + p] = -(wy * ez - wz * ey) + s_w[0, p]
-                dy[a + N_DYN + p] = -(wz * ex - wx * ez) + s_w[1, p]
-                dy[a + 2 * N_DYN + p] = -(wx * ey - wy * ex) + s_w[2, p]
+                dy[a + nd + p] = -(wz * ex - wx * ez) + s_w[1, p]
+                dy[a + 2 * nd + p] = -(wx * ey - wy * ex) + s_w[2, p]
     return wx, wy, wz
 
 
 @nb.njit(cache=True, nogil=True)
 def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens, with_att,
-               out_w, out_sw, out_q, out_sa):
+               out_w, out_sw, out_q, out_sa, drag=None):
     """Integrate the model over the grid and write the outputs at the measurement points.
 
     t_grid (G,) s increasing; tau_grid (G, 3) N·m held over [t_k, t_k+1); h_grid (G, 3) kg·m²/s,
     linear between grid points; n_sub (G,) RK4 sub-steps per interval; meas_idx (M,) grid
     indices (non-decreasing) of the measurements; phi (6,), w0 (3,) rad/s and q0 (4,) at t_grid[0].
-    Writes out_w (M, 3) rad/s, out_sw (M, 3, 12) d w / d [phi, w0, dq0], out_q (M, 4) and
-    out_sa (M, 3, 12) d(attitude error)/dp (rad). Returns False if the state became non-finite.
+    drag (3,) N·m·s² or None: body-axis aerodynamic damping c (external torque -c_i |w| w_i);
+    given, it is also a parameter and the sensitivities gain its three columns.
+    Writes out_w (M, 3) rad/s, out_sw (M, 3, nd) d w / d [phi, w0, dq0, (c)], out_q (M, 4) and
+    out_sa (M, 3, nd) d(attitude error)/dp (rad), nd = 12 (15 with drag). Returns False if the
+    state became non-finite.
     """
+    nd = N_DYN if drag is None else N_DYN + 3
+    c_drag = np.zeros(3)
+    if drag is not None:
+        c_drag[:] = drag
     jm = inertia_from_phi(phi)
     jinv = np.linalg.inv(jm)
     d = dtheta_dphi(phi)
@@ -124,24 +140,24 @@ def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens
         jj[p, 0, 0], jj[p, 0, 1], jj[p, 0, 2] = d[0, p], d[1, p], d[2, p]
         jj[p, 1, 0], jj[p, 1, 1], jj[p, 1, 2] = d[1, p], d[3, p], d[4, p]
         jj[p, 2, 0], jj[p, 2, 1], jj[p, 2, 2] = d[2, p], d[4, p], d[5, p]
-    n_state = 3 + 3 * N_DYN + 4 + 3 * N_DYN
+    n_state = 3 + 3 * nd + 4 + 3 * nd
     y = np.zeros(n_state)
     for i in range(3):
         y[i] = h_grid[0, i] + jm[i, 0] * w0[0] + jm[i, 1] * w0[1] + jm[i, 2] * w0[2]
     for p in range(6):
         for i in range(3):
-            y[3 + i * N_DYN + p] = jj[p, i, 0] * w0[0] + jj[p, i, 1] * w0[1] + jj[p, i, 2] * w0[2]
+            y[3 + i * nd + p] = jj[p, i, 0] * w0[0] + jj[p, i, 1] * w0[1] + jj[p, i, 2] * w0[2]
     for c in range(3):
         for i in range(3):
-            y[3 + i * N_DYN + 6 + c] = jm[i, c]
-    o = 3 + 3 * N_DYN
+            y[3 + i * nd + 6 + c] = jm[i, c]
+    o = 3 + 3 * nd
     for i in range(4):
         y[o + i] = q0[i]
     for c in range(3):
-        y[o + 4 + c * N_DYN + 9 + c] = 1.0
+        y[o + 4 + c * nd + 9 + c] = 1.0
     k1, k2, k3, k4, tmp = (np.empty(n_state), np.empty(n_state), np.empty(n_state),
                            np.empty(n_state), np.empty(n_state))
-    s_w = np.zeros((3, N_DYN))
+    s_w = np.zeros((3, nd))
     h_a, h_m, h_b = np.empty(3), np.empty(3), np.empty(3)
     tau = np.empty(3)
     m = 0
@@ -151,7 +167,8 @@ def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens
         while m < n_meas and meas_idx[m] == g:
             for i in range(3):
                 h_a[i] = h_grid[g, i]
-            wx, wy, wz = _rate(y, h_a, tau_grid[g], jm, jinv, jj, with_sens, with_att, k1, s_w)
+            wx, wy, wz = _rate(y, h_a, tau_grid[g], jm, jinv, jj, c_drag, nd, with_sens, with_att,
+                               k1, s_w)
             out_w[m, 0], out_w[m, 1], out_w[m, 2] = wx, wy, wz
             if with_sens:
                 out_sw[m] = s_w
@@ -160,8 +177,8 @@ def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens
                     out_q[m, i] = y[o + i]
                 if with_sens:
                     for i in range(3):
-                        for p in range(N_DYN):
-                            out_sa[m, i, p] = y[o + 4 + i * N_DYN + p]
+                        for p in range(nd):
+                            out_sa[m, i, p] = y[o + 4 + i * nd + p]
             m += 1
         if g == g_count - 1 or m == n_meas:
             break
@@ -177,16 +194,16 @@ def trajectory(t_grid, tau_grid, h_grid, n_sub, meas_idx, phi, w0, q0, with_sens
                 h_a[i] = h_grid[g, i] + fa * dh
                 h_m[i] = h_grid[g, i] + fm * dh
                 h_b[i] = h_grid[g, i] + fb * dh
-            _rate(y, h_a, tau, jm, jinv, jj, with_sens, with_att, k1, s_w)
+            _rate(y, h_a, tau, jm, jinv, jj, c_drag, nd, with_sens, with_att, k1, s_w)
             for i in range(n_state):
                 tmp[i] = y[i] + 0.5 * hstep * k1[i]
-            _rate(tmp, h_m, tau, jm, jinv, jj, with_sens, with_att, k2, s_w)
+            _rate(tmp, h_m, tau, jm, jinv, jj, c_drag, nd, with_sens, with_att, k2, s_w)
             for i in range(n_state):
                 tmp[i] = y[i] + 0.5 * hstep * k2[i]
-            _rate(tmp, h_m, tau, jm, jinv, jj, with_sens, with_att, k3, s_w)
+            _rate(tmp, h_m, tau, jm, jinv, jj, c_drag, nd, with_sens, with_att, k3, s_w)
             for i in range(n_state):
                 tmp[i] = y[i] + hstep * k3[i]
-            _rate(tmp, h_b, tau, jm, jinv, jj, with_sens, with_att, k4, s_w)
+            _rate(tmp, h_b, tau, jm, jinv, jj, c_drag, nd, with_sens, with_att, k4, s_w)
             for i in range(n_state):
                 y[i] += hstep / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
             if with_att:
@@ -211,7 +228,8 @@ class Problem:
     n_sub (G,) integration sub-steps per interval; meas_idx (M,) grid index of each measurement;
     z_w (M, 3) rad/s gyro; z_q (M, 4) unit quaternions or None; sigma_w (3,) rad/s;
     sigma_att rad (per axis of the attitude error); fit_bias: estimate a constant gyro bias;
-    fix_scale: the scale s is not a free parameter (no torque and no changing h).
+    fix_scale: the scale s is not a free parameter (no torque and no changing h); fit_drag:
+    estimate a body-axis aerodynamic damping c (3,) N·m·s² (external torque -c_i |w| w_i).
     """
 
     t_grid: np.ndarray
@@ -225,6 +243,7 @@ class Problem:
     sigma_att: float
     fit_bias: bool
     fix_scale: bool
+    fit_drag: bool = False
 
     @property
     def with_att(self) -> bool:
@@ -233,8 +252,14 @@ class Problem:
 
     @property
     def n_params(self) -> int:
-        """Length of p = [phi, w0, (dq0), (b)]."""
-        return 9 + (3 if self.with_att else 0) + (3 if self.fit_bias else 0)
+        """Length of p = [phi, w0, (dq0), (c), (b)]."""
+        return 9 + 3 * (int(self.with_att) + int(self.fit_drag) + int(self.fit_bias))
+
+    @property
+    def drag_slice(self) -> slice:
+        """Where the drag coefficients c sit in p (empty without fit_drag)."""
+        start = 12 if self.with_att else 9
+        return slice(start, start + (3 if self.fit_drag else 0))
 
     def free(self) -> np.ndarray:
         """Bool mask (n_params,) of the parameters the fit moves."""
@@ -305,14 +330,16 @@ def evaluate(prob: Problem, p, q_ref, with_jac: bool) -> Evaluation:
     perturbs (q0 = q_ref (x) exp(dq0/2)).
     """
     m = prob.meas_idx.size
+    nd = N_DYN + (3 if prob.fit_drag else 0)
     out_w = np.zeros((m, 3))
-    out_sw = np.zeros((m, 3, N_DYN)) if with_jac else np.zeros((1, 3, N_DYN))
+    out_sw = np.zeros((m, 3, nd)) if with_jac else np.zeros((1, 3, nd))
     out_q = np.zeros((m, 4)) if prob.with_att else np.zeros((1, 4))
-    out_sa = np.zeros((m, 3, N_DYN)) if (with_jac and prob.with_att) else np.zeros((1, 3, N_DYN))
+    out_sa = np.zeros((m, 3, nd)) if (with_jac and prob.with_att) else np.zeros((1, 3, nd))
     q0 = quat_mul(q_ref, quat_exp(p[9:12])) if prob.with_att else np.array([1.0, 0, 0, 0])
+    drag = np.ascontiguousarray(p[prob.drag_slice]) if prob.fit_drag else None
     ok = trajectory(prob.t_grid, prob.tau_grid, prob.h_grid, prob.n_sub, prob.meas_idx,
                     np.ascontiguousarray(p[:6]), np.ascontiguousarray(p[6:9]), q0, with_jac,
-                    prob.with_att, out_w, out_sw, out_q, out_sa)
+                    prob.with_att, out_w, out_sw, out_q, out_sa, drag)
     bias = p[-3:] if prob.fit_bias else np.zeros(3)
     e_w = prob.z_w - out_w - bias
     parts = [(e_w / prob.sigma_w).ravel()]
@@ -327,12 +354,14 @@ def evaluate(prob: Problem, p, q_ref, with_jac: bool) -> Evaluation:
         n_p = prob.n_params
         jw = np.zeros((m, 3, n_p))
         jw[:, :, :9] = out_sw[:, :, :9]
+        jw[:, :, prob.drag_slice] = out_sw[:, :, N_DYN:]
         if prob.fit_bias:
             jw[:, :, -3:] = np.eye(3)
         blocks = [(jw / prob.sigma_w[None, :, None]).reshape(-1, n_p)]
         if prob.with_att:
             ja = np.zeros((m, 3, n_p))
-            ja[:, :, :12] = out_sa
+            ja[:, :, :N_DYN] = out_sa[:, :, :N_DYN]
+            ja[:, :, prob.drag_slice] = out_sa[:, :, N_DYN:]
             blocks.append((ja / prob.sigma_att).reshape(-1, n_p))
         # r = z - model: dr/dp = -d model/dp
         jac = -np.concatenate(blocks, axis=0)
