@@ -236,3 +236,25 @@ def test_shipped_scenarios_load_by_name_and_are_plausible(tmp_path, paper):
     (tmp_path / "bin.toml").write_bytes(b"\xff\xfe\x00tau")
     with pytest.raises(ConfigError, match="not valid toml"):
         Scenario.load(tmp_path / "bin.toml")
+
+
+def test_cli_refuses_an_impossible_body_and_warns_about_a_far_guess(tmp_path, capsys):
+    from inertia_gym.cli import main
+
+    def simulate(path):
+        out = str(tmp_path / "r.csv")
+        return main(["simulate", "--scenario", str(path), "--duration", "1", "--out", out])
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("inertia_true = [[0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.5]]\n")
+    assert simulate(bad) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "triangle" in err
+    assert err.startswith("inertia-gym simulate: error: inertia_true")
+    far = tmp_path / "far.toml"  # a CubeSat with the paper's 85-210 kg·m² guess left in place
+    far.write_text("inertia_true = [[0.1, 0, 0], [0, 0.12, 0], [0, 0, 0.05]]\ntau_max = 1e-3\n"
+                   "omega0 = [0.03, 0.1, 0.02]\ngyro_sigma = 1e-3\n")
+    assert simulate(far) == 0
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("inertia-gym simulate: warning: inertia_guess's principal moments [85, 135, 210]")
+    assert "\n" not in err
