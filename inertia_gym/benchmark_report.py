@@ -91,6 +91,10 @@ def explanation(settings: SweepSettings, summary: dict) -> str:
             f"* **win rates** rest on {counts} seed(s) per pair of agents (in brackets): with n "
             f"seeds a rate moves in steps of 1/(2n) and one seed changes it by up to 1/n "
             f"({1 / min(seeds):.2g} here). Read them with the quartiles above, not as a ranking.")
+    text.append(
+        "* **cost_curves.png**: left, the re-evaluated cost of the xi a run would have "
+        "recommended after i evaluations (the learning curve: what the agent knows, not one "
+        "noisy episode); right, the running best of the observed cost (Figure 1 of the paper).")
     return "\n".join(text) + "\n"
 
 

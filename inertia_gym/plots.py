@@ -199,7 +199,6 @@ def plot_cost_curves(runs: list[dict], summary: dict, settings, path: str | Path
     n_eval = len(settings.eval_seeds)
     axes[0].set_title(f"recommended xi after i evaluations: its cost re-evaluated\n"
                       f"from the start (mean of {n_eval} fresh episodes)", fontsize=10)
-    axes[0].set_xscale("log")
     axes[1].set_title("running best of the observed cost (single noisy episodes)", fontsize=10)
     axes[0].set_ylabel(cost_label(settings.cost))
     mode = "carry-over (Algorithm 1)" if settings.carry_over else "from-start episodes"
