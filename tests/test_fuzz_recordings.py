@@ -11,6 +11,7 @@ traceback, an internal error (exit 1), a RuntimeWarning, or nonsense with exit 0
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -128,7 +129,8 @@ def _write(folder: Path, plan: dict, base) -> list[str]:
     return args
 
 
-def _check_outcome(command: str, folder: Path, args: list[str], capsys) -> int:
+def _check_outcome(command: str, folder: Path, args: list[str], capsys) -> tuple[int, str]:
+    """Run the command in-process; assert the outcome is valid; return (exit code, stderr)."""
     out = folder / "out"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -138,11 +140,10 @@ def _check_outcome(command: str, folder: Path, args: list[str], capsys) -> int:
     assert not runtime, runtime
     assert "Traceback" not in err and "Warning" not in err, err
     assert code in (0, 2), err
-    event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else command}")
     if code == 2:
         assert err.strip() and err.strip().count("\n") == 0, err
         assert err.startswith(f"inertia-gym {command}: error: "), err
-        return code
+        return code, err
     reports = sorted(out.rglob("identify.json" if command == "identify" else "report.json"))
     assert reports
     for path in reports:
@@ -150,14 +151,15 @@ def _check_outcome(command: str, folder: Path, args: list[str], capsys) -> int:
         assert _finite_numbers(report)
         inertia = report["inertia"] if command == "identify" else report["fit_after"]["inertia"]
         assert _physical(inertia), inertia
-    return code
+    return code, err
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(plan=damaged())
 def test_identify_on_damaged_recordings_gives_a_result_or_one_line(plan, base, tmp_path_factory, capsys):
     folder = tmp_path_factory.mktemp("fuzz")
-    _check_outcome("identify", folder, _write(folder, plan, base), capsys)
+    code, err = _check_outcome("identify", folder, _write(folder, plan, base), capsys)
+    event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else 'identify'}")
 
 
 @pytest.mark.slow
@@ -165,7 +167,8 @@ def test_identify_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
 @given(plan=damaged())
 def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, tmp_path_factory, capsys):
     folder = tmp_path_factory.mktemp("fuzz")
-    _check_outcome("diagnose", folder, _write(folder, plan, base), capsys)
+    code, err = _check_outcome("diagnose", folder, _write(folder, plan, base), capsys)
+    event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else 'diagnose'}")
 
 
 @pytest.mark.parametrize("time_factor, rate_factor, stated, expected", [
@@ -184,7 +187,7 @@ def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path,
     path = tmp_path / "rec.csv"
     np.savetxt(path, data, delimiter=",", header=",".join(COLUMN_NAMES), comments="", fmt="%.10g")
     (tmp_path / "rec.json").write_text(json.dumps(side))
-    code = _check_outcome("identify", tmp_path, [str(path), *stated], capsys)
+    code, err = _check_outcome("identify", tmp_path, [str(path), *stated], capsys)
     if expected is None:
         assert code == 0
         summary = json.loads((tmp_path / "out" / "identify.json").read_text())
@@ -192,4 +195,44 @@ def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path,
         shape_error = np.linalg.norm(inertia / np.trace(inertia) - truth / np.trace(truth))
         assert shape_error < 0.05 * np.linalg.norm(truth / np.trace(truth)), shape_error
     else:
-        assert code == 2
+        assert code == 2 and expected in err
+
+
+def _phyphox_with_empty_segment(folder: Path) -> Path:
+    export = folder / "Gyroscope rotation rate 1"
+    (export / "meta").mkdir(parents=True)
+    t = np.arange(300) * 0.01
+    rows = [f"{x:.5E},{np.sin(x):.5E},1.0E0,{np.cos(x):.5E},1.0E0" for x in t]
+    header = '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)","Absolute (rad/s)"'
+    (export / "Raw Data.csv").write_text("\n".join([header, *rows]) + "\n")
+    (export / "meta" / "segments.csv").write_text("segment,start,end,keep\n0,0.5,2.5,\n1,5.0,6.0,\n")
+    return export
+
+
+@pytest.mark.parametrize("command", ["diagnose", "identify"])
+@pytest.mark.parametrize("case, message", [
+    ("single row", "only 1 samples"),
+    ("short", "diagnose needs at least|identify needs at least"),
+    ("constant time", "time does not increase"),
+    ("huge values", "beyond any physical scale"),
+    ("NaN column", "column 'wy': value is NaN"),
+    ("empty segment", "segment 1 .* holds 0 samples"),
+])
+def test_odd_inputs_end_in_one_line(base, tmp_path, capsys, command, case, message):
+    columns, _ = base
+    if case == "empty segment":
+        path = _phyphox_with_empty_segment(tmp_path)
+    else:
+        data = {name: columns[name].copy() for name in ("t", "wx", "wy", "wz")}
+        rows = {"single row": 1, "short": 15}.get(case, ROWS)
+        if case == "constant time":
+            data["t"][:] = 2.0
+        elif case == "huge values":
+            data["wz"] = data["wz"] * 1e300
+        elif case == "NaN column":
+            data["wy"][:] = np.nan
+        path = tmp_path / "rec.csv"
+        np.savetxt(path, np.stack(list(data.values()), axis=1)[:rows], delimiter=",", header="t,wx,wy,wz",
+                   comments="", fmt="%.10g")
+    code, err = _check_outcome(command, tmp_path, [str(path)], capsys)
+    assert code == 2 and re.search(message, err), err

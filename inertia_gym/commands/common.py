@@ -120,8 +120,8 @@ def check_physical_inertia(inertia, what: str) -> None:
     (each at most the sum of the others, to 1e-6 of the largest). what names it in the message.
     """
     j = np.asarray(inertia, dtype=float)
-    fix = ("the recording does not support a rigid body: check the units (--time-unit, --rate-unit) "
-           "and the column mapping (--columns)")
+    fix = ("the recording does not determine a rigid body's inertia: too short or too little motion, "
+           "or check the units (--time-unit, --rate-unit) and the column mapping (--columns)")
     if j.shape != (3, 3) or not np.all(np.isfinite(j)):
         raise RecordingError(f"{what}: the fitted inertia is not a finite 3x3 matrix; {fix}")
     moments = np.linalg.eigvalsh(0.5 * (j + j.T))

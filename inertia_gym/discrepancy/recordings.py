@@ -50,6 +50,8 @@ RATE_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
 #: rad the body may turn between two samples at its median rate: more and no logger in seconds
 #: with a rad/s gyro resolves the motion (unless the rates barely change, see below).
 MAX_TURN_PER_SAMPLE = 1.0
+#: Rotation per sample of real loggers (lowest plausible, typical): ranks the suspects.
+TYPICAL_TURN_PER_SAMPLE = (1e-4, 0.05)
 #: Relative change of the rates per radian turned below which a body that turns more than
 #: MAX_TURN_PER_SAMPLE between samples is taken for a unit error: a tumbling rigid body's rates
 #: change by a fair share of themselves per radian (Euler: |w_dot| ~ asymmetry * |w|^2).
@@ -184,7 +186,8 @@ def check_units(path, t, w, q=None, *, time_unit=None, rate_unit=None) -> None:
       radian turned: the logger resolved the motion far more finely than the units claim.
 
     Scaling time by c or the rates by k scales both observations by c k, so the message names
-    the suspects (UNIT_SUSPECTS) whose factor explains what was seen.
+    the suspects (UNIT_SUSPECTS) whose factor explains what was seen: for the dynamics cue the
+    (at most two) that bring the turn per sample into [1e-4, 1] rad, nearest to 0.05 rad first.
     """
     suspects = [s for s in UNIT_SUSPECTS
                 if (time_unit is None or "time" not in s[0]) and (rate_unit is None or "rates" not in s[0])]
@@ -207,8 +210,11 @@ def check_units(path, t, w, q=None, *, time_unit=None, rate_unit=None) -> None:
         turn = typical * float(np.median(np.diff(t)))
     change = float(np.median(np.linalg.norm(np.diff(w, axis=0), axis=1))) / typical
     if turn > MAX_TURN_PER_SAMPLE and change < MIN_RATE_CHANGE_PER_RADIAN * turn:
-        fitting = [s for s in suspects if turn / s[1] <= MAX_TURN_PER_SAMPLE]
-        guess = f"{fitting[0][0]}? {fitting[0][2]}" if fitting else "check the units of t and of the gyro"
+        lowest, typical_turn = TYPICAL_TURN_PER_SAMPLE
+        fitting = sorted((s for s in suspects if lowest <= turn / s[1] <= MAX_TURN_PER_SAMPLE),
+                         key=lambda s: abs(np.log(turn / s[1] / typical_turn)))
+        guess = "; or ".join(f"{name}? {fix}" for name, _, fix in fitting[:2]) or \
+            "check the units of t and of the gyro"
         raise _fail(path, f"at its median rate {typical:.3g} rad/s the body would turn {turn:.3g} rad "
                           f"between samples (median step {np.median(np.diff(t)):.3g} s), yet its rates "
                           f"change by only {change:.2g} of themselves per sample: {guess}{keep}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from inertia_gym.discrepancy.recordings import (
     read_sidecar,
     write_recording,
 )
-from inertia_gym.errors import RecordingError
+from inertia_gym.errors import ConfigError, RecordingError
 
 GOOD = "t,wx,wy,wz\n" + "".join(f"{0.1 * i},0.1,0.2,{0.01 * i}\n" for i in range(20))
 
@@ -193,3 +194,149 @@ def test_random_garbage_ends_in_recording_error(tmp_path_factory, text):
     except RecordingError:
         return
     assert np.all(np.isfinite(rec.w)) and np.all(np.diff(rec.t) > 0)
+
+
+# --- units and column names (issue 12) ---------------------------------------------------------
+
+def _tumble(n=400, dt=0.01, seed=0):
+    """Gyro rows of a torque-free tumbling rigid body (RK4 on Euler's equations), rad/s at t in s."""
+    inertia = np.array([1.0, 2.0, 2.6])
+    w = np.array([0.3, 2.0, 0.4])
+    rows = []
+    f = lambda v: np.array([(inertia[1] - inertia[2]) * v[1] * v[2], (inertia[2] - inertia[0]) * v[2] * v[0],  # noqa: E731
+                            (inertia[0] - inertia[1]) * v[0] * v[1]]) / inertia
+    for _ in range(n):
+        rows.append(w)
+        k1 = f(w)
+        k2 = f(w + 0.5 * dt * k1)
+        k3 = f(w + 0.5 * dt * k2)
+        k4 = f(w + dt * k3)
+        w = w + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    noise = np.random.default_rng(seed).normal(0.0, 0.01, (n, 3))
+    return np.arange(n) * dt, np.array(rows) + noise
+
+
+def _csv(tmp_path, t, w, header="t,wx,wy,wz", name="u.csv"):
+    path = tmp_path / name
+    np.savetxt(path, np.column_stack([t, w]), delimiter=",", header=header, comments="", fmt="%.12g")
+    return path
+
+
+@pytest.mark.parametrize("time_factor, rate_factor, suspect", [
+    (1e3, 1.0, "time in ms"),
+    (1e6, 1.0, "time in us"),
+    (1.0, 180 / np.pi, "rates in deg/s"),  # |w| <= 2.1 rad/s = 120 deg/s: below the magnitude cue
+])
+def test_gyro_only_units_refused_by_the_dynamics_cue(tmp_path, time_factor, rate_factor, suspect):
+    t, w = _tumble()
+    path = _csv(tmp_path, t * time_factor, w * rate_factor)
+    with pytest.raises(RecordingError, match=f"would turn .* rad between samples.*{suspect}") as info:
+        read_recordings(path)
+    assert "\n" not in str(info.value) and "--time-unit s --rate-unit rad/s" in str(info.value)
+
+
+def test_right_units_and_coarse_tumbling_are_accepted(tmp_path):
+    t, w = _tumble()
+    (rec,) = read_recordings(_csv(tmp_path, t, w))
+    np.testing.assert_allclose(rec.w, w)
+    # one sample every 0.5 s: the body turns ~1 rad between rows, but its rates change with it
+    coarse_t, coarse_w = _tumble(n=4000, dt=0.01)
+    (rec,) = read_recordings(_csv(tmp_path, coarse_t[::50], coarse_w[::50], name="coarse.csv"))
+    assert rec.t.size == 80
+
+
+def test_stated_units_are_converted_and_trusted(tmp_path):
+    t, w = _tumble()
+    path = _csv(tmp_path, t * 1e3, np.degrees(w))
+    (rec,) = read_recordings(path, time_unit="ms", rate_unit="deg/s")
+    np.testing.assert_allclose(rec.t, t, atol=1e-12)
+    np.testing.assert_allclose(rec.w, w, rtol=1e-9)
+    with pytest.raises(RecordingError, match="time in ms"):  # the rate stated, the time still checked
+        read_recordings(path, rate_unit="deg/s")
+    with pytest.raises(ConfigError, match="--time-unit: unknown unit 'min'"):
+        read_recordings(path, time_unit="min")
+
+
+def test_a_steady_spin_logged_slowly_needs_its_units_stated(tmp_path):
+    """The rule's known false alarm: a pure spin at 3 rad/s logged at 1 Hz looks like ms."""
+    t = np.arange(50.0)
+    w = np.tile([0.0, 0.0, 3.0], (50, 1)) + np.random.default_rng(1).normal(0, 1e-3, (50, 3))
+    path = _csv(tmp_path, t, w)
+    with pytest.raises(RecordingError, match="state them"):
+        read_recordings(path)
+    (rec,) = read_recordings(path, time_unit="s", rate_unit="rad/s")
+    assert rec.t.size == 50
+
+
+def test_attitude_disagreeing_with_the_gyro_names_the_factor(tmp_path):
+    t, w = _tumble(n=300)
+    q = np.zeros((300, 4))
+    q[0] = [1.0, 0, 0, 0]
+    for i in range(1, 300):  # integrate the attitude from the gyro itself (body rates)
+        angle = np.linalg.norm(w[i - 1]) * 0.01
+        axis = w[i - 1] / np.linalg.norm(w[i - 1])
+        dq = np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis]
+        a, b = q[i - 1], dq
+        q[i] = [a[0] * b[0] - a[1:] @ b[1:], *(a[0] * b[1:] + b[0] * a[1:] + np.cross(a[1:], b[1:]))]
+    header = "t,wx,wy,wz,qw,qx,qy,qz"
+    (rec,) = read_recordings(_csv(tmp_path, t, np.hstack([w, q]), header, "ok.csv"))
+    assert rec.q is not None
+    path = _csv(tmp_path, t, np.hstack([w * 57.29577951308232, q]), header, "deg.csv")
+    with pytest.raises(RecordingError, match=r"gyro turns 5\d(\.\d)? times as far as the attitude.*deg/s"):
+        read_recordings(path)
+
+
+def test_column_map_renames_and_names_what_is_wrong(tmp_path):
+    t, w = _tumble(n=50)
+    path = _csv(tmp_path, t, w, header="time,gx,gy,t")
+    with pytest.raises(RecordingError, match=r"column 'wx': missing column.*--columns wx=NAME"):
+        read_recordings(path)
+    (rec,) = read_recordings(path, columns={"t": "time", "wx": "gx", "wy": "gy", "wz": "t"})
+    np.testing.assert_allclose(rec.t, t)
+    np.testing.assert_allclose(rec.w, w)
+    with pytest.raises(ConfigError, match=r"unknown column name\(s\) \['omega'\]"):
+        read_recordings(path, columns={"omega": "gx"})
+    with pytest.raises(RecordingError, match=r"column 'gz'.*\['gz'\] not in the header"):
+        read_recordings(path, columns={"wz": "gz"})
+
+
+def test_columns_option_on_the_commands(tmp_path, capsys):
+    from inertia_gym.cli import main
+
+    t, w = _tumble()
+    path = _csv(tmp_path, t, w, header="time,gx,gy,gz")
+    assert main(["identify", str(path), "--columns", "t=time,wx=gx,wy=gy,omega=gz", "--out",
+                 str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "omega" in err
+    assert main(["diagnose", str(path), "--columns", "t=time,wx=gx,wy=gy,wz=gq", "--out",
+                 str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'gq'" in err
+    assert main(["identify", str(path), "--columns", "t=time,wx", "--out", str(tmp_path / "o")]) == 2
+    assert "NAME=COLUMN" in capsys.readouterr().err
+    assert main(["identify", str(path), "--columns", "t=time,wx=gx,wy=gy,wz=gz", "--no-plots", "--out",
+                 str(tmp_path / "o")]) == 0
+
+
+def _shared_data():
+    """../shared/data beside the repository, or beside the folder holding its worktrees."""
+    for parent in Path(__file__).resolve().parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return None
+
+
+DATA = _shared_data()
+
+
+@pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
+def test_every_real_recording_still_loads_with_the_unit_checks():
+    """All real development recordings pass the unit rule (a 2000 deg/s gyro at 4 kHz, 30 rad/s
+    racquet tosses at 100 Hz): none may be refused."""
+    rotor = sorted((DATA / "rotor-throws").glob("*.csv"))
+    racquet = sorted(p.parent for p in (DATA / "phyphox-racquet").rglob("Raw Data.csv"))
+    assert len(rotor) == 20 and len(racquet) == 3
+    recs = [r for path in rotor + racquet for r in read_recordings(path)]
+    assert len(recs) == 32  # 20 throws and the 12 kept free-flight windows of the 3 phyphox exports
+    assert all(np.all(np.isfinite(r.w)) for r in recs)
