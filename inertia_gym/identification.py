@@ -423,7 +423,8 @@ def _check_recording(rec: Recording) -> None:
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
 
 
-def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None = None) -> ml.Problem:
+def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None = None,
+                           fit_drag: bool = False) -> ml.Problem:
     """The ML problem of a recording: grid = its rows, torque held per row, h linear."""
     t = rec.t - rec.t[0]
     n = t.size
@@ -440,16 +441,21 @@ def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None =
         n_sub=ml.substeps(t, np.linalg.norm(rec.w, axis=1)), meas_idx=np.arange(n),
         z_w=np.asarray(rec.w, float), z_q=None if not with_att else np.asarray(rec.q, float),
         sigma_w=np.broadcast_to(np.asarray(sigma_w, float), (3,)).copy(), sigma_att=sigma_att,
-        fit_bias=with_att if fit_bias is None else bool(fit_bias), fix_scale=not forced)
+        fit_bias=with_att if fit_bias is None else bool(fit_bias), fix_scale=not forced,
+        fit_drag=bool(fit_drag))
 
 
-def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None) -> Identification:
+def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None,
+             fit_drag: bool = False) -> Identification:
     """Identify the inertia of the body in one recording (see the module docstring).
 
     method: 'ml' (maximum likelihood over the whole record), or 'ekf' / 'ukf' (the paper's
     filter run once over the record through estimation/filters.py, started from the same
     equation-error estimate). fit_bias (ml only): estimate a constant gyro bias (default: where
-    the attitude is recorded, which makes it identifiable).
+    the attitude is recorded, which makes it identifiable). fit_drag (ml only): also estimate a
+    body-axis aerodynamic damping (external torque -c_i |w| w_i, c (3,) N·m·s²); off by default:
+    on the real rotor throws it lowers the residuals by half but trades with the scale (see the
+    README's Known limits).
     """
     if method not in METHODS:
         raise RecordingError(f"method must be one of {METHODS}, got {method!r}")
@@ -459,7 +465,7 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
         sigma_w, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar gyro_sigma"
     else:
         sigma_w, source = None, "estimated from the residuals"
-    prob = problem_from_recording(rec, sigma_w, fit_bias)
+    prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
     nominal = rec.inertia_nominal
     trace_ref = float(np.trace(nominal)) if nominal is not None else None
     theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid,

@@ -27,7 +27,7 @@ The data live outside the repository (no licence to copy them in): without the f
 script prints one line and exits 0.
 
     .venv/bin/python scripts/identify_rotor_throws.py [--data ../shared/data/rotor-throws]
-        [--out DIR] [--withhold-h]
+        [--out DIR] [--withhold-h] [--fit-drag]
 """
 
 import os
@@ -55,12 +55,12 @@ def rel_frobenius(estimate, truth) -> float:
     return float(np.linalg.norm(estimate - truth) / np.linalg.norm(truth))
 
 
-def score(rec, truth_entry, withhold_h: bool) -> dict:
+def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> dict:
     """One throw's row of the table."""
     if withhold_h:
         rec = dataclasses.replace(rec, h=None)
     truth = np.asarray(truth_entry["inertia"], dtype=float)
-    ident = identify(rec)
+    ident = identify(rec, fit_drag=fit_drag)
     est = ident.estimate
     j_hat = est.inertia
     raw_error = rel_frobenius(j_hat, truth)
@@ -135,6 +135,8 @@ def main():
     parser.add_argument("--out", default=None, help="write DIR/rotor_throws.json")
     parser.add_argument("--withhold-h", action="store_true",
                         help="drop the rotor momentum columns (scale then not identified)")
+    parser.add_argument("--fit-drag", action="store_true",
+                        help="also fit a body-axis aerodynamic damping (identify(fit_drag=True))")
     args = parser.parse_args()
     data = Path(args.data)
     if not (data / "truth.json").exists():
@@ -149,7 +151,7 @@ def main():
     for path in files:
         rec = read_recordings(path)[0]
         rows.append(score(dataclasses.replace(rec, name=path.stem), truth[path.stem],
-                          args.withhold_h))
+                          args.withhold_h, args.fit_drag))
     total = time.perf_counter() - t0
     errors = np.array([r["rel_error"] for r in rows])
     principal = np.array([r["principal_rel_error"] for r in rows])

@@ -29,10 +29,12 @@ def _grid(n=2000, dt=0.01, torque=True, momentum=True):
     return t, tau, h
 
 
-def _model(t, tau, h, meas, phi, w0, q0, n_sub=1):
+def _model(t, tau, h, meas, phi, w0, q0, n_sub=1, drag=None):
     out_w, out_q = np.zeros((meas.size, 3)), np.zeros((meas.size, 4))
+    nd = 12 if drag is None else 15
     ok = ml.trajectory(t, tau, h, np.full(t.size, n_sub, dtype=np.int64), meas, phi, w0, q0, False,
-                       True, out_w, np.zeros((1, 3, 12)), out_q, np.zeros((1, 3, 12)))
+                       True, out_w, np.zeros((1, 3, nd)), out_q, np.zeros((1, 3, nd)),
+                       None if drag is None else np.asarray(drag, dtype=float))
     assert ok
     return out_w, out_q
 
@@ -44,6 +46,19 @@ def test_trajectory_without_momentum_equals_the_rigid_body_integrator():
     out_w, out_q = _model(t, tau, h, meas, phi_from_inertia(J_TRUE), W0, Q0)
     np.testing.assert_allclose(out_w, w[meas], atol=1e-10)
     np.testing.assert_allclose(out_q, q[meas], atol=1e-10)
+
+
+def test_drag_torque_is_the_quadratic_damping_it_claims():
+    # d L / dt = -w x L - c (.) |w| w: with w along a principal axis the rate decays as
+    # w(t) = w0 / (1 + c w0 t / J) (no gyroscopic coupling), the closed form of J w' = -c w^2.
+    inertia = np.diag([2.0, 3.0, 4.0])
+    t = np.arange(2001) * 0.001
+    zero = np.zeros((t.size, 3))
+    meas = np.array([0, 1000, 2000])
+    out_w, _ = _model(t, zero, zero, meas, phi_from_inertia(inertia), np.array([0.0, 5.0, 0.0]),
+                      Q0, drag=[0.0, 0.3, 0.0])
+    np.testing.assert_allclose(out_w[:, 1], 5.0 / (1 + 0.3 * 5.0 * t[meas] / 3.0), rtol=1e-9)
+    assert np.abs(out_w[:, [0, 2]]).max() < 1e-12
 
 
 def test_trajectory_with_changing_momentum_keeps_inertial_angular_momentum():
@@ -58,14 +73,16 @@ def test_trajectory_with_changing_momentum_keeps_inertial_angular_momentum():
     assert np.abs(free_w - out_w).max() > 0.1
 
 
-def test_sensitivities_equal_central_differences():
+@pytest.mark.parametrize("drag", [None, [0.02, 0.05, -0.01]])
+def test_sensitivities_equal_central_differences(drag):
     t, tau, h = _grid()
     meas = np.arange(0, t.size, 10)
     phi = phi_from_inertia(J_TRUE)
-    p = np.r_[phi, W0, 0.0, 0.0, 0.0, 0.01, -0.02, 0.03]
-    z_w, z_q = _model(t, tau, h, meas, phi, W0, Q0)
+    p = np.r_[phi, W0, 0.0, 0.0, 0.0, [] if drag is None else drag, 0.01, -0.02, 0.03]
+    z_w, z_q = _model(t, tau, h, meas, phi, W0, Q0, drag=drag)
     prob = ml.Problem(t, tau, h, np.ones(t.size, dtype=np.int64), meas, z_w + p[-3:], z_q,
-                      np.full(3, 0.03), 0.02, fit_bias=True, fix_scale=False)
+                      np.full(3, 0.03), 0.02, fit_bias=True, fix_scale=False,
+                      fit_drag=drag is not None)
     ev = ml.evaluate(prob, p, Q0, True)
     assert np.abs(ev.r).max() < 1e-9
     numeric = np.zeros_like(ev.jac)
