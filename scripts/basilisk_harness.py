@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.discrepancy.basilisk import Panel, Slosh, SpacecraftCase, Wheels, simulate
+from inertia_gym.discrepancy.basilisk import TRUTH_KEY, Panel, Slosh, SpacecraftCase, Wheels, simulate
 from inertia_gym.discrepancy.recordings import read_recordings, write_recording
 from inertia_gym.discrepancy.report import diagnose
 
@@ -243,7 +243,10 @@ def score(case: SpacecraftCase, report: dict) -> dict:
 
 
 def run_case(case: SpacecraftCase, folder: Path) -> dict:
-    """Simulate, write the recording, read it back, diagnose it and score the report."""
+    """Simulate, write the recording, read it back, diagnose it and score the report.
+    nominal_error: ||J_vehicle - J_nominal||_F / ||J_nominal||_F, J_vehicle Basilisk's
+    rigid-equivalent inertia with slosh and panels at rest.
+    """
     t0 = time.perf_counter()
     run = simulate(case)
     t1 = time.perf_counter()
@@ -253,7 +256,10 @@ def run_case(case: SpacecraftCase, folder: Path) -> dict:
     out = diagnose(rec)
     report = out[0] if isinstance(out, tuple) else out
     row = score(case, report)
-    row.update(simulate_s=t1 - t0, diagnose_s=time.perf_counter() - t1, samples=int(rec.t.size))
+    nominal = np.asarray(run.sidecar["inertia_nominal"])
+    truth = np.asarray(run.sidecar[TRUTH_KEY]["inertia_equilibrium"])
+    row.update(simulate_s=t1 - t0, diagnose_s=time.perf_counter() - t1, samples=int(rec.t.size),
+               nominal_error=float(np.linalg.norm(truth - nominal) / np.linalg.norm(nominal)))
     return row
 
 

@@ -190,7 +190,7 @@ def test_diagnose_never_reads_the_concealed_truth(subset_rows):
                       rec.name, h=rec.h)
     out = diagnose(blind)
     report = out[0] if isinstance(out, tuple) else out
-    timing = ("simulate_s", "diagnose_s", "samples")
+    timing = ("simulate_s", "diagnose_s", "samples", "nominal_error")
     row = {k: v for k, v in subset_rows[0][name].items() if k not in timing}
     assert row["delta_bic"] and harness.score(_case(name), report) == row
     side = json.loads((subset_rows[1] / f"{name}.json").read_text())
