@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.cli import main
@@ -47,7 +47,7 @@ def inertia(draw):
 
 
 def value_for(name: str):
-    """A plausible-or-not value of one field, in the file's own types."""
+    """A plausible value of one field (its scale drawn over 8 decades), in the file's types."""
     if name in MATRIX_FIELDS:
         good = inertia()
     elif name in VECTOR3_FIELDS:
@@ -69,16 +69,21 @@ def value_for(name: str):
         good = st.floats(0.0, 1.5)
     else:
         good = decades.map(lambda s: s * 1e-2)
-    return st.one_of(good, good, good, wrong_type)
+    return good
 
 
 @st.composite
 def scenario_files(draw):
-    """A mapping of 1-8 random fields (sometimes a misspelt one) as a scenario file holds."""
+    """A mapping of 1-8 random fields as a scenario file holds; in about half of the files one
+    field has a wrong type or unit, or a misspelt name.
+    """
     names = draw(st.lists(st.sampled_from(NAMES), min_size=1, max_size=8, unique=True))
     data = {name: draw(value_for(name)) for name in names}
-    if draw(st.integers(0, 19)) == 0:
+    spoil = draw(st.sampled_from(["none"] * 10 + ["value"] * 9 + ["name"]))
+    if spoil == "name":
         data["tau_mx"] = 1.0
+    elif spoil == "value":
+        data[draw(st.sampled_from(names))] = draw(wrong_type)
     return {k: v for k, v in data.items() if v is not None}  # TOML/JSON have no null field
 
 
@@ -117,7 +122,7 @@ def finite(obj) -> bool:
     return not isinstance(obj, float) or math.isfinite(obj)
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenario_files())
 def test_every_scenario_file_is_valid_or_one_line_error(data):
     sc, error = build(data)
@@ -134,8 +139,7 @@ def test_every_scenario_file_is_valid_or_one_line_error(data):
 @given(scenario_files())
 def test_a_valid_fuzzed_scenario_validates_to_finite_numbers(data):
     sc, _ = build(data)
-    if sc is None or sc.t_on[0] > 1000 * sc.dt:
-        return
+    assume(sc is not None and sc.t_on[0] <= 1000 * sc.dt)
     try:
         summary = short_validation(sc)
     except InertiaGymError as exc:
@@ -145,7 +149,7 @@ def test_a_valid_fuzzed_scenario_validates_to_finite_numbers(data):
 
 
 @pytest.mark.slow
-@settings(max_examples=8, deadline=None,
+@settings(max_examples=6, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(data=scenario_files(), as_json=st.booleans())
 def test_cli_on_fuzzed_scenario_files(data, as_json, tmp_path, capsys):
