@@ -198,16 +198,21 @@ def test_unknown_method_is_refused():
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_real_rotor_throws_against_their_reference_inertia():
-    """20 real throws with a logged rotor: error vs the CAD+calibration reference."""
+    """20 real throws with a logged rotor: error vs the CAD+calibration reference. The scale is
+    fitted on every throw; where the model error makes it uncertain beyond 5 % (1 sigma of the
+    trace: Empty_LOG00189, 6.5 %, rms 10x the noise) the result says so instead of claiming it."""
     truth = json.loads((ROTOR / "truth.json").read_text())
-    errors = []
+    errors, flagged = [], 0
     for path in sorted(ROTOR.glob("*.csv")):
         rec = read_recordings(path)[0]
         res = identify(rec)
-        assert res.estimate.scale_identified and res.converged
+        assert res.converged
+        if not res.estimate.scale_identified:
+            assert any("scale is poorly determined" in note for note in res.notes)
+            flagged += 1
         assert np.all(np.isfinite(res.estimate.theta_cov))
         errors.append(_rel(res.estimate.inertia, np.array(truth[path.stem]["inertia"])))
-    assert len(errors) == 20
+    assert len(errors) == 20 and flagged <= 2
     assert np.median(errors) <= 0.021
     assert max(errors) <= 0.055
 
