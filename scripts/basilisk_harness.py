@@ -219,14 +219,14 @@ def named_effects(report: dict, count: int) -> list[str]:
 
 
 def score(case: SpacecraftCase, report: dict) -> dict:
-    """Correctness of one report (see ACCEPTED): a control must name nothing; a single component
-    must lead; each component of a pair must be among the names given.
+    """Correctness of one report (see ACCEPTED): a control must name nothing and detect no
+    mismatch; a single component must lead; each component of a pair must be among the names given.
     """
     parts = components(case)
     significant = [e for e in report["effects"] if e["significant"]]
     named = named_effects(report, max(1, len(parts)))
     if not parts:
-        correct = not significant and not report.get("explanation")
+        correct = not significant and not report.get("explanation") and not report["mismatch_detected"]
     elif len(parts) == 1:
         correct = bool(named) and named[0] in ACCEPTED[parts[0]]
     else:
@@ -265,10 +265,12 @@ def run_case(case: SpacecraftCase, folder: Path) -> dict:
 
 def markdown(rows: list[dict], totals: dict) -> str:
     """The table: one row per case, then the totals."""
-    lines = ["| case | concealed | named by diagnose | correct |", "|---|---|---|---|"]
+    lines = ["| case | concealed | nominal off by | named by diagnose | mismatch detected | correct |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['case']} | {', '.join(r['components']) or '— (control)'} | "
-                     f"{', '.join(r['named']) or '—'} | {'yes' if r['correct'] else 'no'} |")
+                     f"{100 * r['nominal_error']:.1f} % | {', '.join(r['named']) or '—'} | "
+                     f"{'yes' if r['mismatch_detected'] else 'no'} | {'yes' if r['correct'] else 'no'} |")
     lines += ["", f"Concealed-effect cases correct: {totals['cases_correct']}/{totals['cases']}; "
               f"controls clean: {totals['controls_clean']}/{totals['controls']}; "
               f"wall {totals['wall_s']:.0f} s."]

@@ -134,6 +134,7 @@ def test_score_follows_the_accepted_table():
 
     assert harness.score(control, report())["correct"]
     assert not harness.score(control, report("gyro_bias"))["correct"]
+    assert not harness.score(control, report() | {"mismatch_detected": True})["correct"]
     for name in harness.MASS_LEFT_OUT:
         assert harness.score(slosh, report(name, "actuator_scale"))["correct"]
     assert not harness.score(slosh, report("actuator_scale", "inertia_offset"))["correct"]
