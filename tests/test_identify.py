@@ -19,7 +19,9 @@ from inertia_gym.identification import identify
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.scenario import Scenario
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# ../shared/data beside the repository (or beside the folder holding its worktrees)
+DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
+             if (p / "shared" / "data").is_dir()), Path(__file__).resolve().parents[2] / "shared" / "data")
 ROTOR = DATA / "rotor-throws"
 SMALL_BODY = dict(inertia_true=[[5.2e-4, 2e-6, 1e-6], [2e-6, 2.2e-4, 6e-6], [1e-6, 6e-6, 5.2e-4]],
                   inertia_guess=[[5e-4, 0, 0], [0, 2.5e-4, 0], [0, 0, 5e-4]], omega0=[15.0, -6.0, -10.0],
