@@ -35,6 +35,8 @@ SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
 #: At most this many effects in a compound explanation.
 MAX_EFFECTS = 3
+#: Solver evaluations per start when a candidate is screened on top of a fit (select()).
+SCREEN_NFEV = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -379,7 +381,8 @@ def fit_model(names, d: Data, base: Fit, joint: bool = True, start=None) -> Fit:
     """Fit the effects `names` jointly with the inertia, the last one added to the fit `base`
     of the others (its x is the start of everything but the new effect).
 
-    joint=False fits only the new effect's parameters (the base's held: a cheap screen);
+    joint=False fits only the new effect's parameters (the base's held) with at most
+    SCREEN_NFEV evaluations per start and no polish: a cheap screen, refitted jointly after;
     start: one joint x to start from instead of the new effect's own starts.
     """
     names = _names(names)
@@ -405,14 +408,15 @@ def fit_model(names, d: Data, base: Fit, joint: bool = True, start=None) -> Fit:
         return sol, x
 
     best = None
+    nfev = new.start_nfev if joint else min(new.start_nfev or SCREEN_NFEV, SCREEN_NFEV)
     for x0 in new.starts(d, base, probe) if start is None else [start]:
         x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
-        sol, x = solve(x0, new.start_nfev)
+        sol, x = solve(x0, nfev)
         if best is None or sol.cost < best[0].cost:
             best = (sol, x)
     if best is None:  # no start (e.g. no valid base whitener for a mode): the base, effect zero
         return _finish(names, probe.x(np.zeros(new.size)), d, _n_free(names, d))
-    if new.start_nfev is not None and best[0].status == 0:
+    if joint and new.start_nfev is not None and best[0].status == 0:
         best = solve(best[1], 200)
     return _finish(names, best[1], d, _n_free(names, d))
 
@@ -444,7 +448,11 @@ def fit_all(d: Data) -> tuple[Fit, list[Fit], dict, Data]:
     # (skip_reason), so it is fitted like every other effect: J at the nominal trace, torque
     # scaled by 1 + s. (Fitting J and s freely and rescaling afterwards is degenerate along
     # (c J, c (1 + s)); the rescaled s must then be c (1 + s) - 1, not c - 1.)
-    fits = sorted((fit_effect(name, d, nominal) for name in names), key=lambda f: f.bic)
+    # Exactly confounded effects (actuator_scale and inertia_offset: c J with c tau) tie to
+    # rounding; the tie goes to the earlier one in the catalogue, the report names both.
+    order = {name: i for i, name in enumerate(REGISTRY)}
+    fits = sorted((fit_effect(name, d, nominal) for name in names),
+                  key=lambda f: (np.round(f.bic, 6), order[f.name]))
     return nominal, fits, skipped, d
 
 
