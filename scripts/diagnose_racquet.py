@@ -44,6 +44,7 @@ def main() -> None:
             inertia = np.array(report["fit_after"]["inertia"])
             eig = np.sort(np.linalg.eigvalsh(inertia))[::-1]
             rows.append({"toss": sub.name, "best": report["best_effect"], "top3": top,
+                         "explanation": [e["name"] for e in report["explanation"]],
                          "before": _round(report["fit_before"]["rms_over_noise"]),
                          "after": _round(report["fit_after"]["rms_over_noise"]),
                          "max_abs_rate": float(np.abs(rec.w).max()),

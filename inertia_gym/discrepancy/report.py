@@ -4,35 +4,26 @@ invariants, rank the catalogue, and write report.json, plots and a markdown summ
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
 from scipy import signal, stats
 
-from inertia_gym.discrepancy.effects import jsonable
+from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
     fit_all,
+    intervals,
     prepare,
+    replay,
+    select,
     sparse_terms,
 )
 from inertia_gym.discrepancy.recordings import Recording
-
-STRUCTURAL_AMBIGUITIES = {
-    "actuator_scale": [("inertia", "the torque scale is measured against the sidecar's nominal "
-                        "inertia: J/s with torque tau fits as well as J with torque s*tau, so a "
-                        "wrong nominal trace reads as an actuator scale")],
-    # A common gyro scale s and a torque scale coincide only while the gyroscopic term w x Jw is
-    # negligible beside the torque (J w_dot / (1+s) vs w x Jw / (1+s)^2): on a spinning body they
-    # separate, and where they do not, their delta BICs are close and the gap rule reports it.
-    "gyro_scale": [("inertia", "a common gyro scale is not identifiable without torque or attitude "
-                    "(only per-axis differences are)")],
-    "viscous_damping": [("aero_drag", "-C w and -c|w| w coincide while |w| stays nearly constant")],
-    "aero_drag": [("viscous_damping", "-C w and -c|w| w coincide while |w| stays nearly constant")],
-}
 
 
 def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
@@ -116,7 +107,8 @@ def diagnose(rec: Recording) -> dict:
                        "delta_bic": delta if finite else None,
                        "significant": finite and delta > SIGNIFICANT_DELTA_BIC})
     sig = [e for e in ranked if e["significant"]]
-    best = fits[0] if sig else nominal
+    chosen = select(d, nominal, fits)
+    best = chosen.fit or nominal
     ambiguous = []
     if sig:
         top = sig[0]
@@ -125,8 +117,9 @@ def diagnose(rec: Recording) -> dict:
                 ambiguous.append({"effects": [top["name"], e["name"]],
                                   "reason": f"delta BIC differs by {top['delta_bic'] - e['delta_bic']:.1f}"
                                             f" < {AMBIGUOUS_DELTA_BIC}"})
-        for other, reason in STRUCTURAL_AMBIGUITIES.get(top["name"], []):
+        for other, reason in REGISTRY[top["name"]].ambiguities:
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
+    given = replay(d)  # the user's model as given (sidecar nominal), or None
     t_mid = 0.5 * (d.t[d.edges[1:]] + d.t[d.edges[:-1]])
     locations = locate(nominal.r, t_mid, d.sigma)
     after = _fit_summary(best, d.sigma)
@@ -137,10 +130,16 @@ def diagnose(rec: Recording) -> dict:
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
+        "explanation": _explanation(chosen, d), "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
-        "fit_before": _fit_summary(nominal, d.sigma), "fit_after": after,
+        "fit_before": _fit_summary(given if given is not None else nominal, d.sigma),
+        "fit_inertia_fitted": _fit_summary(nominal, d.sigma), "fit_after": after,
+        "inertia_vs_nominal": None if given is None else {
+            "delta_bic": float(given.bic - nominal.bic) if np.isfinite(given.bic) else None,
+            **inertia_comparison(d.inertia0, nominal.inertia, False)},
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
         "scale_identified": not d.scale_fixed or (d.has_torque and rec.inertia_nominal is not None),
+        "inertia_nominal_given": d.inertia0 is not None, "inertia_trace_assumed": d.trace0,
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
@@ -149,6 +148,50 @@ def diagnose(rec: Recording) -> dict:
     arrays = {"t_mid": t_mid, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
               "inv": inv, "d": d, "best": best, "nominal": nominal}
     return report, arrays
+
+
+def _explanation(chosen, d: Data) -> list[dict]:
+    """The selected effects in order: name, params, 95 % intervals, the delta BIC each added."""
+    if chosen.fit is None:
+        return []
+    fit = chosen.fit
+    named, ci = fit.effect_params, intervals(fit, d)
+    out = []
+    for name, added in chosen.added:
+        entry = {"name": name, "params": jsonable(named[name]),
+                 "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
+                          for k, v in ci[name].items()},
+                 "delta_bic": added,
+                 "confounded_with": [{"with": other, "reason": why}
+                                     for other, why in REGISTRY[name].ambiguities]}
+        if name == "inertia_offset":
+            entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
+                                                             d.has_torque)
+        out.append(entry)
+    return out
+
+
+def inertia_comparison(nominal, fitted, scale_seen: bool) -> dict:
+    """Principal moments of the fitted vs the nominal inertia (3, 3) kg·m²: % change per moment
+    (the nominal's in ascending order, each fitted axis matched to the nominal axis nearest in
+    direction), and the angle (deg) between matched principal axes.
+
+    scale_seen False (no torque): the fitted inertia is first scaled to the nominal's trace, so
+    the percentages compare shapes only.
+    """
+    nominal, fitted = np.asarray(nominal, float), np.asarray(fitted, float)
+    if not scale_seen:
+        fitted = fitted * np.trace(nominal) / np.trace(fitted)
+    m0, v0 = np.linalg.eigh(nominal)
+    m1, v1 = np.linalg.eigh(fitted)
+    # match each nominal axis with the fitted axis nearest in direction (moments may reorder)
+    dots = np.abs(v0.T @ v1)
+    order = max(itertools.permutations(range(3)), key=lambda o: sum(dots[i, o[i]] for i in range(3)))
+    m1, v1 = m1[list(order)], v1[:, list(order)]
+    angles = np.degrees(np.arccos(np.clip(np.abs(np.sum(v0 * v1, axis=0)), 0.0, 1.0)))
+    return {"principal_moments_nominal": m0.tolist(), "principal_moments": m1.tolist(),
+            "percent_change": (100.0 * (m1 / m0 - 1.0)).tolist(),
+            "axis_rotation_deg": angles.tolist(), "scale_compared": bool(scale_seen)}
 
 
 def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[str]:
@@ -161,9 +204,10 @@ def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[s
     files = []
     t = arrays["t_mid"]
     fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
+    added = " + ".join(e["name"] for e in report["explanation"]) or "nothing"
     for i, ax in enumerate(axs):
         ax.plot(t, arrays["r_before"][:, i], lw=0.7, label="nominal")
-        ax.plot(t, arrays["r_after"][:, i], lw=0.7, label=f"+ {report['best_effect'] or 'nothing'}")
+        ax.plot(t, arrays["r_after"][:, i], lw=0.7, label=f"+ {added}")
         for loc in report["locations"]:
             if "xyz"[i] in loc["axes"]:
                 ax.axvspan(loc["t_start"], loc["t_end"], color="red", alpha=0.15)
@@ -215,6 +259,54 @@ def _fmt(values) -> str:
     return "no valid fit" if values is None else str(np.round(values, 2).tolist())
 
 
+def _explanation_words(report: dict) -> str:
+    """The compound explanation and what was left out, in sentences."""
+    expl = report["explanation"]
+    if not expl:
+        text = "**Explanation:** no effect improves the fit significantly; the nominal model stands."
+    else:
+        parts = []
+        for e in expl:
+            params = ", ".join(f"{k} = {np.round(v, 4).tolist()} "
+                               f"[{np.round(e['ci95'][k]['lo'], 4).tolist()}, "
+                               f"{np.round(e['ci95'][k]['hi'], 4).tolist()}]"
+                               for k, v in e["params"].items())
+            parts.append(f"{e['name']} (adds delta BIC {e['delta_bic']:.1f}; {params})")
+        text = ("**Explanation:** the nominal model leaves out " + "; then ".join(parts)
+                + ". Brackets are 95 % intervals.")
+        for e in expl:
+            cmp = e.get("inertia_vs_nominal")
+            if cmp is not None:
+                text += (f"\n\nThe inertia differs from the nominal: principal moments change by "
+                         f"{np.round(cmp['percent_change'], 1).tolist()} % (ascending), principal "
+                         f"axes turn by {np.round(cmp['axis_rotation_deg'], 1).tolist()} deg"
+                         + ("" if cmp["scale_compared"] else
+                            " (no torque: shapes compared at the nominal's trace)") + ".")
+            for c in e["confounded_with"]:
+                text += f"\n\n{e['name']} is confounded with {c['with']}: {c['reason']}."
+    cmp = report.get("inertia_vs_nominal")
+    if cmp is not None and cmp["delta_bic"] is not None:
+        text += (f"\n\nThe user's model as given (`fit_before`) against the same model with the "
+                 f"inertia's shape fitted at the nominal's trace (`fit_inertia_fitted`, the base "
+                 f"of every effect above): delta BIC {cmp['delta_bic']:.1f}; principal moments "
+                 f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
+                 f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
+    if not report["scale_identified"]:
+        text += ("\n\nNo commanded torque: the data fix the inertia only up to a common factor, "
+                 + ("so the fitted torques, momenta and damping are in units of the sidecar's "
+                    "nominal inertia and scale with it if it is wrong."
+                    if report.get("inertia_nominal_given") else
+                    "and with no nominal inertia in the sidecar its trace was set to "
+                    f"{report['inertia_trace_assumed']:g} kg·m²: every fitted torque (N·m), "
+                    "momentum (kg·m²/s) and damping coefficient scales with the unknown true "
+                    "trace; multiply them by (true trace) / "
+                    f"{report['inertia_trace_assumed']:g}."))
+    if report["left_out"]:
+        text += "\n\nLeft out of the explanation: " + "; ".join(
+            f"{name} ({why})" for name, why in report["left_out"].items()) + "."
+    return text
+
+
 def markdown(report: dict, plots: list[str]) -> str:
     """A readable summary of one report."""
     lines = [f"# Diagnosis of {report['recording']}", "",
@@ -230,6 +322,7 @@ def markdown(report: dict, plots: list[str]) -> str:
         params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}
         delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
         lines.append(f"| {e['name']} | {delta} | {e['significant']} | {params} |")
+    lines += ["", _explanation_words(report)]
     for a in report["ambiguous"]:
         lines.append(f"\n- cannot be told apart: {a['effects']}: {a['reason']}")
     for name, why in report["skipped_effects"].items():

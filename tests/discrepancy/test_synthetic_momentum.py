@@ -8,9 +8,13 @@ import numpy as np
 import pytest
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.effects import simulate_truth
 from inertia_gym.discrepancy.recordings import MOMENTUM, read_recordings
-from inertia_gym.discrepancy.synthetic import rotor_momentum, rotor_profile, simulate_recording
+from inertia_gym.discrepancy.synthetic import (
+    rotor_momentum,
+    rotor_profile,
+    simulate_recording,
+    simulate_truth,
+)
 from inertia_gym.dynamics import quat_to_rotation
 from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
