@@ -34,10 +34,13 @@ SQRT3_6 = math.sqrt(3.0) / 6.0
 _D_TAU = slice(0, 3)  # constant body torque, N·m
 _D_H = slice(3, 6)  # internal angular momentum (wheel bias), N·m·s
 _D_C = slice(6, 15)  # viscous damping matrix, row-major, N·m·s
-_D_AERO = 15  # aerodynamic-like drag coefficient c in -c |w| w, N·m·s²
-_D_N = 16  # orbital rate for gravity gradient, rad/s
-_D_NADIR = slice(17, 20)  # nadir direction in the inertial frame (unit)
-DISTURBANCE_SIZE = 20
+_D_AERO = slice(15, 18)  # aerodynamic drag per body axis c_i in -c_i |w| w_i, N·m·s²
+_D_N = 18  # orbital rate for gravity gradient, rad/s
+_D_NADIR = slice(19, 22)  # nadir direction in the inertial frame (unit)
+# Terms only the augmented integrator (propagate_model_batch) adds around state_rate:
+_D_DISS = 22  # internal dissipation d: torque -d (w - u (u . w)), u along the total momentum, N·m·s
+_D_FLEX = slice(23, 28)  # flexible mode: omega_n rad/s, zeta, coupling delta (3,) sqrt(kg)·m
+DISTURBANCE_SIZE = 28
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,18 +52,29 @@ class Disturbance:
     constant_torque : (3,) N·m, body frame.
     internal_momentum : (3,) N·m·s, a stored momentum h (e.g. a wheel) in J w_dot + w x (J w + h).
     damping : (3, 3) N·m·s, viscous torque -C w.
-    aero_drag : N·m·s², torque -c |w| w.
+    aero_drag : N·m·s², torque -c |w| w; a number (isotropic) or (3,) per body axis
+        (-c_i |w| w_i: a body whose drag differs about its axes, e.g. a flat plate).
     orbit_rate : rad/s, gravity-gradient torque 3 n^2 (r x J r) with r the nadir in the body frame.
     nadir_inertial : (3,), nadir direction in the inertial frame (normalised internally).
+    dissipation : N·m·s, internal dissipation (slosh, dampers): torque -d (w - u (u . w)) with u
+        along the total momentum J w + h, so energy decays while |J w + h| is kept. Only the
+        augmented integrator (:func:`propagate_model_batch`) applies it.
+    flex_omega, flex_zeta, flex_coupling : one flexible mode (rad/s, damping ratio, coupling
+        delta (3,) sqrt(kg)·m): J w_dot + delta eta_ddot + w x (J w + h + delta eta_dot) = tau,
+        eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot. Augmented integrator only.
 
     """
 
     constant_torque: tuple = (0.0, 0.0, 0.0)
     internal_momentum: tuple = (0.0, 0.0, 0.0)
     damping: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    aero_drag: float = 0.0
+    aero_drag: float | tuple = 0.0
     orbit_rate: float = 0.0
     nadir_inertial: tuple = (0.0, 0.0, -1.0)
+    dissipation: float = 0.0
+    flex_omega: float = 0.0
+    flex_zeta: float = 0.0
+    flex_coupling: tuple = (0.0, 0.0, 0.0)
 
     def pack(self) -> np.ndarray:
         """Flat float64 vector of length DISTURBANCE_SIZE read by the compiled kernels."""
@@ -68,13 +82,18 @@ class Disturbance:
         v[_D_TAU] = _checked(self.constant_torque, (3,), "constant_torque")
         v[_D_H] = _checked(self.internal_momentum, (3,), "internal_momentum")
         v[_D_C] = _checked(self.damping, (3, 3), "damping").ravel()
-        v[_D_AERO] = float(_checked(self.aero_drag, (), "aero_drag"))
+        aero = np.asarray(self.aero_drag, dtype=float)
+        v[_D_AERO] = _checked(np.broadcast_to(aero, (3,)) if aero.ndim == 0 else aero, (3,), "aero_drag")
         v[_D_N] = float(_checked(self.orbit_rate, (), "orbit_rate"))
         nadir = _checked(self.nadir_inertial, (3,), "nadir_inertial")
         norm = np.linalg.norm(nadir)
         if norm == 0:
             raise ConfigError("nadir_inertial must be a non-zero vector")
         v[_D_NADIR] = nadir / norm
+        v[_D_DISS] = float(_checked(self.dissipation, (), "dissipation"))
+        v[_D_FLEX] = np.r_[float(_checked(self.flex_omega, (), "flex_omega")),
+                           float(_checked(self.flex_zeta, (), "flex_zeta")),
+                           _checked(self.flex_coupling, (3,), "flex_coupling")]
         return v
 
 
@@ -179,19 +198,21 @@ def state_rate(qw, qx, qy, qz, wx, wy, wz, inertia, inertia_inv, tau, dist):
     hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz + dist[3]
     hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz + dist[4]
     hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz + dist[5]
-    c = 0.0
-    if dist[15] != 0.0:
-        c = dist[15] * math.sqrt(wx * wx + wy * wy + wz * wz)
-    mx = tau[0] + dist[0] - (wy * hz - wz * hy) - c * wx
-    my = tau[1] + dist[1] - (wz * hx - wx * hz) - c * wy
-    mz = tau[2] + dist[2] - (wx * hy - wy * hx) - c * wz
+    mx = tau[0] + dist[0] - (wy * hz - wz * hy)
+    my = tau[1] + dist[1] - (wz * hx - wx * hz)
+    mz = tau[2] + dist[2] - (wx * hy - wy * hx)
+    if dist[15] != 0.0 or dist[16] != 0.0 or dist[17] != 0.0:
+        nw = math.sqrt(wx * wx + wy * wy + wz * wz)
+        mx -= dist[15] * nw * wx
+        my -= dist[16] * nw * wy
+        mz -= dist[17] * nw * wz
     mx -= dist[6] * wx + dist[7] * wy + dist[8] * wz
     my -= dist[9] * wx + dist[10] * wy + dist[11] * wz
     mz -= dist[12] * wx + dist[13] * wy + dist[14] * wz
-    n = dist[16]
+    n = dist[18]
     if n != 0.0:
         # Nadir in the body frame: r_B = R(q)^T r_I.
-        ix, iy, iz = dist[17], dist[18], dist[19]
+        ix, iy, iz = dist[19], dist[20], dist[21]
         rx = (1 - 2 * (qy * qy + qz * qz)) * ix + 2 * (qx * qy + qw * qz) * iy \
             + 2 * (qx * qz - qw * qy) * iz
         ry = 2 * (qx * qy - qw * qz) * ix + (1 - 2 * (qx * qx + qz * qz)) * iy \
@@ -343,7 +364,7 @@ def propagate_batch(q0, omega0, inertia, torque, dt, disturbance=None, method="r
     ----------
     q0 : (B, 4) initial unit quaternions.  omega0 : (B, 3) rad/s.
     inertia : (B, 3, 3) or (3, 3) kg·m².  torque : (B, n, 3) N·m, held over each step.
-    dt : step, s.  disturbance : Disturbance, (B, 20) packed vectors, or None.
+    dt : step, s.  disturbance : Disturbance, (B, DISTURBANCE_SIZE) packed vectors, or None.
     method : "rk4" (the closed-loop truth's integrator) or "gauss" (order-4 Gauss-Legendre,
     which keeps energy and momentum exactly: for long torque-free runs or fast spins).
 
@@ -390,3 +411,212 @@ def propagate(q0, omega0, inertia, torque, dt, disturbance=None, method="rk4"):
         method,
     )
     return q[0], w[0]
+
+
+# ------------------------------------------------------------------------------------------
+# The augmented model: a sample grid, segments, known momentum, flexible mode, dissipation
+# ------------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, inline="always")
+def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv, jd, denom, tx, ty, tz,
+                    hx, hy, hz, dist, dl, tau_buf):
+    """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): state_rate with the momentum
+    (hx, hy, hz) + delta eta_dot in its hook and the torque (tx, ty, tz) (N·m, known h_dot already
+    subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta eta_ddot
+    = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot in closed
+    form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). dl: scratch copy of dist (its
+    momentum slots are overwritten), tau_buf: scratch (3,). Scalars in and out, like state_rate.
+    """
+    cx, cy, cz = dist[25], dist[26], dist[27]
+    dl[3] = dist[3] + hx + cx * etad
+    dl[4] = dist[4] + hy + cy * etad
+    dl[5] = dist[5] + hz + cz * etad
+    diss = dist[22]
+    if diss != 0.0:
+        lx = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2 + dl[3]
+        ly = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2 + dl[4]
+        lz = inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2 + dl[5]
+        nl = math.sqrt(lx * lx + ly * ly + lz * lz)
+        if nl > 0.0:
+            ux, uy, uz = lx / nl, ly / nl, lz / nl
+            uw = ux * w0 + uy * w1 + uz * w2
+            tx -= diss * (w0 - ux * uw)
+            ty -= diss * (w1 - uy * uw)
+            tz -= diss * (w2 - uz * uw)
+    tau_buf[0], tau_buf[1], tau_buf[2] = tx, ty, tz
+    r = state_rate(y0, y1, y2, y3, w0, w1, w2, inertia, inertia_inv, tau_buf, dl)
+    ax, ay, az = r[4], r[5], r[6]
+    eta_dd = 0.0
+    if cx != 0.0 or cy != 0.0 or cz != 0.0:
+        om = dist[23]
+        eta_dd = (-2.0 * dist[24] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
+        ax -= jd[0] * eta_dd
+        ay -= jd[1] * eta_dd
+        az -= jd[2] * eta_dd
+    return r[0], r[1], r[2], r[3], ax, ay, az, etad, eta_dd
+
+
+@nb.njit(cache=True)
+def _modal_coupling(inertia_inv, dist, jd):
+    """Write J^-1 delta into jd (3,); return 1 - delta . J^-1 delta."""
+    for i in range(3):
+        jd[i] = inertia_inv[i, 0] * dist[25] + inertia_inv[i, 1] * dist[26] + inertia_inv[i, 2] * dist[27]
+    return 1.0 - (dist[25] * jd[0] + dist[26] * jd[1] + dist[27] * jd[2])
+
+
+@nb.njit(cache=True, inline="always")
+def _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, ha0, ha1, ha2, hb0, hb1, hb2,
+                        dist, dl, tau_buf):
+    """One RK4 step of y (9,) in place over dt, the known momentum linear from (ha) to (hb) and
+    the torque (tx, ty, tz) (its rate already subtracted) held.
+    """
+    hdt = 0.5 * dt
+    hm0, hm1, hm2 = 0.5 * (ha0 + hb0), 0.5 * (ha1 + hb1), 0.5 * (ha2 + hb2)
+    y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_ = y[0], y[1], y[2], y[3], y[4], y[5], y[6], y[7], y[8]
+    k1 = _augmented_rate(y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_, j_now, j_inv, jd, denom,
+                         tx, ty, tz, ha0, ha1, ha2, dist, dl, tau_buf)
+    k2 = _augmented_rate(y0_ + hdt * k1[0], y1_ + hdt * k1[1], y2_ + hdt * k1[2], y3_ + hdt * k1[3],
+                         y4_ + hdt * k1[4], y5_ + hdt * k1[5], y6_ + hdt * k1[6], y7_ + hdt * k1[7],
+                         y8_ + hdt * k1[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
+                         dist, dl, tau_buf)
+    k3 = _augmented_rate(y0_ + hdt * k2[0], y1_ + hdt * k2[1], y2_ + hdt * k2[2], y3_ + hdt * k2[3],
+                         y4_ + hdt * k2[4], y5_ + hdt * k2[5], y6_ + hdt * k2[6], y7_ + hdt * k2[7],
+                         y8_ + hdt * k2[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
+                         dist, dl, tau_buf)
+    k4 = _augmented_rate(y0_ + dt * k3[0], y1_ + dt * k3[1], y2_ + dt * k3[2], y3_ + dt * k3[3],
+                         y4_ + dt * k3[4], y5_ + dt * k3[5], y6_ + dt * k3[6], y7_ + dt * k3[7],
+                         y8_ + dt * k3[8], j_now, j_inv, jd, denom, tx, ty, tz, hb0, hb1, hb2,
+                         dist, dl, tau_buf)
+    c6 = dt / 6.0
+    for c in range(9):
+        y[c] += c6 * (k1[c] + 2.0 * k2[c] + 2.0 * k3[c] + k4[c])
+    _normalize_quat(y)
+
+
+@nb.njit(cache=True)
+def _change_inertia(y, j_now, j_new):
+    """W <- J_new^-1 J_now w in y (the momentum J w is kept across an inertia change)."""
+    m0 = j_now[0, 0] * y[4] + j_now[0, 1] * y[5] + j_now[0, 2] * y[6]
+    m1 = j_now[1, 0] * y[4] + j_now[1, 1] * y[5] + j_now[1, 2] * y[6]
+    m2 = j_now[2, 0] * y[4] + j_now[2, 1] * y[5] + j_now[2, 2] * y[6]
+    j_inv = inv3(j_new)
+    for c in range(3):
+        y[4 + c] = j_inv[c, 0] * m0 + j_inv[c, 1] * m1 + j_inv[c, 2] * m2
+    return j_inv
+
+
+@nb.njit(cache=True)
+def _model_into(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau, h, dist, out):
+    """One model trajectory over a time grid, restarted at each segment; see propagate_model_batch.
+
+    An inertia change inside a grid interval splits its step at change_t, so the trajectory is
+    continuous and differentiable in change_t.
+    """
+    n_samples, n_seg = sample_pos.size, seg_pos.size - 1
+    j_now, j_inv = inertia.copy(), inv3(inertia)
+    jd = np.empty(3)
+    dl = dist.copy()
+    y = np.zeros(9)
+    tau_buf = np.empty(3)
+    changed = False
+    i = 0
+    eta, etad = 0.0, 0.0
+    for s in range(n_seg):
+        a, b = seg_pos[s], seg_pos[s + 1]
+        if not changed and grid_t[a] >= change_t:  # the segment starts after the change
+            changed = True
+            j_now, j_inv = inertia_after.copy(), inv3(inertia_after)
+        denom = _modal_coupling(j_inv, dist, jd)
+        for c in range(7):
+            y[c] = y0[s, c]
+        _normalize_quat(y)
+        y[7], y[8] = eta, etad
+        last = s == n_seg - 1
+        for k in range(a, b + 1):
+            while i < n_samples and sample_pos[i] == k and (k < b or last):
+                for c in range(7):
+                    out[i, c] = y[c]
+                i += 1
+            if k == b:
+                break
+            t0, t1 = grid_t[k], grid_t[k + 1]
+            dt = t1 - t0
+            if not changed and t0 >= change_t:
+                j_inv = _change_inertia(y, j_now, inertia_after)
+                j_now = inertia_after.copy()
+                denom = _modal_coupling(j_inv, dist, jd)
+                changed = True
+            # h linear over the step: its rate is the step's slope, subtracted from the torque
+            r0 = (h[k + 1, 0] - h[k, 0]) / dt
+            r1 = (h[k + 1, 1] - h[k, 1]) / dt
+            r2 = (h[k + 1, 2] - h[k, 2]) / dt
+            tx, ty, tz = tau[k, 0] - r0, tau[k, 1] - r1, tau[k, 2] - r2
+            if not changed and t1 > change_t:  # the change falls inside this step: split it
+                f = change_t - t0
+                hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
+                _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
+                                    hc0, hc1, hc2, dist, dl, tau_buf)
+                j_inv = _change_inertia(y, j_now, inertia_after)
+                j_now = inertia_after.copy()
+                denom = _modal_coupling(j_inv, dist, jd)
+                changed = True
+                _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
+                                    h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+            else:
+                _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
+                                    h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+        eta, etad = y[7], y[8]
+
+
+@nb.njit(cache=True, parallel=True)
+def _model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau, tau_index,
+                 h, h_index, dist, out):
+    for b in nb.prange(y0.shape[0]):
+        _model_into(grid_t, sample_pos, seg_pos, y0[b], inertia[b], inertia_after[b], change_t[b],
+                    tau[tau_index[b]], h[h_index[b]], dist[b], out[b])
+
+
+def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
+                          h, dist, tau_index=None, h_index=None) -> np.ndarray:
+    """Integrate B model trajectories on one time grid (RK4, one step per grid interval) and return
+    (q, w) at the sample points: the truth simulator of the effect catalogue and the model that
+    diagnose fits, one integrator for both.
+
+    The body obeys J(t) w_dot + h_dot + delta eta_ddot + w x (J(t) w + h + delta eta_dot) = tau +
+    the hook's torques (dynamics.state_rate: constant torque, stored momentum, damping, drag per
+    axis, gravity gradient) - the dissipation torque, with the flexible mode's equation beside it
+    (see Disturbance). J(t) is `inertia` before change_t and `inertia_after` from the first grid
+    point at or after it, the momentum J w kept across the change.
+
+    Parameters
+    ----------
+    grid_t : (m+1,) s, increasing: the sample times and any sub-steps between them.
+    sample_pos : (n,) int, increasing grid indices of the samples to return.
+    seg_pos : (S+1,) int, grid indices where segments start (multiple shooting: each restarts
+        from its own y0; the modal state eta, eta_dot carries over, zero at the first); the last
+        entry is m. Every segment start must be a sample position.
+    y0 : (B, S, 7) (q (4), w (3) rad/s) at each segment start.
+    inertia, inertia_after : (B, 3, 3) kg·m².  change_t : (B,) s (inf: no change).
+    tau : (V, m, 3) N·m applied torque, held over each grid interval; tau_index (B,) picks the
+        variant of each trajectory (default all 0).
+    h : (W, m+1, 3) kg·m²/s known internal momentum at the grid points, linear in between (its
+        rate is each interval's slope); h_index (B,) as tau_index.
+    dist : (B, DISTURBANCE_SIZE) packed Disturbance vectors.
+
+    Returns
+    -------
+    (B, n, 7): q (4) and w (3) rad/s at the samples.
+
+    """
+    batch = y0.shape[0]
+    tau_index = np.zeros(batch, np.int64) if tau_index is None else np.asarray(tau_index, np.int64)
+    h_index = np.zeros(batch, np.int64) if h_index is None else np.asarray(h_index, np.int64)
+    out = np.empty((batch, sample_pos.size, 7))
+    _model_batch(np.ascontiguousarray(grid_t, dtype=float), np.asarray(sample_pos, np.int64),
+                 np.asarray(seg_pos, np.int64), np.ascontiguousarray(y0, dtype=float),
+                 np.ascontiguousarray(inertia, dtype=float), np.ascontiguousarray(inertia_after, dtype=float),
+                 np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
+                 tau_index, np.ascontiguousarray(h, dtype=float), h_index,
+                 np.ascontiguousarray(dist, dtype=float), out)
+    return out

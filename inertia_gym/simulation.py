@@ -399,7 +399,7 @@ def run_segment(
     segment start (nb may be 0).  xi : (B, 3) (a, b, T_on); T_on only enters through bursts.
     v : (B, 3) unit burst directions.  rngs : one Generator per run (measurement times, noise).
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
-    disturbance : packed (20,) vector of dynamics.Disturbance acting on the truth, or None.
+    disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth, or None.
     Runs that had diverged are left untouched.
     """
     batch = state.batch

@@ -1,33 +1,41 @@
 """The physics catalogue (docs/contracts.md) as a registry of effect classes.
 
 Units: rad/s, N·m, kg·m², s. The body obeys
-    J(t) w_dot + d eta_ddot + w x (J(t) w + h + d eta_dot) = tau_applied + tau_ext,
+    J(t) w_dot + h_dot + d eta_ddot + w x (J(t) w + h + d eta_dot) = tau_applied + tau_ext,
     eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -d . w_dot          (flexible mode)
-with the gyro reading (1 + s) * w + b. Every effect sets one group of these terms, and one class
+and the gyro reads (1 + s) * w + b. Every effect sets one group of these terms, and one class
 owns everything about it: its parameters and their fitted vector, a random draw sized to the
-body, bounds and starts of the fit, its terms in the truth simulator (synthetic.simulate_truth:
-the disturbance hook of dynamics.state_rate, an applied-torque or gyro transform, an extra torque),
-its terms in the integral equation error and in the whitener (fit.py), and its known
-ambiguities. Adding an effect is one subclass here with ``@register``.
+body, bounds, typical sizes and starts of the fit, its known ambiguities, and its physics hooks:
+    disturbance  torques the compiled right-hand side carries (dynamics.Disturbance fields),
+    applied      what the body receives of the commanded torque (its running integral),
+    momentum     an internal momentum changing in time,
+    gyro         what the gyro reads of the true rates,
+    true_inertia / inertia_change   the body's inertia when it is not the nominal one.
+The same hooks drive the truth simulator (synthetic.simulate_truth) and the model that diagnose
+fits (fit.py): the recording is explained by simulating the catalogue, never by a second copy
+of its equations. Adding an effect is one subclass here with ``@register``.
 
-Fit-side hooks receive p, the effect's slice of the fitted vector, and d, a fit.Data.
+Fit-side hooks receive ``d``, a fit.Data (the recording prepared for fitting).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
-from scipy import signal
 from typing_extensions import override
 
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
-from inertia_gym.information import inertia_from_theta
 
 #: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
-FLEX_BAND = (0.2, 0.8)
+FLEX_BAND = (0.05, 0.4)
+
+#: A function t (k,) s -> (k, 3): the running integral of a torque (N·m·s) from the recording's
+#: start; the applied torque over an interval is its increment over the interval's length.
+Cumulative = Callable[[np.ndarray], np.ndarray]
 
 
 def skew(v) -> np.ndarray:
@@ -47,22 +55,6 @@ def rotvec_matrix(rotvec) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def quat_rotations(q) -> np.ndarray:
-    """(n, 4) unit quaternions -> (n, 3, 3) body-to-inertial rotation matrices."""
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
-def flex_filters(omega_n: float, zeta: float, dt: float):
-    """Discrete (bilinear) filters of 1/(s^2 + 2 zeta Omega s + Omega^2) times 1, s, s^2."""
-    den = [1.0, 2 * zeta * omega_n, omega_n ** 2]
-    return [signal.bilinear(num, den, fs=1.0 / dt) for num in ([1.0], [1.0, 0.0], [1.0, 0.0, 0.0])]
-
-
 def _unit(rng) -> np.ndarray:
     v = rng.normal(size=3)
     return v / np.linalg.norm(v)
@@ -75,6 +67,18 @@ def _signed(rng, lo, hi, size=None):
 def jsonable(params: dict) -> dict:
     """Parameters with numpy values turned into floats / lists."""
     return {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in params.items()}
+
+
+def inertia6(j) -> np.ndarray:
+    """(xx, xy, xz, yy, yz, zz) of a symmetric 3x3 matrix."""
+    j = np.asarray(j, float)
+    return np.array([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
+
+
+def matrix6(v) -> np.ndarray:
+    """The symmetric 3x3 matrix of (xx, xy, xz, yy, yz, zz)."""
+    v = np.asarray(v, float)
+    return np.array([[v[0], v[1], v[2]], [v[1], v[3], v[4]], [v[2], v[4], v[5]]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,20 +103,20 @@ class EffectModel:
     """Base class of a catalogue effect; every hook defaults to "this effect has no such term".
 
     Class attributes: ``name`` (fixed by the contract), ``params`` (named parameters), ``size``
-    (length of the fitted vector p), ``needs_torque`` / ``needs_attitude`` (what the recording
-    must hold), ``ambiguities`` ((other effect or "inertia", reason) pairs that the data may not
-    separate), ``start_nfev`` (a cap on each start's solver run; the best start is then run to
-    convergence), ``sets_inertia`` (the effect's parameters are the inertia itself: theta is
-    then not fitted).
+    (length of the fitted vector p of the default form), ``needs_torque`` / ``needs_attitude``
+    (what the recording must hold), ``ambiguities`` ((other effect or "inertia", reason) pairs
+    that the data may not separate), ``sets_inertia`` (the effect's parameters are the inertia
+    itself: the base inertia is then not fitted), ``family`` (the physical cause, shared by
+    effects that model it at different fidelity, e.g. linear and quadratic drag).
     """
 
     name: ClassVar[str]
     params: ClassVar[tuple[str, ...]]
     size: ClassVar[int]
+    family: ClassVar[str] = ""
     needs_torque: ClassVar[bool] = False
     needs_attitude: ClassVar[bool] = False
     ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
-    start_nfev: ClassVar[int | None] = None
     sets_inertia: ClassVar[bool] = False
 
     # --- parameters -------------------------------------------------------------------------
@@ -121,92 +125,79 @@ class EffectModel:
         raise NotImplementedError
 
     def unpack(self, p: np.ndarray) -> dict:
-        """Fitted vector p (size,) -> named parameters (the single parameter by default)."""
-        return {self.params[0]: p[0] if self.size == 1 else p[:self.size]}
+        """Fitted vector p -> named parameters (the single parameter by default)."""
+        return {self.params[0]: p[0] if self.size == 1 else np.array(p[:self.size])}
 
     def pack(self, params: dict) -> np.ndarray:
-        """Named parameters -> the fitted vector (size,), the inverse of unpack."""
-        return np.ravel(np.asarray(params[self.params[0]], float))
+        """Named parameters -> the fitted vector, the inverse of unpack."""
+        value = np.ravel(np.asarray(params[self.params[0]], float))
+        return np.broadcast_to(value, (self.size,)).copy() if value.size == 1 else value
 
     # --- fit set-up -------------------------------------------------------------------------
+    def forms(self, d) -> tuple[str, ...]:
+        """The forms this effect is fitted in on d (a constant and a time-varying one, say)."""
+        return ("",)
+
+    def form_size(self, form: str, d) -> int:
+        """Length of p in that form."""
+        return self.size
+
     def skip_reason(self, d) -> str | None:
         """Why the data cannot test this effect, or None."""
         if self.needs_torque and not d.has_torque:
             return "no commanded torque in the recording"
-        if self.needs_attitude and d.rot is None:
+        if self.needs_attitude and d.q is None:
             return "needs attitude (qw..qz) columns"
         return None
 
-    def bounds(self, d) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper bounds (size,) of p."""
-        return np.full(self.size, -np.inf), np.full(self.size, np.inf)
+    def bounds(self, form: str, d) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of p."""
+        size = self.form_size(form, d)
+        return np.full(size, -np.inf), np.full(size, np.inf)
 
-    def held(self, d) -> np.ndarray:
-        """Bool mask (size,) of parameters held at their start by the solver (set by a scan, or
-        not identifiable from d).
+    def held(self, form: str, d) -> np.ndarray:
+        """Bool mask of parameters held at their start (set by a scan, or bookkeeping)."""
+        return np.zeros(self.form_size(form, d), bool)
+
+    def typical(self, form: str, d) -> np.ndarray:
+        """Typical magnitude of each parameter (finite-difference steps and solver scaling)."""
+        return np.ones(self.form_size(form, d))
+
+    def starts(self, form: str, d, probe) -> list[np.ndarray]:
+        """Start vectors p of the fit (several where the cost is not convex); probe (fit.Probe)
+        can score candidates on top of the fit this effect is added to.
         """
-        return np.zeros(self.size, bool)
-
-    def inertia(self, p):
-        """The model's inertia (3, 3) kg·m² when this effect sets it (else the fitted/nominal J)."""
-        return None
-
-    def starts(self, d, base, probe) -> list[np.ndarray]:
-        """Starting vectors x of the joint fit (several where it is not convex): probe (a
-        fit.Probe) appends an effect vector p to base.x, the fit this effect is added to.
-        """
-        return [probe.x(np.zeros(self.size))]
+        return [np.zeros(self.form_size(form, d))]
 
     def penalty(self, p, d) -> list[float]:
-        """Extra constraint rows (relative units) appended to the whitened residual when the
-        inertia's scale is pinned (d.scale_fixed).
+        """Constraint rows (relative units) appended to the whitened residual when the inertia's
+        scale is pinned (d.scale_fixed).
         """
         return []
 
-    # --- truth ------------------------------------------------------------------------------
+    # --- physics (truth and model) ----------------------------------------------------------
     def disturbance(self, params: dict) -> dict:
         """Fields of dynamics.Disturbance that carry this effect in the compiled right-hand side."""
         return {}
 
-    def applied(self, params: dict, tau: np.ndarray, dt: float) -> np.ndarray:
-        """Torque (n, 3) N·m the body receives from the commanded torque tau (n, 3)."""
-        return tau
+    def applied(self, params: dict, cumulative: Cumulative) -> Cumulative:
+        """The running integral of the torque the body receives, from that of the command."""
+        return cumulative
+
+    def momentum(self, params: dict, t: np.ndarray):
+        """Internal momentum (k, 3) kg·m²/s at times t (k,) s that changes in time, or None."""
+        return None
 
     def gyro(self, params: dict, w: np.ndarray) -> np.ndarray:
-        """Noise-free gyro output (n, 3) from true rates w (n, 3)."""
+        """Gyro output (n, 3) from true rates w (n, 3)."""
         return w
 
     def true_inertia(self, params: dict):
-        """The body's true inertia (3, 3) when this effect sets it (not the nominal), or None."""
+        """The body's inertia (3, 3) when this effect sets it (not the nominal), or None."""
         return None
 
-    def body_torque(self, params: dict, w: np.ndarray, inertia: np.ndarray):
-        """Extra body torque (3,) N·m at rate w (3,) that the hook cannot carry, or None."""
-        return None
-
-    # --- equation error (fit.residual / fit.whitener) ------------------------------------------
-    def rates(self, p, w: np.ndarray, gain: np.ndarray):
-        """Gyro reading -> corrected rates (n, 3), and the gain (3,) of d w_true / d w_read."""
-        return w, gain
-
-    def inertia_step(self, p, d):
-        """(after (n,) bool, delta_J (3, 3)): an inertia added from some time on, or None."""
-        return None
-
-    def modal_momentum(self, p, d, w: np.ndarray):
-        """Extra momentum (n, 3) N·m·s that is differentiated with J w, or None."""
-        return None
-
-    def noise_inertia(self, p):
-        """(3, 3) kg·m² subtracted from J in the noise path, or None."""
-        return None
-
-    def actuate(self, p, d, tau: np.ndarray) -> np.ndarray:
-        """Commanded torque (n, 3) -> the torque the model applies."""
-        return tau
-
-    def torque(self, p, d, w, jw, jm):
-        """External torque (n, 3) N·m on the body in the model (w corrected, jw = J(t) w), or None."""
+    def inertia_change(self, params: dict):
+        """(t_change s, delta_J (3, 3) kg·m²) when the inertia changes during the recording."""
         return None
 
 
@@ -224,29 +215,29 @@ def register(cls):
 class GyroBias(EffectModel):
     """Gyro reads w + b (b rad/s per axis)."""
 
-    name, params, size = "gyro_bias", ("bias",), 3
+    name, params, size, family = "gyro_bias", ("bias",), 3, "gyro error"
 
     @override
     def draw(self, rng, body):
         return {"bias": _signed(rng, 3.0, 10.0, 3) * body.gyro_sigma}
 
     @override
-    def gyro(self, params, w):
-        return w + np.asarray(params["bias"], float)
+    def typical(self, form, d):
+        return np.full(3, float(np.mean(d.sigma)))
 
     @override
-    def rates(self, p, w, gain):
-        return w - p, gain
+    def gyro(self, params, w):
+        return w + np.asarray(params["bias"], float)
 
 
 @register
 class GyroScale(EffectModel):
     """Gyro reads (1 + s) w, s per axis."""
 
-    name, params, size = "gyro_scale", ("scale",), 3
+    name, params, size, family = "gyro_scale", ("scale",), 3, "gyro error"
     # A common gyro scale s and a torque scale coincide only while the gyroscopic term w x Jw is
-    # negligible beside the torque (J w_dot / (1+s) vs w x Jw / (1+s)^2): on a spinning body they
-    # separate, and where they do not, their delta BICs are close and the gap rule reports it.
+    # negligible beside the torque; on a spinning body they separate, and where they do not,
+    # their delta BICs are close and the gap rule reports it.
     ambiguities = (("inertia", "a common gyro scale is not identifiable without torque or attitude "
                     "(only per-axis differences are)"),)
 
@@ -255,62 +246,145 @@ class GyroScale(EffectModel):
         return {"scale": _signed(rng, 0.01, 0.05, 3)}
 
     @override
-    def bounds(self, d):
+    def bounds(self, form, d):
         return np.full(3, -0.5), np.full(3, np.inf)  # a reading at least half the true rate
+
+    @override
+    def typical(self, form, d):
+        return np.full(3, 0.01)
 
     @override
     def gyro(self, params, w):
         return w * (1.0 + np.asarray(params["scale"], float))
-
-    @override
-    def rates(self, p, w, gain):
-        g = 1.0 / (1.0 + p)
-        return w * g, gain * g
 
 
 @register
 class ConstantBodyTorque(EffectModel):
     """A constant torque fixed in the body (N·m)."""
 
-    name, params, size = "constant_body_torque", ("torque",), 3
+    name, params, size, family = "constant_body_torque", ("torque",), 3, "external torque"
 
     @override
     def draw(self, rng, body):
         return {"torque": _unit(rng) * rng.uniform(0.03, 0.1) * body.tau_ref}
 
     @override
-    def disturbance(self, params):
-        return {"constant_torque": tuple(np.asarray(params["torque"], float))}
+    def typical(self, form, d):
+        return np.full(3, d.tau_ref)
 
     @override
-    def torque(self, p, d, w, jw, jm):
-        return np.broadcast_to(p, w.shape)
+    def disturbance(self, params):
+        return {"constant_torque": tuple(np.asarray(params["torque"], float))}
 
 
 @register
 class InternalMomentum(EffectModel):
-    """A constant stored momentum h (kg·m²/s, body frame): w x (J w + h)."""
+    """Stored momentum h relative to the body (kg·m²/s, body frame): w x (J w + h), + h_dot.
 
-    name, params, size = "internal_momentum", ("h",), 3
+    Two forms: constant (a wheel spinning steadily: h, 3 numbers) and varying (a rotor along a
+    fixed body axis that spins up or down: h(t) = h + axis * m(t), m piecewise linear through
+    knots at profile_t, m = 0 at the first). The varying vector is
+    [h (3), axis0 (3, held), a, b, profile_t (K, held), profile (K, the first held at 0)]: the
+    axis is normalise(axis0 + a e1 + b e2) with e1, e2 perpendicular to axis0, so it turns
+    smoothly from its start.
+    """
+
+    name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
+    #: Knots of the varying form: one per this many residual rows, within these bounds.
+    ROWS_PER_KNOT, KNOTS = 40, (4, 24)
 
     @override
     def draw(self, rng, body):
         return {"h": _unit(rng) * rng.uniform(0.02, 0.08) * body.j * body.omega_ref}
+
+    def knots(self, d) -> int:
+        """Profile knots on d (0: too few rows for a varying form)."""
+        k = d.n_rows // self.ROWS_PER_KNOT
+        return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
+
+    @override
+    def forms(self, d):
+        return ("constant", "varying") if self.knots(d) else ("constant",)
+
+    @override
+    def form_size(self, form, d):
+        return 3 if form != "varying" else 8 + 2 * self.knots(d)
+
+    @override
+    def unpack(self, p):
+        if p.size == 3:
+            return {"h": np.array(p)}
+        k = (p.size - 8) // 2
+        return {"h": np.array(p[:3]), "axis": self._axis(p), "profile_t": np.array(p[8:8 + k]),
+                "profile": np.array(p[8 + k:])}
+
+    @override
+    def pack(self, params):
+        h = np.ravel(np.asarray(params["h"], float))
+        if "profile" not in params:
+            return h
+        axis = np.asarray(params["axis"], float)
+        return np.concatenate([h, axis / np.linalg.norm(axis), [0.0, 0.0],
+                               np.asarray(params["profile_t"], float), np.asarray(params["profile"], float)])
+
+    @staticmethod
+    def _basis(axis0):
+        u = axis0 / np.linalg.norm(axis0)
+        e1 = np.cross(u, np.eye(3)[int(np.argmin(np.abs(u)))])
+        e1 /= np.linalg.norm(e1)
+        return u, e1, np.cross(u, e1)
+
+    def _axis(self, p) -> np.ndarray:
+        u, e1, e2 = self._basis(p[3:6])
+        v = u + p[6] * e1 + p[7] * e2
+        return v / np.linalg.norm(v)
+
+    @override
+    def bounds(self, form, d):
+        lo, hi = super().bounds(form, d)
+        if form == "varying":  # the axis turns at most 45 deg from its start per component
+            lo[6:8], hi[6:8] = -1.0, 1.0
+        return lo, hi
+
+    @override
+    def held(self, form, d):
+        out = np.zeros(self.form_size(form, d), bool)
+        if form == "varying":
+            k = self.knots(d)
+            out[3:6] = True  # axis0: the chart's centre
+            out[8:8 + k] = True  # knot times
+            out[8 + k] = True  # m = 0 at the first knot: h is the momentum there
+        return out
+
+    @override
+    def typical(self, form, d):
+        href = d.j_ref * d.omega_ref * 0.01
+        if form != "varying":
+            return np.full(3, href)
+        k = self.knots(d)
+        return np.concatenate([np.full(3, href), np.ones(3), np.full(2, 0.1), np.ones(k), np.full(k, href)])
+
+    @override
+    def starts(self, form, d, probe):
+        return probe.momentum_starts(self.knots(d) if form == "varying" else 0)
 
     @override
     def disturbance(self, params):
         return {"internal_momentum": tuple(np.asarray(params["h"], float))}
 
     @override
-    def torque(self, p, d, w, jw, jm):
-        return -np.cross(w, p)
+    def momentum(self, params, t):
+        if "profile" not in params:
+            return None
+        m = np.interp(t, params["profile_t"], params["profile"])
+        return m[:, None] * np.asarray(params["axis"], float)
 
 
 @register
 class ViscousDamping(EffectModel):
     """Torque -C w with C diagonal (N·m·s)."""
 
-    name, params, size = "viscous_damping", ("c_diag",), 3
+    name, params, size, family = "viscous_damping", ("c_diag",), 3, "drag"
     ambiguities = (("aero_drag", "-C w and -c|w| w coincide while |w| stays nearly constant"),)
 
     @override
@@ -318,61 +392,63 @@ class ViscousDamping(EffectModel):
         return {"c_diag": rng.uniform(0.004, 0.015, 3) * body.j}
 
     @override
-    def disturbance(self, params):
-        return {"damping": tuple(map(tuple, np.diag(np.asarray(params["c_diag"], float))))}
+    def typical(self, form, d):
+        return np.full(3, 0.01 * d.j_ref)
 
     @override
-    def torque(self, p, d, w, jw, jm):
-        return -p * w
+    def disturbance(self, params):
+        return {"damping": tuple(map(tuple, np.diag(np.asarray(params["c_diag"], float))))}
 
 
 @register
 class AeroDrag(EffectModel):
-    """Torque -c |w| w (N·m·s²)."""
+    """Quadratic drag per body axis: torque -c_i |w| w_i (c (3,) N·m·s²). A body whose drag
+    differs about its axes (a flat plate, a racquet's head) has different c_i; equal c_i is the
+    isotropic -c |w| w.
+    """
 
-    name, params, size = "aero_drag", ("c",), 1
+    name, params, size, family = "aero_drag", ("c",), 3, "drag"
     ambiguities = (("viscous_damping", "-C w and -c|w| w coincide while |w| stays nearly constant"),)
 
     @override
     def draw(self, rng, body):
-        return {"c": rng.uniform(0.004, 0.015) * body.j / body.omega_ref}
+        return {"c": rng.uniform(0.004, 0.015) * rng.uniform(0.3, 1.0, 3) * body.j / body.omega_ref}
+
+    @override
+    def typical(self, form, d):
+        return np.full(3, 0.01 * d.j_ref / d.omega_ref)
 
     @override
     def disturbance(self, params):
-        return {"aero_drag": float(params["c"])}
-
-    @override
-    def torque(self, p, d, w, jw, jm):
-        return -p[0] * np.linalg.norm(w, axis=1, keepdims=True) * w
+        return {"aero_drag": tuple(np.broadcast_to(np.asarray(params["c"], float), (3,)))}
 
 
 @register
 class InternalDissipation(EffectModel):
-    """Torque -d (w - u (u . w)), u = J w / |J w|: energy decays, |J w| is kept (N·m·s)."""
+    """Torque -d (w - u (u . w)), u along the total momentum: energy decays, |J w + h| is kept
+    (slosh, nutation dampers; d N·m·s).
+    """
 
-    name, params, size = "internal_dissipation", ("d",), 1
+    name, params, size, family = "internal_dissipation", ("d",), 1, "internal motion"
 
     @override
     def draw(self, rng, body):
         return {"d": rng.uniform(0.01, 0.04) * body.j}
 
     @override
-    def body_torque(self, params, w, inertia):
-        hh = inertia @ w
-        u = hh / np.linalg.norm(hh)
-        return -float(params["d"]) * (w - u * (u @ w))
+    def typical(self, form, d):
+        return np.array([0.01 * d.j_ref])
 
     @override
-    def torque(self, p, d, w, jw, jm):
-        u = jw / np.linalg.norm(jw, axis=1, keepdims=True)
-        return -p[0] * (w - u * np.sum(u * w, axis=1, keepdims=True))
+    def disturbance(self, params):
+        return {"dissipation": float(params["d"])}
 
 
 @register
 class ActuatorScale(EffectModel):
     """The body receives (1 + s) times the commanded torque."""
 
-    name, params, size = "actuator_scale", ("scale",), 1
+    name, params, size, family = "actuator_scale", ("scale",), 1, "actuator"
     needs_torque = True
     ambiguities = (("inertia", "the torque scale is measured against the sidecar's nominal "
                     "inertia: J/s with torque tau fits as well as J with torque s*tau, so a wrong "
@@ -390,19 +466,24 @@ class ActuatorScale(EffectModel):
         return {"scale": float(_signed(rng, 0.2, 0.5))}
 
     @override
-    def applied(self, params, tau, dt):
-        return tau * (1.0 + float(params["scale"]))
+    def bounds(self, form, d):
+        return np.array([-0.9]), np.array([np.inf])
 
     @override
-    def actuate(self, p, d, tau):
-        return tau * (1.0 + p[0])
+    def typical(self, form, d):
+        return np.array([0.1])
+
+    @override
+    def applied(self, params, cumulative):
+        gain = 1.0 + float(params["scale"])
+        return lambda t: gain * cumulative(t)
 
 
 @register
 class ActuatorMisalignment(EffectModel):
     """The commanded torque is rotated by a rotation vector (rad)."""
 
-    name, params, size = "actuator_misalignment", ("rotvec",), 3
+    name, params, size, family = "actuator_misalignment", ("rotvec",), 3, "actuator"
     needs_torque = True
 
     @override
@@ -410,19 +491,20 @@ class ActuatorMisalignment(EffectModel):
         return {"rotvec": _unit(rng) * np.deg2rad(rng.uniform(10.0, 25.0))}
 
     @override
-    def applied(self, params, tau, dt):
-        return tau @ rotvec_matrix(params["rotvec"]).T
+    def typical(self, form, d):
+        return np.full(3, 0.05)
 
     @override
-    def actuate(self, p, d, tau):
-        return tau @ rotvec_matrix(p).T
+    def applied(self, params, cumulative):
+        rot = rotvec_matrix(params["rotvec"])
+        return lambda t: cumulative(t) @ rot.T
 
 
 @register
 class ActuatorDelay(EffectModel):
     """The commanded torque arrives delay seconds late."""
 
-    name, params, size = "actuator_delay", ("delay",), 1
+    name, params, size, family = "actuator_delay", ("delay",), 1, "actuator"
     needs_torque = True
 
     @override
@@ -430,40 +512,39 @@ class ActuatorDelay(EffectModel):
         return {"delay": rng.uniform(0.2, 0.6)}
 
     @override
-    def starts(self, d, base, probe):
-        return [probe.x(np.array([v])) for v in np.arange(0.05, 1.0, 0.1)]
+    def bounds(self, form, d):
+        return np.array([0.0]), np.array([0.5 * d.duration])
 
     @override
-    def applied(self, params, tau, dt):
-        n = tau.shape[0]
-        lo = np.floor(np.arange(n) - float(params["delay"]) / dt).astype(int)
-        return np.where((lo >= 0)[:, None], tau[np.clip(lo, 0, n - 1)], 0.0)
+    def typical(self, form, d):
+        return np.array([max(d.dt, 1e-3)])
 
     @override
-    def actuate(self, p, d, tau):
-        idx = np.searchsorted(d.t, d.t - p[0], side="right") - 1
-        return np.where((idx >= 0)[:, None], tau[np.clip(idx, 0, None)], 0.0)
+    def starts(self, form, d, probe):
+        grid = np.geomspace(max(d.dt, 1e-3), 0.25 * d.duration, 24)
+        return probe.best_of([np.array([v]) for v in grid], keep=2)
+
+    @override
+    def applied(self, params, cumulative):
+        delay = float(params["delay"])
+        return lambda t: cumulative(np.asarray(t) - delay)
 
 
 @register
 class GravityGradient(EffectModel):
     """Torque 3 n^2 r x J r, r the inertial nadir in the body frame; fitted as n * nadir (3,)."""
 
-    name, params, size = "gravity_gradient", ("orbit_rate", "nadir_inertial"), 3
+    name, params, size, family = "gravity_gradient", ("orbit_rate", "nadir_inertial"), 3, "external torque"
     needs_attitude = True
 
     @override
     def draw(self, rng, body):
         # Sized by its signature on the gyro, not by the actuator level: the gradient torque
         # 3 n^2 r x J r is fixed in the orbit frame, so a body tumbling at omega_ref sees it turn
-        # at about 2 omega_ref and its rates move by only ~ torque / (j 2 omega_ref). At the
-        # paper's 10 rad/s spin, 3-10 % of a 50 N·m tau_ref is at most a tenth of a 0.03 rad/s
-        # gyro noise: not identifiable (on 60-s recordings the model at the true parameters
-        # scored below the nominal one). The peak torque is drawn so that signature is 1-3 gyro
-        # sigmas (gyro_bias / gyro_scale are drawn at 3-17 sigmas), never below 3-10 % of
-        # tau_ref, which is what a slow tumble (little averaging) needs; at 10 rad/s that is a
-        # few % of the body's own gyroscopic torque omega^2 (J_max - J_min): visible, not dominant.
-        # Its orbit_rate is then a torque-level knob (the truth holds the nadir fixed).
+        # at about 2 omega_ref and its rates move by only ~ torque / (j 2 omega_ref). The peak
+        # torque is drawn so that signature is 1-3 gyro sigmas, never below 3-10 % of tau_ref,
+        # which is what a slow tumble (little averaging) needs; at 10 rad/s that is a few % of
+        # the body's own gyroscopic torque omega^2 (J_max - J_min): visible, not dominant.
         j = body.j
         spread = max(float(np.ptp(np.linalg.eigvalsh(body.inertia))), 1e-3 * j)
         seen = rng.uniform(1.0, 3.0) * body.gyro_sigma * j * 2.0 * body.omega_ref
@@ -473,7 +554,7 @@ class GravityGradient(EffectModel):
     @override
     def unpack(self, p):
         n = np.linalg.norm(p[:3])
-        return {"orbit_rate": n, "nadir_inertial": p[:3] / n if n > 0 else p[:3]}
+        return {"orbit_rate": n, "nadir_inertial": p[:3] / n if n > 0 else np.array(p[:3])}
 
     @override
     def pack(self, params):
@@ -481,26 +562,26 @@ class GravityGradient(EffectModel):
         return float(params["orbit_rate"]) * nadir / np.linalg.norm(nadir)
 
     @override
-    def starts(self, d, base, probe):
-        return [probe.x(0.02 * c) for c in np.vstack([np.eye(3), -np.eye(3)])]
+    def typical(self, form, d):
+        return np.full(3, 0.01 * max(d.omega_ref, 1e-3))
+
+    @override
+    def starts(self, form, d, probe):
+        n0 = np.sqrt(d.tau_ref / (3.0 * d.j_ref))
+        return probe.best_of([n0 * c for c in np.vstack([np.eye(3), -np.eye(3)])], keep=3)
 
     @override
     def disturbance(self, params):
         return {"orbit_rate": float(params["orbit_rate"]),
-                "nadir_inertial": tuple(np.asarray(params["nadir_inertial"], float))}
-
-    @override
-    def torque(self, p, d, w, jw, jm):
-        r = np.einsum("nji,j->ni", d.rot, p)
-        return 3.0 * np.cross(r, r @ jm.T)
+                "nadir_inertial": tuple(np.asarray(params["nadir_inertial"], float))
+                if np.linalg.norm(params["nadir_inertial"]) > 0 else (0.0, 0.0, -1.0)}
 
 
 @register
 class FlexibleMode(EffectModel):
     """One lightly damped mode (omega_n rad/s, zeta, coupling d (3,) sqrt(kg)·m) coupled to w_dot."""
 
-    name, params, size = "flexible_mode", ("omega_n", "zeta", "coupling"), 5
-    start_nfev = 8  # a short run from each screened start, then the best one to convergence
+    name, params, size, family = "flexible_mode", ("omega_n", "zeta", "coupling"), 5, "internal motion"
 
     @override
     def draw(self, rng, body):
@@ -510,7 +591,7 @@ class FlexibleMode(EffectModel):
     @override
     def unpack(self, p):  # the model depends on delta delta^T: report delta's sign canonically
         c = p[2:5] * (1.0 if p[2 + int(np.argmax(np.abs(p[2:5])))] >= 0 else -1.0)
-        return {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": c}
+        return {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": np.array(c)}
 
     @override
     def pack(self, params):
@@ -518,37 +599,33 @@ class FlexibleMode(EffectModel):
                      np.asarray(params["coupling"], float)]
 
     @override
-    def bounds(self, d):  # a mode inside the sampled band, damping in [0, 1]
-        dt = float(np.median(np.diff(d.t)))
+    def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, 1]
         lb, ub = np.full(5, -np.inf), np.full(5, np.inf)
         lb[:2] = 2 * np.pi * 0.5 * FLEX_BAND[0], 0.0
-        ub[:2] = 2 * np.pi * 0.5 / dt * 0.95, 1.0
+        ub[:2] = 2 * np.pi * FLEX_BAND[1] / d.dt, 1.0
         return lb, ub
 
     @override
-    def starts(self, d, base, probe):
-        return probe.flex_screen()
+    def typical(self, form, d):
+        return np.r_[1.0, 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref))]
 
     @override
-    def modal_momentum(self, p, d, w):
-        dt = float(np.median(np.diff(d.t)))
-        (_, _), (_, _), (b2, a2) = flex_filters(abs(p[0]) + 1e-9, abs(p[1]), dt)
-        eta_d = -signal.lfilter(b2, a2, w - w[0], axis=0) @ p[2:5]  # s^2 H applied to w = s H w_dot
-        return np.outer(eta_d, p[2:5])
+    def starts(self, form, d, probe):
+        return probe.mode_starts()
 
     @override
-    def noise_inertia(self, p):
-        # The modal momentum delta eta_dot = -delta s^2 H (delta . w) passes the gyro's white
-        # noise at gain 1 (s^2 H -> 1 above the mode): to the noise the body's inertia is
-        # J - delta delta^T. Without this the fit could "explain" noise by growing delta.
-        return np.outer(p[2:5], p[2:5])
+    def disturbance(self, params):
+        return {"flex_omega": float(params["omega_n"]), "flex_zeta": float(params["zeta"]),
+                "flex_coupling": tuple(np.asarray(params["coupling"], float))}
 
 
 @register
 class InertiaChange(EffectModel):
-    """At t_change (s) the inertia becomes J + delta_J (momentum kept); fitted at fixed trace."""
+    """At t_change (s) the inertia becomes J + delta_J (momentum kept); fitted at fixed trace
+    where the scale is pinned.
+    """
 
-    name, params, size = "inertia_change", ("t_change", "delta_inertia"), 7
+    name, params, size, family = "inertia_change", ("t_change", "delta_inertia"), 7, "mass change"
 
     @override
     def draw(self, rng, body):
@@ -560,47 +637,37 @@ class InertiaChange(EffectModel):
 
     @override
     def unpack(self, p):
-        return {"t_change": p[0], "delta_inertia": inertia_from_theta(p[1:7])}
+        return {"t_change": p[0], "delta_inertia": matrix6(p[1:7])}
 
     @override
     def pack(self, params):
-        dj = np.asarray(params["delta_inertia"], float)
-        return np.r_[float(params["t_change"]), dj[0, 0], dj[0, 1], dj[0, 2], dj[1, 1], dj[1, 2],
-                     dj[2, 2]]
+        return np.r_[float(params["t_change"]), inertia6(params["delta_inertia"])]
 
     @override
     def skip_reason(self, d):
-        return "recording too short to split" if d.edges.size < 12 else None
+        return "recording too short to split" if d.n_rows < 24 else None
 
     @override
-    def held(self, d):
-        return np.r_[True, np.zeros(6, bool)]  # t_change is set by the scan in starts()
+    def bounds(self, form, d):
+        lo, hi = super().bounds(form, d)
+        lo[0], hi[0] = d.t[0], d.t[-1]
+        return lo, hi
 
     @override
-    def starts(self, d, base, probe):
-        """Scan t_change over the interval edges (inertia and delta_J solved for each), then on a
-        finer grid around the best; the solver then refines the rest at that t_change.
-        """
-        free = np.r_[False, np.ones(6, bool)]
-        best = min((probe.affine(np.r_[tc, np.zeros(6)], free)
-                    for tc in d.t[d.edges[2:-2:max(1, (d.edges.size - 4) // 40)]]),
-                   key=lambda cx: cx[0])
-        step = max(1, (d.edges[1] - d.edges[0]) // 8)
-        i0 = int(np.searchsorted(d.t, probe.effect_part(best[1])[0]))
-        span = 2 * (d.edges[1] - d.edges[0])
-        for i in range(max(1, i0 - span), min(d.t.size - 1, i0 + span), step):
-            cand = probe.affine(np.r_[d.t[i], probe.effect_part(best[1])[1:]], free)
-            if cand[0] < best[0]:
-                best = cand
-        return [best[1]]
+    def typical(self, form, d):
+        return np.r_[d.duration, np.full(6, 0.01 * d.j_ref)]
+
+    @override
+    def starts(self, form, d, probe):
+        return probe.change_starts()
 
     @override
     def penalty(self, p, d):
         return [(p[1] + p[4] + p[6]) / d.trace0]  # a redistribution at fixed trace
 
     @override
-    def inertia_step(self, p, d):
-        return d.t >= p[0], inertia_from_theta(p[1:7])
+    def inertia_change(self, params):
+        return float(params["t_change"]), np.asarray(params["delta_inertia"], float)
 
 
 @register
@@ -613,7 +680,7 @@ class InertiaOffset(EffectModel):
     the nominal (% per principal moment, axis rotation) is report.inertia_comparison.
     """
 
-    name, params, size = "inertia_offset", ("inertia",), 6
+    name, params, size, family = "inertia_offset", ("inertia",), 6, "inertia"
     sets_inertia = True
     ambiguities = (("actuator_scale", "the inertia's overall scale trades against the torque "
                     "scale (c J with torque c tau fits the same): only the shape of J, its moment "
@@ -623,9 +690,9 @@ class InertiaOffset(EffectModel):
     def skip_reason(self, d):
         if d.inertia0 is None:
             return "no inertia_nominal in the sidecar: the inertia is fitted in every model"
-        if not d.has_torque:
-            return ("no commanded torque: the inertia's scale is not seen, and its shape is "
-                    "fitted in every model")
+        if not d.excited:
+            return ("no commanded torque or changing internal momentum: the inertia's scale is not "
+                    "seen, and its shape is fitted in every model")
         return None
 
     @override
@@ -638,26 +705,23 @@ class InertiaOffset(EffectModel):
 
     @override
     def unpack(self, p):
-        return {"inertia": inertia_from_phi(p)}
+        return {"inertia": inertia_from_phi(np.asarray(p, float))}
 
     @override
     def pack(self, params):
         return phi_from_inertia(params["inertia"])
 
     @override
-    def starts(self, d, base, probe):
-        inertia = base.inertia
-        if not np.all(np.linalg.eigvalsh(inertia) > 0):  # an indefinite nominal: start isotropic
-            inertia = np.eye(3) * max(d.trace0, 1e-12) / 3.0
-        return [probe.x(phi_from_inertia(inertia))]
+    def typical(self, form, d):
+        return np.ones(6)
+
+    @override
+    def starts(self, form, d, probe):
+        return [phi_from_inertia(probe.base.inertia)]
 
     @override
     def true_inertia(self, params):
         return np.asarray(params["inertia"], float)
-
-    @override
-    def inertia(self, p):
-        return inertia_from_phi(p)
 
 
 def effect_model(name: str) -> EffectModel:
@@ -681,10 +745,10 @@ class Effect:
 
     def __post_init__(self) -> None:
         model = effect_model(self.name)
-        unknown = set(self.params) - set(model.params)
-        if unknown:
-            raise ConfigError(f"effect {self.name}: unknown parameter(s) {sorted(unknown)}; "
-                              f"expected {model.params}")
+        unknown = set(self.params) - set(model.params) - {"axis", "profile_t", "profile"}
+        if unknown or not set(model.params) <= set(self.params):
+            raise ConfigError(f"effect {self.name}: parameters {sorted(self.params)}; expected "
+                              f"{model.params}")
 
     @property
     def model(self) -> EffectModel:

@@ -1,14 +1,26 @@
-"""Fit the nominal rigid model and every catalogue effect jointly with the inertia; rank by BIC.
+"""Fit the rigid model and the catalogue's effects to a recording by output error; rank by BIC.
 
-Modulating-function equation error: over consecutive intervals [a_k, b_k] of m samples, with a
-window phi = sin^2 that vanishes at both ends,
-    e_k = integral phi (d(J w)/dt + w x (J w + h) - tau_applied - tau_ext) dt
-        = integral (-phi' J w + phi (w x (J w + h) - tau_applied - tau_ext)) dt      (N·m·s)
-(with the flexible-mode and inertia-change terms where they apply): no derivative of the noisy
-gyro is taken. The intervals do not overlap, so the e_k are independent; each is whitened by the
-covariance of the gyro noise propagated through the candidate's own rigid terms, so z_k is
-unit white noise when the model explains the data, the BIC of a Gaussian fit is honest, and
-sigma * rms(z) (rad/s) is the fit's `rms` (equal to the gyro noise for a correct model).
+The model is the truth simulator itself: the effects' own physics hooks (effects.py, assembled
+by model.py) integrated by dynamics.propagate_model_batch predict the gyro reading at every
+sample from the body's initial rates, and a fit minimises the whitened difference from the
+recorded reading (output error: no derivative of the noisy gyro enters, and the integration is
+as accurate as its sub-steps, whatever the sampling rate). The BIC of a Gaussian fit of these
+residuals ranks the models.
+
+Multiple shooting: a tumbling body's trajectory is only predictable for so many radians, so a
+long record is cut into segments (each at most MAX_TURN rad of rotation) that restart from their
+own fitted initial rates. Those rates are nuisance parameters of every model; an effect is
+judged by what it explains inside the segments. The solver is Levenberg-Marquardt on the
+arrow-shaped Jacobian (global parameters dense, each segment's three rates touching only its
+own rows), eliminated segment by segment (Schur complement); the Jacobian is taken by finite
+differences, all columns of one iteration integrated in one batched call (the three rate
+columns of all segments at once, since segments do not share rows).
+
+Residual rows: the gyro samples are averaged in blocks (the model's prediction the same way)
+when the sampling is much faster than the motion: the average passes the rigid-body signal
+and removes vibration far above it (a rotor's 200-260 Hz), so the rows' noise is close to
+white and the BIC stays honest. Samples the gyro clipped are left out; impulses at a record's
+ends (a throw's release, a catch) are located from the nominal fit, trimmed and reported.
 """
 
 from __future__ import annotations
@@ -16,163 +28,508 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import signal, stats
 
-from inertia_gym.discrepancy.effects import (
-    FLEX_BAND,
-    REGISTRY,
-    EffectModel,
-    flex_filters,
-    quat_rotations,
-    skew,
-)
+from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, skew
+from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
-from inertia_gym.estimation.equation_error import modulating_windows
-from inertia_gym.information import inertia_from_theta, theta_from_inertia
+from inertia_gym.estimation.equation_error import equation_error_theta, modulating_windows
+from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
+from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
 #: At most this many effects in a compound explanation.
 MAX_EFFECTS = 3
-#: Solver evaluations per start when a candidate is screened on top of a fit (select()).
-SCREEN_NFEV = 4
+#: Largest rotation (rad) one segment spans; a first fit uses a quarter of it.
+MAX_TURN = 20.0
+#: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each).
+MIN_SEGMENT_ROWS, MIN_ROWS = 30, 20
+#: RK4 sub-steps: at most this rotation (rad) per step, and a mode at most this phase per step.
+TURN_PER_STEP, MODAL_PHASE_PER_STEP = 0.1, 0.3
+#: Residual rows are block means once the sampling exceeds both this rate (Hz) and this multiple
+#: of the fastest rotation frequency.
+BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
+#: Solver iterations: a screen, a start's trial run, a full fit; a fit stops when an iteration
+#: gains less than CONVERGED in BIC units (cost gain / mean square per residual).
+SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 6, 60, 0.1
+#: A flexible mode's fit may move its frequency up to this factor above its fastest start; a
+#: spectral peak of the residual starts a mode fit only if this many times the band's median.
+MODE_REACH, MODE_PEAK = 1.5, 3.0
+#: An impulse at a record's end: the whitened residual jumps by more than this many times its
+#: median step, within this share of the record from its end.
+IMPULSE_JUMP, IMPULSE_SPAN = 8.0, 0.15
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Data:
-    """A recording prepared for the integral equation error.
+    """A recording prepared for the output-error fit.
 
-    t, w (n, 3), tau (n, 3) N·m (zero-order hold, zeros when absent), rot (n, 3, 3) or None;
-    edges (K+1,) sample indices of the interval boundaries; phi, dphi (n,) the modulating
-    window sin^2 of each interval and its time derivative (1/s), both zero at the boundaries;
-    quad (n,) trapezoid weights (s); sigma (3,) rad/s gyro noise; scale_fixed: the inertia trace
-    is pinned to trace0 (no torque, or a trusted nominal); inertia0 (3, 3) kg·m²: the sidecar's
-    nominal inertia, or None (replay() runs the user's model with it as given).
+    t (n,) s, w (n, 3) rad/s gyro, q (n, 4) or None measured attitude, tau (n, 3) N·m commanded
+    (zeros when absent), h (n, 3) kg·m²/s known internal momentum or None; grid (Grid:
+    sub-steps for the rotation; grid_for() adds those a flexible mode needs);
+    seg (S+1,) sample index of each segment's start (seg[-1] = n); row (n,) residual row of each
+    sample (-1: left out); row_seg (n_rows,) segment of each row; row_scale (n_rows,) noise of a
+    row's mean relative to a full block's; sigma (3,) rad/s noise of a full block's mean;
+    trace0 kg·m² the trace the inertia is pinned to when scale_fixed; inertia0 the sidecar's
+    nominal or None; omega_ref rad/s, j_ref kg·m², tau_ref N·m, dt s (median sample interval),
+    duration s: scales for starts and step sizes; block: samples per row; notes: what was left
+    out and how the noise was set (reported).
     """
 
     t: np.ndarray
     w: np.ndarray
+    q: np.ndarray | None
     tau: np.ndarray
-    rot: np.ndarray | None
-    edges: np.ndarray
-    phi: np.ndarray
-    dphi: np.ndarray
-    quad: np.ndarray
+    h: np.ndarray | None
+    grid: Grid
+    seg: np.ndarray
+    row: np.ndarray
+    row_seg: np.ndarray
+    row_scale: np.ndarray
     sigma: np.ndarray
     sigma_source: str
     has_torque: bool
+    has_momentum: bool
     trace0: float
     scale_fixed: bool
-    inertia0: np.ndarray | None = None
+    inertia0: np.ndarray | None
+    omega_ref: float
+    j_ref: float
+    tau_ref: float
+    dt: float
+    duration: float
+    block: int
+    notes: dict
+    cache: dict = dataclasses.field(default_factory=dict)
+
+    def grid_for(self, omega_mode: float = 0.0) -> Grid:
+        """The integration grid for a model whose fastest mode is omega_mode rad/s (0: none):
+        TURN_PER_STEP rad of rotation and MODAL_PHASE_PER_STEP of the mode per RK4 step.
+        """
+        per_sample = int(np.ceil(omega_mode * self.dt / MODAL_PHASE_PER_STEP))
+        if per_sample <= 1:
+            return self.grid
+        key = ("grid", per_sample)
+        if key not in self.cache:
+            steps = np.maximum(np.diff(self.grid.sample_pos),
+                               np.ceil(omega_mode * np.diff(self.t) / MODAL_PHASE_PER_STEP))
+            self.cache[key] = Grid.of(self.t, np.clip(steps, 1, 256).astype(np.int64))
+        return self.cache[key]
+
+    def inputs(self, grid: Grid):
+        """(running integral of the commanded torque or None, the command on the grid (m, 3)
+        N·m or None, the known momentum on the grid (m+1, 3) kg·m²/s or None).
+        """
+        key = ("inputs", grid.steps)
+        if key not in self.cache:
+            cumulative = held_cumulative(self.t, self.tau) if self.has_torque else None
+            commanded = (None if cumulative is None else
+                         np.diff(cumulative(grid.t), axis=0) / np.diff(grid.t)[:, None])
+            h = None if self.h is None else np.stack([np.interp(grid.t, self.t, self.h[:, i])
+                                                      for i in range(3)], 1)
+            self.cache[key] = (cumulative, commanded, h)
+        return self.cache[key]
+
+    @property
+    def excited(self) -> bool:
+        """A known torque or a changing known momentum: the inertia's scale is seen."""
+        return self.has_torque or self.has_momentum
+
+    @property
+    def n_rows(self) -> int:
+        """Residual rows (each 3 axes)."""
+        return self.row_seg.size
+
+    @property
+    def segments(self) -> int:
+        """Segments S."""
+        return self.seg.size - 1
+
+    @property
+    def t_row(self) -> np.ndarray:
+        """(n_rows,) s: mean time of each row's samples."""
+        keep = self.row >= 0
+        return np.bincount(self.row[keep], self.t[keep]) / np.bincount(self.row[keep])
+
+    def q0(self) -> np.ndarray:
+        """(S, 4) attitude at each segment's start (measured, else identity)."""
+        if self.q is None:
+            return np.tile([1.0, 0.0, 0.0, 0.0], (self.segments, 1))
+        return self.q[self.seg[:-1]]
 
 
-def prepare(rec: Recording) -> Data:
-    """Intervals, noise level and scale handling for one recording."""
-    n = rec.t.size
-    edges, phi, dphi = modulating_windows(rec.t, int(np.clip(n // 150, 8, 40)))
-    if "gyro_sigma" in rec.meta:
-        sigma, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar"
-    else:
-        sigma, source = np.maximum(estimate_white_noise(rec.w), 1e-6), "estimated from the data"
-    nominal = rec.inertia_nominal
-    trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
-    tau = rec.tau if rec.tau is not None else np.zeros_like(rec.w)
-    t = rec.t
-    quad = np.gradient(t)
-    return Data(t, rec.w, tau, quat_rotations(rec.q) if rec.q is not None else None, edges, phi, dphi, quad,
-                sigma, source, rec.has_torque, trace0, (not rec.has_torque) or nominal is not None,
-                nominal)
-
-
-def _modulated(d: "Data", mom, g) -> np.ndarray:
-    """Per interval: integral of (-phi' mom + phi g) dt = integral of phi (d mom/dt + g) dt."""
-    return np.add.reduceat((-d.dphi[:, None] * mom + d.phi[:, None] * g) * d.quad[:, None],
-                           d.edges[:-1], axis=0)
-
-
-def _names(names) -> tuple[str, ...]:
-    """None (the nominal model), one effect name, or a sequence of them -> a tuple of names."""
-    if names is None:
-        return ()
-    return (names,) if isinstance(names, str) else tuple(names)
-
-
-def _parts(names: tuple[str, ...], x) -> list[tuple[EffectModel, np.ndarray]]:
-    """Each effect's model and its slice of x = [theta (6), p_1, p_2, ...]."""
-    out, i = [], 6
-    for name in names:
-        model = REGISTRY[name]
-        out.append((model, x[i:i + model.size]))
-        i += model.size
+def _saturated(rec: Recording) -> np.ndarray:
+    """(n, 3) bool: samples the gyro clipped. A full scale in the sidecar (gyro_full_scale_rad_s)
+    is trusted; otherwise an axis is clipped where its extreme value repeats in at least three
+    consecutive samples (a moving body's rate is not flat at its extreme, a clipped one is).
+    """
+    w = rec.w
+    full = rec.meta.get("gyro_full_scale_rad_s")
+    if full is not None:
+        return np.abs(w) >= 0.999 * float(full)
+    out = np.zeros_like(w, dtype=bool)
+    for i in range(3):
+        a = np.abs(w[:, i])
+        top = a.max()
+        if top <= 0:
+            continue
+        at = a >= top * (1 - 1e-12)
+        runs = np.convolve(at.astype(int), np.ones(3, int), "valid") == 3
+        if runs.any():
+            out[:, i] = at
     return out
 
 
-def _model_inertia(parts, x) -> np.ndarray:
-    """The model's inertia (3, 3): an effect's (inertia_offset) if it sets one, else theta's."""
-    for model, p in parts:
-        j = model.inertia(p)
+def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int) -> np.ndarray:
+    """Sample indices (S+1,) of segment starts: equal shares of the rotation angle, each at most
+    max_turn rad, each holding at least min_rows blocks, snapped to block boundaries.
+    """
+    n = t.size
+    turn = np.concatenate([[0.0], np.cumsum(0.5 * (np.linalg.norm(w[1:], axis=1)
+                                                   + np.linalg.norm(w[:-1], axis=1)) * np.diff(t))])
+    count = int(min(np.ceil(turn[-1] / max_turn), max(1, keep_rows // min_rows)))
+    if count <= 1:
+        return np.array([0, n])
+    cuts = np.searchsorted(turn, turn[-1] * np.arange(1, count) / count)
+    cuts = np.unique(np.clip((cuts // block) * block, block, n - block))
+    return np.concatenate([[0], cuts, [n]])
+
+
+def _rows(seg, keep, block: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residual row of each sample (-1: left out), the segment of each row and each row's
+    noise scale sqrt(block / kept samples): blocks of `block` samples inside each segment.
+    """
+    n = keep.size
+    sample_seg = np.repeat(np.arange(seg.size - 1), np.diff(seg))
+    block_id = (np.arange(n) - seg[sample_seg]) // block
+    key = sample_seg * (n + 1) + block_id
+    key = np.where(keep, key, -1)
+    used = np.unique(key[key >= 0])
+    row = np.where(keep, np.searchsorted(used, key), -1)
+    counts = np.bincount(row[keep], minlength=used.size)
+    return row, used // (n + 1), np.sqrt(block / np.maximum(counts, 1))
+
+
+def _substeps(t, w) -> np.ndarray:
+    """RK4 steps per sample interval (n-1,): TURN_PER_STEP rad at the interval's larger rate."""
+    rate = np.maximum(np.linalg.norm(w[1:], axis=1), np.linalg.norm(w[:-1], axis=1))
+    return np.clip(np.ceil(rate * np.diff(t) / TURN_PER_STEP), 1, 256).astype(np.int64)
+
+
+def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MAX_TURN) -> Data:
+    """The recording prepared for fitting: blocks, segments, noise level, what is left out.
+
+    trim: samples left out at the start and at the end (impulses); max_turn rad per segment.
+    """
+    t, w = np.asarray(rec.t, float), np.asarray(rec.w, float)
+    n = t.size
+    dt = float(np.median(np.diff(t)))
+    clipped = _saturated(rec)
+    keep = ~clipped.any(axis=1)
+    keep[:trim[0]] = False
+    keep[n - trim[1]:] = False
+    speed = float(np.percentile(np.linalg.norm(w, axis=1), 99))
+    keep_rate = max(BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION * speed / (2 * np.pi))
+    block = max(1, int(1.0 / (dt * keep_rate)))
+    seg = _segments(t, w, int(keep.sum()) // block, max_turn, MIN_SEGMENT_ROWS, block)
+    row, row_seg, row_scale = _rows(seg, keep, block)
+    notes = {"block": block, "saturated_samples": int(clipped.any(axis=1).sum()),
+             "trimmed": [int(trim[0]), int(trim[1])], "segments": int(seg.size - 1)}
+    if clipped.any():
+        notes["saturation_rad_s"] = [float(np.abs(w[clipped[:, i], i]).min()) if clipped[:, i].any()
+                                     else None for i in range(3)]
+    if block == 1 and "gyro_sigma" in rec.meta:
+        sigma, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar"
+    else:
+        means = np.stack([np.bincount(row[keep], w[keep, i]) / np.bincount(row[keep]) for i in range(3)], 1)
+        sigma = np.maximum(estimate_white_noise(means if means.shape[0] > 8 else w), 1e-9)
+        source = ("estimated from the data (third differences)" if block == 1 else
+                  f"estimated from the data (third differences of {block}-sample means)")
+    nominal = rec.inertia_nominal
+    has_momentum = rec.has_momentum
+    excited = rec.has_torque or has_momentum
+    trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
+    omega_ref = max(float(np.median(np.linalg.norm(w, axis=1))), 1e-3)
+    tau = rec.tau if rec.tau is not None else np.zeros_like(w)
+    duration = float(t[-1] - t[0])
+    tau_max = float(np.abs(tau).max())
+    tau_ref = tau_max if tau_max > 0 else trace0 / 3 * max(omega_ref, float(sigma.mean())) / max(duration, dt)
+    return Data(t, w, None if rec.q is None else np.asarray(rec.q, float), tau,
+                None if rec.h is None else np.asarray(rec.h, float), Grid.of(t, _substeps(t, w)), seg, row,
+                row_seg, row_scale, sigma, source, rec.has_torque, has_momentum, trace0,
+                (not excited) or nominal is not None, nominal, omega_ref, trace0 / 3, tau_ref, dt,
+                duration, block, notes)
+
+
+# ------------------------------------------------------------------------------------------
+# Models: the parameter layout and the prediction of the gyro reading
+# ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """x = [phi (6), p_1, ..., p_k, w0 (S, 3)]: the inertia (log-Cholesky, its trace pinned to
+    d.trace0 when d.scale_fixed), each effect's vector in its form, each segment's initial rates.
+    """
+
+    names: tuple[str, ...]
+    forms: tuple[str, ...]
+    sizes: tuple[int, ...]
+    segments: int
+    omega_max: float = 0.0  # rad/s: the fastest a flexible mode may be in this fit (its grid)
+
+    @classmethod
+    def of(cls, names, forms, d: Data, omega_max: float = 0.0) -> "Layout":
+        """Layout of the effects `names` in `forms` on d."""
+        return cls(tuple(names), tuple(forms),
+                   tuple(REGISTRY[n].form_size(f, d) for n, f in zip(names, forms)), d.segments,
+                   float(omega_max))
+
+    @property
+    def models(self) -> list[EffectModel]:
+        """The effects' registered models."""
+        return [REGISTRY[n] for n in self.names]
+
+    @property
+    def n_global(self) -> int:
+        """Inertia and effect parameters."""
+        return 6 + sum(self.sizes)
+
+    @property
+    def size(self) -> int:
+        """Length of x."""
+        return self.n_global + 3 * self.segments
+
+    def slices(self) -> list[slice]:
+        """Each effect's slice of x."""
+        out, i = [], 6
+        for s in self.sizes:
+            out.append(slice(i, i + s))
+            i += s
+        return out
+
+    def parts(self, x) -> list[tuple[EffectModel, dict]]:
+        """[(model, named params)] of x."""
+        return [(m, m.unpack(np.asarray(x[s], float))) for m, s in zip(self.models, self.slices())]
+
+    def w0(self, x) -> np.ndarray:
+        """(S, 3) segments' initial rates."""
+        return np.asarray(x[self.n_global:], float).reshape(-1, 3)
+
+
+def base_inertia(x, d: Data) -> np.ndarray:
+    """The inertia (3, 3) of phi = x[:6], scaled to d.trace0 when the scale is pinned."""
+    j = inertia_from_phi(np.asarray(x[:6], float))
+    return j * (d.trace0 / np.trace(j)) if d.scale_fixed else j
+
+
+def model_inertia(layout: Layout, x, d: Data) -> np.ndarray:
+    """The model's inertia (3, 3) kg·m²: an effect's (inertia_offset) where one sets it."""
+    for model, params in layout.parts(x):
+        j = model.true_inertia(params)
         if j is not None:
-            return j
-    return inertia_from_theta(x[:6])
+            return np.asarray(j, float)
+    return base_inertia(x, d)
 
 
-def _free(names: tuple[str, ...], d: Data) -> np.ndarray:
-    """Bool mask over x = [theta, p_1, ...] of what the solver moves: theta unless an effect
-    sets the inertia itself (inertia_offset), and every effect parameter not held.
+def predict(xs, layout: Layout, d: Data) -> np.ndarray:
+    """(B, n, 3) rad/s: the gyro reading the model predicts at every sample, for x in xs (B, size)."""
+    grid = d.grid_for(layout.omega_max if "flexible_mode" in layout.names else 0.0)
+    cumulative, commanded, h_known = d.inputs(grid)
+    seg_pos = np.append(grid.sample_pos[d.seg[:-1]], grid.steps)
+    q0 = d.q0()
+    terms, y0, parts = [], [], []
+    for x in xs:
+        p = layout.parts(x)
+        parts.append(p)
+        terms.append(model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded))
+        y0.append(np.hstack([q0, layout.w0(x)]))
+    out = simulate(grid, seg_pos, np.stack(y0), terms)[..., 4:]
+    return np.stack([gyro_output(p, w) for p, w in zip(parts, out)])
+
+
+def _row_means(d: Data, values) -> np.ndarray:
+    """(..., n, 3) per-sample values -> (..., n_rows, 3) their means over each row's samples."""
+    keep = d.row >= 0
+    idx = np.flatnonzero(keep)
+    starts = np.flatnonzero(np.r_[True, np.diff(d.row[idx]) != 0])
+    sums = np.add.reduceat(values[..., idx, :], starts, axis=-2)
+    return sums / np.bincount(d.row[idx])[:, None]
+
+
+def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
+    """(B, n_rows, 3) residual rows (predicted - measured) in units of their noise."""
+    diff = predict(xs, layout, d) - d.w
+    return _row_means(d, diff) / (d.sigma * d.row_scale[:, None])
+
+
+def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
+    if not d.scale_fixed:
+        return np.zeros(0)
+    rows = []
+    for model, s in zip(layout.models, layout.slices()):
+        rows += model.penalty(np.asarray(x[s], float), d)
+    return 1e3 * np.sqrt(n_res) * np.asarray(rows, float)
+
+
+def objective(xs, layout: Layout, d: Data) -> np.ndarray:
+    """(B, N) the least-squares vector: whitened residual rows, then any constraint rows."""
+    z = whitened(xs, layout, d).reshape(len(xs), -1)
+    z = np.where(np.isfinite(z), z, 1e6)
+    pen = [_penalty_rows(x, layout, d, z.shape[1]) for x in xs]
+    return np.hstack([z, np.stack(pen)]) if pen[0].size else z
+
+
+# ------------------------------------------------------------------------------------------
+# The solver
+# ------------------------------------------------------------------------------------------
+
+
+def _steps(x, layout: Layout, d: Data) -> np.ndarray:
+    """Finite-difference steps of every x entry: 1e-6 of its size or of its typical size."""
+    typical = [np.ones(6)] + [m.typical(f, d) for m, f in zip(layout.models, layout.forms)]
+    typical.append(np.full(3 * layout.segments, max(d.omega_ref, float(d.sigma.mean()))))
+    return 1e-6 * np.maximum(np.abs(x), np.concatenate(typical))
+
+
+def jacobian(x, free, layout: Layout, d: Data, central: bool = False):
+    """Objective r0 (N,), its columns for the free global entries G (N, P) and for the segment
+    rates Js (N, 3) (entry i's derivative with respect to the rates of its own segment).
+
+    All columns come from one batched integration: one trajectory per free global entry and
+    three for the rates of all segments at once (forward differences; central with central=True).
     """
-    theta_free = not any(REGISTRY[n].sets_inertia for n in names)
-    return np.concatenate([np.full(6, theta_free)] + [~REGISTRY[n].held(d) for n in names])
+    gi = np.flatnonzero(free[:layout.n_global])
+    h = _steps(x, layout, d)
+    base = [x]
+    plus = []
+    for i in gi:
+        xp = x.copy()
+        xp[i] += h[i]
+        plus.append(xp)
+    seg_h = h[layout.n_global:].reshape(-1, 3)
+    for c in range(3):
+        xp = x.copy()
+        xp[layout.n_global + c::3] += seg_h[:, c]
+        plus.append(xp)
+    minus = [2 * x - xp for xp in plus] if central else []
+    r = objective(np.array(base + plus + minus), layout, d)
+    r0 = r[0]
+    hp = np.r_[h[gi], seg_h.mean(axis=0)]
+    if central:
+        cols = (r[1:1 + len(plus)] - r[1 + len(plus):]) / (2 * hp[:, None])
+    else:
+        cols = (r[1:1 + len(plus)] - r0) / hp[:, None]
+    # the rate columns: each entry's own segment's step (segments' steps differ)
+    n_res = d.n_rows * 3
+    seg_of = np.repeat(d.row_seg, 3)
+    js = np.zeros((r0.size, 3))
+    for c in range(3):
+        js[:n_res, c] = cols[len(gi) + c][:n_res] * hp[len(gi) + c] / seg_h[seg_of, c]
+    return r0, cols[:len(gi)].T, js
 
 
-def _rates(parts, w):
-    """Gyro reading (n, 3) -> rates corrected by the sensor effects, and their gain (3,)."""
-    gain = np.ones(3)
-    for model, p in parts:
-        w, gain = model.rates(p, w, gain)
-    return w, gain
-
-
-def residual(x, names, d: Data) -> np.ndarray:
-    """Integral equation error (K, 3), N·m·s, for x = [theta (6), p_1, p_2, ...] of the effects
-    `names` (None or () for the rigid model alone, one name, or a sequence).
+def _lm_step(g, js, r, seg_of, n_seg: int, lam: float, seg_free: bool = True):
+    """Damped Gauss-Newton step (dg (P,), ds (S, 3)) of the arrow system: segment blocks
+    eliminated (Schur complement), Marquardt damping lam on every diagonal; with seg_free False
+    the segments' rates are held (ds = 0). A system that is not finite gives a zero step.
     """
-    parts = _parts(_names(names), x)
-    jm = _model_inertia(parts, x)
-    w, _ = _rates(parts, d.w)
-    jw = w @ jm.T
-    for model, p in parts:
-        step = model.inertia_step(p, d)
-        if step is not None:
-            jw = jw + step[0][:, None] * (w @ step[1].T)
-    mom = jw
-    for model, p in parts:
-        extra = model.modal_momentum(p, d, w)
-        if extra is not None:
-            mom = mom + extra
-    tau = d.tau
-    for model, p in parts:
-        tau = model.actuate(p, d, tau)
-    g = np.cross(w, mom) - tau
-    for model, p in parts:
-        torque = model.torque(p, d, w, jw, jm)
-        if torque is not None:
-            g = g - torque
-    return _modulated(d, mom, g)
+    p = g.shape[1]
+    col = np.linalg.norm(g, axis=0) + 1e-300
+    gsc = g / col
+    a = gsc.T @ gsc
+    a = a + lam * np.diag(np.maximum(np.diag(a), 1e-12))
+    rhs = -(gsc.T @ r)
+    ds = np.zeros((n_seg, 3))
+    if seg_free:
+        has = seg_of >= 0
+        gs, jss, rs, so = gsc[has], js[has], r[has], seg_of[has]
+        starts = np.flatnonzero(np.r_[True, np.diff(so) != 0])
+        ids = so[starts]
+        dmat = np.zeros((n_seg, 3, 3))
+        dmat[ids] = np.add.reduceat(jss[:, :, None] * jss[:, None, :], starts, axis=0)
+        bmat = np.zeros((n_seg, p, 3))
+        if p:
+            bmat[ids] = np.add.reduceat(gs[:, :, None] * jss[:, None, :], starts, axis=0)
+        bvec = np.zeros((n_seg, 3))
+        bvec[ids] = np.add.reduceat(jss * rs[:, None], starts, axis=0)
+        diag = np.einsum("sii->si", dmat)
+        floor = 1e-12 * max(float(diag.max()), 1e-300)
+        dinv = np.linalg.inv(dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), np.eye(3))
+                             + floor * np.eye(3))
+        a = a - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
+        rhs = rhs + np.einsum("spi,sij,sj->p", bmat, dinv, bvec)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
+        return np.zeros(p), ds
+    dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
+    if seg_free:
+        ds = -np.einsum("sij,sj->si", dinv, bvec + np.einsum("spi,p->si", bmat, dg_sc))
+    return dg_sc / col, ds
+
+
+def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
+    """Levenberg-Marquardt over the free entries of x (bounds by projection). Returns (x, cost).
+
+    Stops when an accepted step gains less than CONVERGED in BIC units (the cost's gain over
+    the mean square per residual: N log(mse) moves by that much), or after max_iter iterations.
+    """
+    x = np.clip(np.asarray(x0, float), lb, ub)
+    gi = np.flatnonzero(free[:layout.n_global])
+    seg_free = bool(free[layout.n_global:].any())
+    seg_of = np.full(objective(x[None], layout, d).shape[1], -1)
+    seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
+    cost, lam = np.inf, 1e-3
+    for _ in range(max_iter):
+        r, g, js = jacobian(x, free, layout, d)
+        if not np.isfinite(cost):
+            cost = float(r @ r)
+        g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
+        js = np.where(np.isfinite(js), js, 0.0)
+        improved = False
+        for _ in range(12):
+            dg, ds = _lm_step(g, js, r, seg_of, layout.segments, lam, seg_free)
+            xn = x.copy()
+            xn[gi] += dg
+            if seg_free:
+                xn[layout.n_global:] += ds.ravel()
+            xn = np.clip(xn, lb, ub)
+            rn = objective(xn[None], layout, d)[0]
+            cn = float(rn @ rn)
+            if cn < cost:
+                improved = cost - cn > CONVERGED * cost / r.size
+                x, cost, lam = xn, cn, max(lam / 4, 1e-9)
+                break
+            lam *= 6
+        if not improved:
+            break
+    return x, cost
+
+
+# ------------------------------------------------------------------------------------------
+# Fits
+# ------------------------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
 class Fit:
-    """One fitted model: names of its effects (() = nominal), x = [theta, p_1, ...], residual
-    e (K, 3) N·m·s, rate residual r (K, 3) rad/s, bic, k (free parameters).
+    """One fitted model: its layout, x, the whitened residual rows z (n_rows, 3), the rate
+    residual rows r (n_rows, 3) rad/s, bic, k (free global parameters), inertia (3, 3) kg·m².
     """
 
-    names: tuple[str, ...]
+    layout: Layout
     x: np.ndarray
-    e: np.ndarray
+    z: np.ndarray
     r: np.ndarray
     bic: float
     k: int
+    inertia: np.ndarray
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Its effects (() = the nominal model)."""
+        return self.layout.names
 
     @property
     def name(self) -> str | None:
@@ -180,14 +537,14 @@ class Fit:
         return self.names[-1] if self.names else None
 
     @property
-    def inertia(self) -> np.ndarray:
-        """Fitted inertia (3, 3)."""
-        return _model_inertia(_parts(self.names, self.x), self.x)
+    def forms(self) -> tuple[str, ...]:
+        """The form of each effect."""
+        return self.layout.forms
 
     @property
     def effect_params(self) -> dict:
         """Effect name -> its named parameters, in the order the effects were added."""
-        return {m.name: m.unpack(p) for m, p in _parts(self.names, self.x)}
+        return {m.name: params for m, params in self.layout.parts(self.x)}
 
     @property
     def params(self) -> dict:
@@ -195,235 +552,248 @@ class Fit:
         return self.effect_params[self.name] if self.names else {}
 
 
-def whitener(d: Data, x, names=None) -> np.ndarray:
-    """(K, 3, 3) inverse Cholesky factors of cov(e_k) under white gyro noise for x = [theta, p].
-
-    The noise is propagated through the rigid terms with the candidate's own inertia (J(t) for
-    inertia_change, the corrected rates for gyro_bias / gyro_scale, J - delta delta^T with the
-    modal momentum for flexible_mode), so the whitened residual cannot shrink by shrinking J:
-    it is measured in units of the gyro noise.
-    """
-    parts = _parts(_names(names), x)
-    jm = _model_inertia(parts, x)
-    w, gain = _rates(parts, d.w)
-    jt = np.broadcast_to(jm, (w.shape[0], 3, 3))
-    for model, p in parts:
-        step = model.inertia_step(p, d)
-        if step is not None:
-            jt = jt + step[0][:, None, None] * step[1]
-    jw = np.einsum("nij,nj->ni", jt, w)
-    for model, p in parts:
-        extra = model.modal_momentum(p, d, w)
-        if extra is not None:
-            jw = jw + extra
-        noise = model.noise_inertia(p)
-        if noise is not None:
-            jt = jt - noise
-            if np.linalg.eigvalsh(jt[0])[0] <= 0:  # the rigid part J - delta delta^T must be PD
-                return np.full((d.edges.size - 1, 3, 3), np.nan)
-    # d e_k / d w_raw,i = q_i (-phi'_i J_i + phi_i ([w_i]x J_i - [J_i w_i]x)) diag(gain)
-    a = d.quad[:, None, None] * (-d.dphi[:, None, None] * jt
-                                 + d.phi[:, None, None] * (skew(w) @ jt - skew(jw))) * gain
-    cov = np.add.reduceat(np.einsum("nij,j,nkj->nik", a, d.sigma ** 2, a), d.edges[:-1], axis=0)
-    cov = cov + 1e-12 * np.trace(cov, axis1=1, axis2=2)[:, None, None] * np.eye(3)
-    try:
-        return np.linalg.inv(np.linalg.cholesky(cov))
-    except np.linalg.LinAlgError:
-        return np.full_like(cov, np.nan)
+def _free(layout: Layout, d: Data) -> np.ndarray:
+    """Bool mask over x of what the solver moves."""
+    sets = any(m.sets_inertia for m in layout.models)
+    phi = np.full(6, not sets)
+    phi[0] &= not d.scale_fixed
+    held = [~m.held(f, d) for m, f in zip(layout.models, layout.forms)]
+    return np.concatenate([phi] + held + [np.ones(3 * layout.segments, bool)])
 
 
-def _z(d: Data, x, names, e) -> np.ndarray:
-    return np.einsum("kij,kj->ki", whitener(d, x, names), e)
+def _bounds(layout: Layout, d: Data):
+    lo, hi = [np.full(6, -np.inf)], [np.full(6, np.inf)]
+    for m, f in zip(layout.models, layout.forms):
+        a, b = m.bounds(f, d)
+        lo.append(a)
+        hi.append(b)
+    if "flexible_mode" in layout.names:  # the mode stays on the grid this fit integrates on
+        hi[1 + layout.names.index("flexible_mode")][0] = layout.omega_max
+    tail = np.full(3 * layout.segments, np.inf)
+    return np.concatenate(lo + [-tail]), np.concatenate(hi + [tail])
 
 
-def _objective(x, names, d: Data):
-    res = _z(d, x, names, residual(x, names, d)).ravel()
-    res = np.where(np.isfinite(res), res, 1e6)
-    if d.scale_fixed:
-        weight = 1e3 * np.sqrt(res.size)
-        rows = [(x[0] + x[3] + x[5] - d.trace0) / d.trace0]
-        for model, p in _parts(_names(names), x):
-            rows += model.penalty(p, d)
-        res = np.append(res, weight * np.asarray(rows))
-    return res
-
-
-def _finish(names, x, d: Data, k: int) -> Fit:
-    names = _names(names)
-    e = residual(x, names, d)
-    positive = np.all(np.linalg.eigvalsh(_model_inertia(_parts(names, x), x)) > 0)
-    z = _z(d, x, names, e) if positive else e * np.inf
-    r = z * d.sigma
+def finish(layout: Layout, x, d: Data, k: int | None = None) -> Fit:
+    """The Fit of x: residuals and BIC (k: free global parameters, counted from layout if None)."""
+    if k is None:
+        k = int(_free(layout, d)[:layout.n_global].sum())
+    z = whitened(np.asarray(x, float)[None], layout, d)[0]
+    jm = model_inertia(layout, x, d)
     n = z.size
-    mse = float(np.mean(z ** 2))
+    mse = float(np.mean(z ** 2)) if np.all(np.isfinite(z)) else np.inf
     bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
-    return Fit(names, x, e, r, float(bic), k)
+    return Fit(layout, np.asarray(x, float), z, z * d.sigma * d.row_scale[:, None], float(bic), k, jm)
 
 
-def _affine_solve(names, d: Data, x_fixed: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Exact least squares over the free components of x for models affine in them
-    (finite-difference columns of the whitened residual).
+def initial_rates(d: Data) -> np.ndarray:
+    """(S * 3,) each segment's first gyro sample: the start of its initial rates."""
+    return d.w[d.seg[:-1]].ravel()
+
+
+def _inertia_starts(d: Data) -> list[np.ndarray]:
+    """Starting phi of the nominal fit: the sidecar's nominal, the linear equation-error
+    estimate, and on a short record (one segment) the three elongated bodies too, since a
+    short flip can leave several inertias locally consistent.
     """
-    base = _objective(x_fixed, names, d)
-    cols = []
-    for i in np.flatnonzero(free):
-        xi = x_fixed.copy()
-        xi[i] += 1.0
-        cols.append(_objective(xi, names, d) - base)
-    sol = np.linalg.lstsq(np.stack(cols, 1), -base, rcond=None)[0]
-    x = x_fixed.copy()
-    x[free] += sol
-    return x
+    out = []
+    if d.inertia0 is not None:
+        out.append(phi_from_inertia(d.inertia0))
+    theta = equation_error_theta(d.t, d.w, d.tau if d.has_torque else None, d.h, trace=d.trace0)
+    out.append(phi_from_inertia(inertia_from_theta(theta)))
+    if d.segments == 1:
+        for diag in ([1.0, 1.0, 0.1], [1.0, 0.1, 1.0], [0.1, 1.0, 1.0], [1.0, 1.0, 1.0]):
+            out.append(phi_from_inertia(np.diag(diag) * d.trace0 / sum(diag)))
+    return out
 
 
-def fit_nominal(d: Data) -> tuple[Fit, Data]:
-    """The rigid model alone: inertia fitted (trace pinned when the scale is not identifiable).
+def fit_nominal(d: Data) -> Fit:
+    """The rigid model alone: the inertia fitted (its trace pinned when the scale is not
+    identifiable or a nominal is given) with every segment's initial rates.
 
-    Returns the fit and the data.
+    Several inertia starts are tried briefly and the best run to convergence; on a long record
+    a first fit with quarter-length segments gives the start of the full one.
     """
-    x = theta_from_inertia(np.eye(3) * d.trace0 / 3)
-    x = _affine_solve((), d, x, np.ones(6, bool))  # exact for the frozen whitener, then refine
-    x = optimize.least_squares(_objective, x, args=((), d), x_scale="jac").x
-    return _finish((), x, d, 6 - int(d.scale_fixed)), d
+    layout = Layout.of((), (), d)
+    lb, ub = _bounds(layout, d)
+    free = _free(layout, d)
+    best = None
+    for phi in _inertia_starts(d):
+        x0 = np.concatenate([phi, initial_rates(d)])
+        x, cost = solve(x0, free, layout, d, lb, ub, START_ITER)
+        if best is None or cost < best[1]:
+            best = (x, cost)
+    x, _ = solve(best[0], free, layout, d, lb, ub, FULL_ITER)
+    return finish(layout, x, d)
+
+
+def replay(d: Data) -> Fit | None:
+    """The user's model as given: the sidecar's nominal inertia, nothing fitted but each
+    segment's initial rates (None without a nominal).
+    """
+    if d.inertia0 is None:
+        return None
+    layout = Layout.of((), (), d)
+    x0 = np.concatenate([phi_from_inertia(d.inertia0), initial_rates(d)])
+    free = np.concatenate([np.zeros(6, bool), np.ones(3 * d.segments, bool)])
+    lb, ub = _bounds(layout, d)
+    exact = dataclasses.replace(d, scale_fixed=False)  # the nominal's own trace
+    x, _ = solve(x0, free, layout, exact, lb, ub, FULL_ITER)
+    return finish(layout, x, exact, k=0)
 
 
 @dataclasses.dataclass(frozen=True)
 class Probe:
-    """What an effect's starts() may ask while it is added to the fit `base`: the joint
-    vector of a start, affine solves and costs of the joint model `names` (base's + the new one).
+    """What an effect's starts() may ask while it is added to the fit `base`: costs of the joint
+    model with the base's parameters and candidate vectors of the new effect, and screens built
+    on the base's residual.
     """
 
-    names: tuple[str, ...]
+    layout: Layout
     d: Data
     base: Fit
 
     def x(self, p) -> np.ndarray:
-        """base.x with the new effect's vector p appended."""
-        return np.concatenate([self.base.x, p])
+        """Joint x of the base's parameters with the new effect's vector p."""
+        b = self.base
+        return np.concatenate([b.x[:b.layout.n_global], p, b.x[b.layout.n_global:]])
 
-    def effect_part(self, x) -> np.ndarray:
-        """The new effect's vector p of a joint x."""
-        return x[self.base.x.size:]
+    def costs(self, ps) -> np.ndarray:
+        """(len(ps),) least-squares cost of each candidate vector (everything else the base's)."""
+        r = objective(np.stack([self.x(p) for p in ps]), self.layout, self.d)
+        return np.einsum("ij,ij->i", r, r)
 
-    def affine(self, p, free_new) -> tuple[float, np.ndarray]:
-        """Cost and joint x after an exact solve over the inertia and the new effect's
-        components free_new (bool (size,)), the base's effect parameters held.
-        """
-        free = np.concatenate([np.ones(6, bool), np.zeros(self.base.x.size - 6, bool), free_new])
-        x = _affine_solve(self.names, self.d, self.x(p), free)
-        return float(np.sum(_objective(x, self.names, self.d) ** 2)), x
+    def best_of(self, ps, keep: int = 1) -> list[np.ndarray]:
+        """The `keep` candidates of lowest cost."""
+        costs = self.costs(ps)
+        return [ps[i] for i in np.argsort(costs)[:keep]]
 
-    def flex_screen(self, keep: int = 3, zeta: float = 0.03) -> list[np.ndarray]:
-        """Starts of the flexible-mode fit from a linear screen over the modal frequency.
-
-        For a fixed frequency and damping the modal momentum delta eta_dot = -M s^2 H w is linear
-        in M = delta delta^T, so J and M (12 numbers) follow from one least-squares solve with the
-        base whitener. The `keep` best local minima over a geometric grid of frequencies
-        (FLEX_BAND, about 3 % apart, finer than a lightly damped resonance) give
-        delta = sqrt(lambda) v from M's leading eigenpair. A random or single start misses the
-        resonance: the cost is flat away from it.
+    def mode_starts(self, keep: int = 3) -> list[np.ndarray]:
+        """Starts of flexible_mode: the largest peaks of the base residual's spectrum in the mode
+        band; at each, the coupling along J times the residual's direction there (a mode moves
+        the rates by J^-1 delta eta_ddot), its size chosen by cost from a geometric scan.
         """
         d, base = self.d, self.base
-        room = 0.5 * np.linalg.eigvalsh(base.inertia)[0]  # keep J - delta delta^T positive definite
-        dt = float(np.median(np.diff(d.t)))
-        wmat = whitener(d, base.x, base.names)
-        if room <= 0 or not np.all(np.isfinite(wmat)):  # no valid rigid body to add a mode to
+        lam_min = float(np.linalg.eigvalsh(base.inertia)[0])
+        if not lam_min > 0 or d.n_rows < 16:
             return []
-        z0 = np.einsum("kij,kj->ki", wmat, base.e).ravel()
-        w = d.w
-        basis = [inertia_from_theta(c) for c in np.eye(6)]
-
-        def column(mom):
-            return np.einsum("kij,kj->ki", wmat, _modulated(d, mom, np.cross(w, mom))).ravel()
-
-        jcols = np.stack([column(w @ b.T) for b in basis], 1)
-        f_hi = FLEX_BAND[1] * 0.5 / dt
-        freqs = np.geomspace(FLEX_BAND[0], f_hi, max(2, int(np.log(f_hi / FLEX_BAND[0]) / 0.03)))
-        costs, sols = [], []
-        for f in freqs:
-            (_, _), (_, _), (b2, a2) = flex_filters(2 * np.pi * f, zeta, dt)
-            fw = signal.lfilter(b2, a2, w - w[0], axis=0)
-            a = np.hstack([jcols, np.stack([column(-fw @ b.T) for b in basis], 1)])
-            rhs = -z0
-            if d.scale_fixed:  # keep the trace of J
-                a = np.vstack([a, 1e3 * np.r_[1, 0, 0, 1, 0, 1, np.zeros(6)]])
-                rhs = np.append(rhs, 0.0)
-            sol = np.linalg.lstsq(a, rhs, rcond=None)[0]
-            costs.append(float(np.sum((a @ sol - rhs) ** 2)))
-            sols.append(sol)
-        costs = np.array(costs)
-        is_min = np.r_[True, costs[1:] < costs[:-1]] & np.r_[costs[:-1] < costs[1:], True]
+        dt_row = float(np.median(np.diff(d.t_row)))
+        f, pxy = signal.csd(base.r[:, :, None], base.r[:, None, :], fs=1 / dt_row, axis=0,
+                            nperseg=min(256, d.n_rows))
+        power = np.einsum("fii->f", pxy).real
+        band = (f >= FLEX_BAND[0]) & (f <= FLEX_BAND[1] / d.dt) & (f > 0)
+        if not band.any():
+            return []
+        idx = np.flatnonzero(band)
+        peaks = idx[signal.argrelmax(np.r_[0.0, power[idx], 0.0])[0] - 1] if idx.size > 2 else idx
+        # a mode is a resonance: its peak stands well above the band's typical level
+        peaks = peaks[power[peaks] > MODE_PEAK * np.median(power[idx])]
+        peaks = peaks[np.argsort(power[peaks])[::-1][:keep]]
         out = []
-        for i in np.flatnonzero(is_min)[np.argsort(costs[is_min])]:
-            lam, vec = np.linalg.eigh(inertia_from_theta(sols[i][6:]))
-            if lam[-1] > 0:  # M must be (close to) delta delta^T with a real delta
-                delta = np.sqrt(min(lam[-1], room)) * vec[:, -1]
-                out.append(self.x(np.concatenate([[2 * np.pi * freqs[i], zeta], delta])))
-            if len(out) == keep:
-                break
+        for i in peaks:
+            vals, vecs = np.linalg.eigh(pxy[i].real)
+            u = base.inertia @ vecs[:, -1]
+            u /= np.linalg.norm(u)
+            sizes = np.sqrt(lam_min) * np.geomspace(0.02, 0.7, 12)
+            cands = [np.r_[2 * np.pi * f[i], 0.03, s * u] for s in sizes]
+            out += self.best_of(cands, keep=1)
         return out
 
+    def change_starts(self) -> list[np.ndarray]:
+        """Start of inertia_change: over ~30 change times, the delta_J of one Gauss-Newton step
+        from zero (everything else held); the time whose step explains most.
+        """
+        d = self.d
+        times = d.t_row[np.linspace(2, d.n_rows - 3, min(30, d.n_rows - 4)).astype(int)]
+        h = 1e-4 * d.j_ref
+        r0 = objective(self.x(np.zeros(7))[None], self.layout, d)[0]
+        def gauss_newton(tc):
+            xs = [self.x(np.r_[tc, h * e]) for e in np.eye(6)]
+            cols = ((objective(np.stack(xs), self.layout, d) - r0) / h).T
+            step = np.linalg.lstsq(cols, -r0, rcond=None)[0]
+            return float(r0 @ r0 - np.sum((r0 + cols @ step) ** 2)), np.r_[tc, step]
 
-def _n_free(names: tuple[str, ...], d: Data) -> int:
-    """Free parameters of a model for the BIC (a scanned t_change counts)."""
-    theta = 0 if any(REGISTRY[n].sets_inertia for n in names) else 6 - int(d.scale_fixed)
-    return theta + sum(REGISTRY[n].size for n in names)
+        scan = [gauss_newton(tc) for tc in times]
+        i = int(np.argmax([g for g, _ in scan]))
+        if times.size > 1:  # refine between the best time's neighbours
+            lo, hi = times[max(i - 1, 0)], times[min(i + 1, times.size - 1)]
+            scan += [gauss_newton(tc) for tc in np.linspace(lo, hi, 9)[1:-1]]
+        return [max(scan, key=lambda gs: gs[0])[1]]
+
+    def momentum_estimate(self, knots: int) -> tuple[np.ndarray, np.ndarray]:
+        """Knot times tk (K,) s and a linear estimate of an unknown internal momentum H (K, 3)
+        kg·m²/s, piecewise linear through them, with the base's inertia held: the integral
+        equation error of d/dt (J w + h_known + h) + w x (J w + h_known + h) = tau over
+        modulating windows is linear in H (no derivative of the gyro is taken).
+        """
+        d, base = self.d, self.base
+        tk = np.linspace(d.t[0], d.t[-1], knots) if knots > 1 else np.array([d.t[0]])
+        span = 2.0 / (d.omega_ref * d.dt)
+        edges, phi, dphi = modulating_windows(d.t, int(np.clip(span, 16, max(16, d.t.size // 12))))
+        quad = np.gradient(d.t)
+        w = d.w
+        mom = w @ base.inertia.T + (0.0 if d.h is None else d.h)
+        basis = (np.stack([np.interp(d.t, tk, e) for e in np.eye(knots)], 1) if knots > 1
+                 else np.ones((d.t.size, 1)))
+        op = quad[:, None, None] * (-dphi[:, None, None] * np.eye(3) + phi[:, None, None] * skew(w))
+        a = np.add.reduceat(np.einsum("nij,nk->nikj", op, basis), edges[:-1], axis=0)
+        a = a.reshape(-1, 3 * knots)
+        g = -dphi[:, None] * mom + phi[:, None] * (np.cross(w, mom) - d.tau)
+        rhs = -np.add.reduceat(quad[:, None] * g, edges[:-1], axis=0).ravel()
+        return tk, np.linalg.lstsq(a, rhs, rcond=None)[0].reshape(knots, 3)
+
+    def momentum_starts(self, knots: int) -> list[np.ndarray]:
+        """Start of internal_momentum: constant (knots 0) or varying along one axis, from the
+        linear estimate: the axis is the dominant direction of the momentum's change (SVD).
+        """
+        model = REGISTRY["internal_momentum"]
+        if not knots:
+            return self.best_of([self.momentum_estimate(1)[1][0], np.zeros(3)])
+        tk, hk = self.momentum_estimate(knots)
+        change = hk - hk[0]
+        axis = np.linalg.svd(change, full_matrices=False)[2][0]
+        estimate = model.pack({"h": hk[0], "axis": axis, "profile_t": tk, "profile": change @ axis})
+        none = model.pack({"h": np.zeros(3), "axis": axis, "profile_t": tk, "profile": np.zeros(knots)})
+        return self.best_of([estimate, none])  # the linear estimate can be worse than nothing
 
 
-def replay(d: Data) -> Fit | None:
-    """The user's model as given: the sidecar's nominal inertia, nothing fitted (None without one)."""
-    if d.inertia0 is None:
-        return None
-    return _finish((), theta_from_inertia(d.inertia0), d, 0)
+def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
+              omega_max: float | None = None) -> Fit:
+    """Fit the effects `names` (in `forms`) jointly with the inertia and the segments' rates,
+    the last one added to the fit `base` of the others (whose x starts everything else).
 
-
-def fit_model(names, d: Data, base: Fit, joint: bool = True, start=None) -> Fit:
-    """Fit the effects `names` jointly with the inertia, the last one added to the fit `base`
-    of the others (its x is the start of everything but the new effect).
-
-    joint=False fits only the new effect's parameters (the base's held) with at most
-    SCREEN_NFEV evaluations per start and no polish: a cheap screen, refitted jointly after;
-    start: one joint x to start from instead of the new effect's own starts.
+    joint=False fits only the new effect's parameters (everything else held) with SCREEN_ITER
+    iterations per start: a cheap screen, refitted jointly after. start: one joint x to start
+    from instead of the new effect's own starts (omega_max: the grid's fastest mode for it).
+    Several starts each get START_ITER iterations and the best is run to convergence.
     """
-    names = _names(names)
-    new = REGISTRY[names[-1]]
-    parts = [REGISTRY[n] for n in names]
-    lb = np.concatenate([np.full(6, -np.inf)] + [m.bounds(d)[0] for m in parts])
-    ub = np.concatenate([np.full(6, np.inf)] + [m.bounds(d)[1] for m in parts])
-    free = _free(names, d)
+    layout = Layout.of(names, forms, d, base.layout.omega_max if omega_max is None else omega_max)
+    new, form = layout.models[-1], layout.forms[-1]
+    probe = Probe(layout, d, base)
+    starts = [start] if start is not None else [probe.x(p) for p in new.starts(form, d, probe)]
+    if new.name == "flexible_mode" and starts:  # integrate finely enough for the fastest start
+        i = layout.slices()[-1].start
+        fastest = max(abs(x0[i]) for x0 in starts)
+        layout = dataclasses.replace(layout, omega_max=min(MODE_REACH * fastest, new.bounds(form, d)[1][0]))
+        probe = Probe(layout, d, base)
+    lb, ub = _bounds(layout, d)
+    free = _free(layout, d)
     if not joint:
-        free[:base.x.size] = False
-    probe = Probe(names, d, base)
-
-    def solve(x0, max_nfev):
-        def objective(y):
-            x = x0.copy()
-            x[free] = y
-            return _objective(x, names, d)
-
-        sol = optimize.least_squares(objective, x0[free], x_scale="jac", bounds=(lb[free], ub[free]),
-                                     max_nfev=max_nfev)
-        x = x0.copy()
-        x[free] = sol.x
-        return sol, x
-
+        keep = np.zeros_like(free)
+        keep[layout.slices()[-1]] = free[layout.slices()[-1]]
+        free = keep
+    k = int(_free(layout, d)[:layout.n_global].sum())
+    if not starts:  # no valid start (e.g. no rigid body to attach a mode to): the base, effect zero
+        return finish(layout, probe.x(np.zeros(layout.sizes[-1])), d, k)
+    first = SCREEN_ITER if not joint else (START_ITER if len(starts) > 1 else FULL_ITER)
     best = None
-    nfev = new.start_nfev if joint else min(new.start_nfev or SCREEN_NFEV, SCREEN_NFEV)
-    for x0 in new.starts(d, base, probe) if start is None else [start]:
-        x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
-        sol, x = solve(x0, nfev)
-        if best is None or sol.cost < best[0].cost:
-            best = (sol, x)
-    if best is None:  # no start (e.g. no valid base whitener for a mode): the base, effect zero
-        return _finish(names, probe.x(np.zeros(new.size)), d, _n_free(names, d))
-    if joint and new.start_nfev is not None and best[0].status == 0:
-        best = solve(best[1], 200)
-    return _finish(names, best[1], d, _n_free(names, d))
-
-
-def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
-    """Fit one effect jointly with the inertia, starting from the nominal inertia."""
-    return fit_model((name,), d, nominal)
+    for x0 in starts:
+        x, cost = solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, first)
+        if best is None or cost < best[1]:
+            best = (x, cost)
+    x = best[0]
+    if joint and first != FULL_ITER:
+        x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
+    return finish(layout, x, d, k)
 
 
 def candidates(d: Data) -> tuple[list[str], dict]:
@@ -438,22 +808,27 @@ def candidates(d: Data) -> tuple[list[str], dict]:
     return names, skipped
 
 
-def fit_all(d: Data) -> tuple[Fit, list[Fit], dict, Data]:
-    """Nominal fit, every testable effect's fit (ranked by delta BIC, best first), skipped ones,
-    and the data.
+def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
+    """One effect fitted jointly with the inertia from the nominal fit, in each of its forms;
+    the form of lowest BIC.
     """
-    nominal, d = fit_nominal(d)
+    fits = [fit_model((name,), (form,), d, nominal) for form in REGISTRY[name].forms(d)]
+    return min(fits, key=lambda f: f.bic)
+
+
+def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
+    """Every testable effect's fit (ranked by BIC, best first) and the skipped ones.
+
+    actuator_scale is only a candidate with the trace pinned to a trusted nominal (skip_reason):
+    J at the nominal trace, torque scaled by 1 + s. Exactly confounded effects (actuator_scale
+    and inertia_offset: c J with c tau) tie to rounding; the tie goes to the earlier one in the
+    catalogue, the report names both.
+    """
     names, skipped = candidates(d)
-    # actuator_scale is only a candidate with the trace pinned to a trusted nominal
-    # (skip_reason), so it is fitted like every other effect: J at the nominal trace, torque
-    # scaled by 1 + s. (Fitting J and s freely and rescaling afterwards is degenerate along
-    # (c J, c (1 + s)); the rescaled s must then be c (1 + s) - 1, not c - 1.)
-    # Exactly confounded effects (actuator_scale and inertia_offset: c J with c tau) tie to
-    # rounding; the tie goes to the earlier one in the catalogue, the report names both.
     order = {name: i for i, name in enumerate(REGISTRY)}
     fits = sorted((fit_effect(name, d, nominal) for name in names),
                   key=lambda f: (np.round(f.bic, 6), order[f.name]))
-    return nominal, fits, skipped, d
+    return fits, skipped
 
 
 @dataclasses.dataclass(frozen=True)
@@ -475,11 +850,11 @@ class Explanation:
         return self.chain[-1] if self.chain else None
 
 
-def _chain(names: tuple[str, ...], d: Data, nominal: Fit, singles: dict) -> list[Fit]:
+def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
     """Fits of the prefixes of names, each added to the previous one (singles reused)."""
     out = [singles[names[0]]]
     for i in range(1, len(names)):
-        out.append(fit_model(names[:i + 1], d, out[-1]))
+        out.append(fit_model(names[:i + 1], forms[:i + 1], d, out[-1]))
     return out
 
 
@@ -491,10 +866,8 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     fit (everything else held: a screen), refits the best of them jointly with the inertia and
     the effects already chosen, and keeps it if that improves the BIC by the same margin; at
     most max_effects. Every testable effect is screened at every step, also those that explain
-    nothing alone: a large effect can hide a second one (a gyro bias hides an actuator
-    misalignment that alone improves the BIC by nothing). The backward
-    check then refits without each chosen effect and drops any whose removal costs less than
-    the margin, until none does. Returns the Explanation.
+    nothing alone: a large effect can hide a second one. The backward check then refits without
+    each chosen effect and drops any whose removal costs less than the margin, until none does.
     """
     by_name = {f.name: f for f in singles}
     ranked = [f for f in singles if np.isfinite(f.bic) and nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC]
@@ -503,35 +876,49 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
                for f in singles if f not in ranked}
     if not ranked:
         return Explanation((), (), dropped)
-    chosen, current = [ranked[0].name], ranked[0]
+    current = ranked[0]
     chain = [current]
-    pool_names = [f.name for f in singles if np.isfinite(f.bic)]
-    while len(chosen) < max_effects:
-        # screen with the chosen effects and the inertia held, then refit the best jointly
-        trials = [fit_model((*chosen, n), d, current, joint=False) for n in pool_names
-                  if n not in chosen]
+    pool = [f.name for f in singles if np.isfinite(f.bic)]
+    while len(current.names) < max_effects:
+        # each candidate screened from its own single-effect fit's parameters and form
+        trials = []
+        for n in pool:
+            if n in current.names:
+                continue
+            single = by_name[n]
+            p = single.x[single.layout.slices()[0]]
+            layout = Layout.of((*current.names, n), (*current.forms, single.forms[0]), d,
+                               max(current.layout.omega_max, single.layout.omega_max))
+            trials.append(fit_model(layout.names, layout.forms, d, current, joint=False,
+                                    start=Probe(layout, d, current).x(p),
+                                    omega_max=layout.omega_max))
         trials = [t for t in trials if np.isfinite(t.bic)]
         if not trials:
             break
         screened = min(trials, key=lambda t: t.bic)
-        best = fit_model(screened.names, d, current, start=screened.x)
+        best = fit_model(screened.names, screened.forms, d, current, start=screened.x,
+                         omega_max=screened.layout.omega_max)
         if not current.bic - best.bic > SIGNIFICANT_DELTA_BIC:
             break
-        chosen.append(best.name)
         current = best
         chain.append(best)
-    changed = len(chosen) > 1
-    while changed and len(chosen) > 1:
+    changed = len(current.names) > 1
+    while changed and len(current.names) > 1:
         changed = False
-        for name in list(chosen):
-            rest = tuple(n for n in chosen if n != name)
-            rest_chain = _chain(rest, d, nominal, by_name)
+        for i, name in enumerate(current.names):
+            rest = tuple(n for n in current.names if n != name)
+            rest_forms = tuple(f for j, f in enumerate(current.forms) if j != i)
+            if by_name[rest[0]].forms != rest_forms[:1]:
+                single = fit_model(rest[:1], rest_forms[:1], d, nominal)
+                by_name = {**by_name, rest[0]: single}
+            rest_chain = _chain(rest, rest_forms, d, by_name)
             if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
                 dropped[name] = (f"removing it from the explanation costs only "
                                  f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
-                chosen, current, chain, changed = list(rest), rest_chain[-1], rest_chain, True
+                current, chain, changed = rest_chain[-1], rest_chain, True
                 break
-    for name in pool_names:
+    chosen = current.names
+    for name in pool:
         if name not in chosen and not dropped.get(name, "").startswith("removing"):
             dropped[name] = (f"alone it improves the BIC by {nominal.bic - by_name[name].bic:.1f}, "
                              f"and it adds <= {SIGNIFICANT_DELTA_BIC:g} once "
@@ -541,40 +928,49 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     return Explanation(tuple(chain), added, dropped)
 
 
+def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of the free global entries of fit.x and their indices: the inverse of the
+    Schur complement of the segments' rates in the information J^T J (central differences),
+    times the mean square of the whitened residual where it exceeds 1 (model error widens it).
+    """
+    layout = fit.layout
+    free = _free(layout, d)
+    r, g, js = jacobian(fit.x, free, layout, d, central=True)
+    seg_of = np.full(r.size, -1)
+    seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
+    info = g.T @ g
+    has = seg_of >= 0
+    starts = np.flatnonzero(np.r_[True, np.diff(seg_of[has]) != 0])
+    jss, gs = js[has], g[has]
+    dmat = np.add.reduceat(jss[:, :, None] * jss[:, None, :], starts, axis=0)
+    bmat = np.add.reduceat(gs[:, :, None] * jss[:, None, :], starts, axis=0)
+    dinv = np.linalg.pinv(dmat)
+    info = info - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
+    mse = float(np.mean(fit.z ** 2)) if np.all(np.isfinite(fit.z)) else 1.0
+    return np.linalg.pinv(info) * max(1.0, mse), np.flatnonzero(free[:layout.n_global])
+
+
 def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
     """Two-sided intervals of every named parameter of fit's effects: {name: {param: {lo, hi}}}.
 
-    The covariance of the free components of x is (A^T A)^-1 times the mean square of the
-    whitened residual (at least 1), A the central-difference Jacobian of the objective (the
-    trace constraint rows included); named parameters follow by the delta method through each
-    class's unpack. Held parameters (a scanned t_change) get no width from the fit.
+    From covariance() by the delta method through each class's unpack; held parameters (a
+    scanned t_change, bookkeeping) get no width from the fit.
     """
-    from scipy import stats
-
-    x = fit.x
-    free = np.flatnonzero(_free(fit.names, d))
-    steps = 1e-5 * np.maximum(np.abs(x), 1e-3 * np.abs(x[:6]).mean() if x.size else 1.0)
-    cols = []
-    for i in free:
-        hi, lo = x.copy(), x.copy()
-        hi[i] += steps[i]
-        lo[i] -= steps[i]
-        cols.append((_objective(hi, fit.names, d) - _objective(lo, fit.names, d)) / (2 * steps[i]))
-    a = np.stack(cols, 1)
-    z = _z(d, x, fit.names, fit.e)
-    mse = max(1.0, float(np.mean(z ** 2))) if np.all(np.isfinite(z)) else 1.0
-    cov = np.zeros((x.size, x.size))
-    cov[np.ix_(free, free)] = np.linalg.pinv(a.T @ a) * mse
+    cov_free, idx = covariance(fit, d)
+    layout = fit.layout
+    cov = np.zeros((layout.n_global, layout.n_global))
+    cov[np.ix_(idx, idx)] = cov_free
     k = float(stats.norm.ppf(0.5 + level / 2))
+    steps = _steps(fit.x, layout, d)
     out = {}
-    for model, p in _parts(fit.names, x):
-        i0 = 6 + sum(REGISTRY[n].size for n in fit.names[:fit.names.index(model.name)])
-        sub = cov[i0:i0 + model.size, i0:i0 + model.size]
+    for model, sl in zip(layout.models, layout.slices()):
+        p = fit.x[sl]
+        sub = cov[sl, sl]
         named = model.unpack(p)
         flat = np.concatenate([np.ravel(v) for v in named.values()])
-        jac = np.zeros((flat.size, model.size))
-        for j in range(model.size):
-            h = steps[i0 + j]
+        jac = np.zeros((flat.size, p.size))
+        for j in range(p.size):
+            h = steps[sl][j]
             up, dn = p.copy(), p.copy()
             up[j] += h
             dn[j] -= h
@@ -583,8 +979,7 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
         half = k * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, sub, jac), 0.0))
         res, i = {}, 0
         for key, v in named.items():
-            size = np.size(v)
-            shape = np.shape(v)
+            size, shape = np.size(v), np.shape(v)
             res[key] = {"lo": (flat[i:i + size] - half[i:i + size]).reshape(shape),
                         "hi": (flat[i:i + size] + half[i:i + size]).reshape(shape)}
             i += size
@@ -592,27 +987,65 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
     return out
 
 
+def impulses(d: Data, fit: Fit) -> tuple[int, int]:
+    """Samples to leave out at the start and the end of the record: an impulse (a throw's
+    release, a catch, a knock) makes the whitened residual jump from row to row by more than
+    IMPULSE_JUMP times its median jump; the rows up to the last such jump near the start, and
+    from the first one near the end, are trimmed (each side at most IMPULSE_SPAN of the rows).
+    A drift the model misses grows smoothly and is not trimmed.
+    """
+    z = fit.z
+    if d.n_rows < 20 or not np.all(np.isfinite(z)):
+        return 0, 0
+    jump = np.linalg.norm(np.diff(z, axis=0), axis=1)
+    same = d.row_seg[1:] == d.row_seg[:-1]  # a jump across a segment boundary is not an impulse
+    jump = np.where(same, jump, 0.0)
+    thr = IMPULSE_JUMP * max(float(np.median(jump[same])), 1.0)
+    span = int(IMPULSE_SPAN * d.n_rows)
+    big = np.flatnonzero(jump > thr)
+    head = big[big < span]
+    tail = big[big >= d.n_rows - 1 - span]
+    first_sample = np.array([np.flatnonzero(d.row == i)[0] for i in range(d.n_rows)])
+    start = int(first_sample[head.max() + 1]) if head.size else 0
+    end = int(d.t.size - first_sample[tail.min() + 1]) if tail.size else 0
+    return start, end
+
+
 def sparse_terms(d: Data, fit: Fit, threshold: float = 0.1) -> list[dict]:
-    """Data-driven fallback: sequentially thresholded least squares of the remaining residual
-    torque on a library of terms {1, w_i, w_i w_j, |w| w_i} (integrated like the model).
+    """Data-driven fallback: the torque the model misses, -J dr/dt of the rate residual rows
+    (Savitzky-Golay derivative inside each segment), regressed per axis on a library of terms
+    {1, w_i, w_i w_j, |w| w_i} of the measured rates by sequentially thresholded least squares.
 
     Returns the surviving terms per axis as {axis, term, coefficient (N·m per unit term)}.
     """
-    w = d.w
-    lib = {"1": np.ones(len(w))}
+    t_row = d.t_row
+    keep = d.row >= 0
+    w = np.stack([np.bincount(d.row[keep], d.w[keep, i]) / np.bincount(d.row[keep]) for i in range(3)], 1)
+    torque = np.zeros_like(fit.r)
+    ok = np.zeros(d.n_rows, bool)
+    for s in range(d.segments):
+        idx = np.flatnonzero(d.row_seg == s)
+        if idx.size < 7:
+            continue
+        step = float(np.median(np.diff(t_row[idx])))
+        rate = signal.savgol_filter(fit.r[idx], 7, 2, deriv=1, delta=step, axis=0)
+        torque[idx] = -rate @ fit.inertia.T
+        ok[idx] = True
+    if ok.sum() < 12:
+        return []
+    lib = {"1": np.ones(d.n_rows)}
     for i, a in enumerate("xyz"):
         lib[f"w{a}"] = w[:, i]
         lib[f"|w|w{a}"] = np.linalg.norm(w, axis=1) * w[:, i]
         for j in range(i, 3):
             lib[f"w{a}w{'xyz'[j]}"] = w[:, i] * w[:, j]
     names = list(lib)
-    zero = np.zeros((len(w), 3))
-    theta = np.stack([_modulated(d, zero, np.repeat(v[:, None], 3, 1))[:, 0] for v in lib.values()], 1)
-    scale = np.linalg.norm(theta, axis=0)
+    theta = np.stack(list(lib.values()), 1)[ok]
+    scale = np.linalg.norm(theta, axis=0) + 1e-300
     a = theta / scale
     out = []
     for axis in range(3):
-        y = -fit.e[:, axis]
+        y = torque[ok, axis]
         coef = np.linalg.lstsq(a, y, rcond=None)[0]
         for _ in range(10):
             small = np.abs(coef) < threshold * np.abs(coef).max()

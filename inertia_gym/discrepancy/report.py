@@ -17,6 +17,8 @@ from inertia_gym.discrepancy.fit import (
     Data,
     Fit,
     fit_all,
+    fit_nominal,
+    impulses,
     intervals,
     prepare,
     replay,
@@ -27,16 +29,18 @@ from inertia_gym.discrepancy.recordings import Recording
 
 
 def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
-    """Windows where the rate residual r (K, 3) rad/s exceeds the noise sigma (3,): windowed
-    chi-square test per axis, Bonferroni over windows and axes; adjacent windows merged.
+    """Windows where the rate residual rows r (K, 3) rad/s at times t_mid (K,) exceed their noise
+    sigma ((3,) or (K, 3)): windowed chi-square test per axis, Bonferroni over windows and axes;
+    adjacent windows merged.
     """
     k = r.shape[0]
     size = max(5, k // 25)
     starts = np.arange(0, k - size + 1, size)
     crit = stats.chi2.ppf(1 - alpha / (3 * max(len(starts), 1)), size)
+    sigma = np.broadcast_to(sigma, r.shape)
     out = []
     for s in starts:
-        chi = np.sum((r[s:s + size] / sigma) ** 2, 0)
+        chi = np.sum((r[s:s + size] / sigma[s:s + size]) ** 2, 0)
         axes = [a for a, c in zip("xyz", chi) if c > crit]
         if not axes:
             continue
@@ -51,9 +55,9 @@ def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
     return out
 
 
-def spectrum(r, dt_interval: float):
-    """Welch spectrum of the rate residual: frequencies (f,) Hz, power (f, 3) (rad/s)²/Hz."""
-    f, p = signal.welch(r, fs=1.0 / dt_interval, axis=0, nperseg=min(256, r.shape[0]))
+def spectrum(r, dt_row: float):
+    """Welch spectrum of the rate residual rows: frequencies (f,) Hz, power (f, 3) (rad/s)²/Hz."""
+    f, p = signal.welch(r, fs=1.0 / dt_row, axis=0, nperseg=min(256, r.shape[0]), detrend=False)
     return f, p
 
 
@@ -63,10 +67,10 @@ def invariants(d: Data, fit: Fit) -> dict:
     An external torque changes |H|; an internal effect (dissipation) changes E but keeps |H|.
     Drift is the fitted linear change over the recording relative to the mean, with a z-score.
     """
-    if d.has_torque:
-        return {"applicable": False, "reason": "commanded torque acts"}
+    if d.excited:
+        return {"applicable": False, "reason": "commanded torque or a changing known momentum acts"}
     w = d.w
-    jw = w @ fit.inertia.T
+    jw = w @ fit.inertia.T + (0.0 if d.h is None else d.h)
     series = {"momentum": np.linalg.norm(jw, axis=1), "energy": 0.5 * np.sum(w * jw, 1)}
     out = {"applicable": True}
     t = d.t - d.t[0]
@@ -95,15 +99,36 @@ def _fit_summary(fit: Fit, sigma) -> dict:
             "valid": True}
 
 
-def diagnose(rec: Recording) -> dict:
-    """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)."""
+def _trimmed(rec: Recording, d: Data) -> list[dict]:
+    """The spans left out at the record's ends as impulses: where, how long, how large."""
+    out = []
+    start, end = d.notes["trimmed"]
+    if start:
+        out.append({"where": "start", "t_start": float(rec.t[0]), "t_end": float(rec.t[start]),
+                    "samples": int(start)})
+    if end:
+        out.append({"where": "end", "t_start": float(rec.t[-end - 1]), "t_end": float(rec.t[-1]),
+                    "samples": int(end)})
+    return out
+
+
+def diagnose(rec: Recording) -> tuple[dict, dict]:
+    """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)
+    and the arrays its plots need.
+    """
     d = prepare(rec)
-    nominal, fits, skipped, d = fit_all(d)
+    nominal = fit_nominal(d)
+    trim = impulses(d, nominal)
+    if any(trim):
+        d = prepare(rec, trim)
+        nominal = fit_nominal(d)
+    fits, skipped = fit_all(d, nominal)
     ranked = []
     for f in fits:
         delta = float(nominal.bic - f.bic)
-        finite = bool(np.isfinite(delta))  # an indefinite fitted inertia gives -inf: no fit
-        ranked.append({"name": f.name, "params": jsonable(f.params) if finite else {},
+        finite = bool(np.isfinite(delta))  # no valid fit: no delta
+        ranked.append({"name": f.name, "form": f.forms[0] or None,
+                       "params": jsonable(f.params) if finite else {},
                        "delta_bic": delta if finite else None,
                        "significant": finite and delta > SIGNIFICANT_DELTA_BIC})
     sig = [e for e in ranked if e["significant"]]
@@ -120,11 +145,11 @@ def diagnose(rec: Recording) -> dict:
         for other, reason in REGISTRY[top["name"]].ambiguities:
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
     given = replay(d)  # the user's model as given (sidecar nominal), or None
-    t_mid = 0.5 * (d.t[d.edges[1:]] + d.t[d.edges[:-1]])
-    locations = locate(nominal.r, t_mid, d.sigma)
+    t_row = d.t_row
+    locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
     after = _fit_summary(best, d.sigma)
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
-    f, p = spectrum(nominal.r, float(np.median(np.diff(t_mid))))
+    f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
     inv = invariants(d, nominal)
     report = {
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -138,14 +163,19 @@ def diagnose(rec: Recording) -> dict:
             "delta_bic": float(given.bic - nominal.bic) if np.isfinite(given.bic) else None,
             **inertia_comparison(d.inertia0, nominal.inertia, False)},
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
-        "scale_identified": not d.scale_fixed or (d.has_torque and rec.inertia_nominal is not None),
+        "noise": {"rows": "block means" if d.block > 1 else "samples", "samples_per_row": d.block,
+                  "sigma": d.sigma.tolist(), "source": d.sigma_source},
+        "segments": d.segments, "trimmed": _trimmed(rec, d),
+        "saturated_samples": d.notes["saturated_samples"],
+        "saturation_rad_s": d.notes.get("saturation_rad_s"),
+        "scale_identified": not d.scale_fixed or (d.excited and rec.inertia_nominal is not None),
         "inertia_nominal_given": d.inertia0 is not None, "inertia_trace_assumed": d.trace0,
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
     }
-    arrays = {"t_mid": t_mid, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
+    arrays = {"t_mid": t_row, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
               "inv": inv, "d": d, "best": best, "nominal": nominal}
     return report, arrays
 
@@ -158,12 +188,14 @@ def _explanation(chosen, d: Data) -> list[dict]:
     named, ci = fit.effect_params, intervals(fit, d)
     out = []
     for name, added in chosen.added:
-        entry = {"name": name, "params": jsonable(named[name]),
+        model = REGISTRY[name]
+        entry = {"name": name, "form": fit.forms[fit.names.index(name)] or None,
+                 "family": model.family, "params": jsonable(named[name]),
                  "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
                           for k, v in ci[name].items()},
                  "delta_bic": added,
                  "confounded_with": [{"with": other, "reason": why}
-                                     for other, why in REGISTRY[name].ambiguities]}
+                                     for other, why in model.ambiguities]}
         if name == "inertia_offset":
             entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
                                                              d.has_torque)

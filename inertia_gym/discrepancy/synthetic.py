@@ -10,15 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from inertia_gym.discrepancy.effects import (
-    EFFECTS,
-    Effect,
-    EffectModel,
-    jsonable,
-    random_params,
-)
+from inertia_gym.discrepancy.effects import EFFECTS, Effect, jsonable, random_params
+from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
-from inertia_gym.dynamics import Disturbance, euler_to_quat, inv3, propagate, state_rate
+from inertia_gym.dynamics import euler_to_quat
 from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
 
@@ -34,118 +29,48 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effects=(), momen
 
     q0 (4,), omega0 (3,) rad/s, inertia (3, 3), torque_cmd (n, 3) N·m held over each step;
     effects: an Effect, a sequence of them (a compound truth) or None. Each effect's class sets
-    its terms: the commanded torque is transformed (actuator effects), the disturbance hook of
-    dynamics.state_rate carries the body torques it knows (constant torque, stored momentum,
-    damping, drag, gravity gradient), an inertia change restarts at t_change with the momentum
-    kept (J1 w1 = J2 w2). Only a torque the hook cannot carry (internal dissipation), a flexible
-    mode (two more states) or a known internal momentum varying in time take the augmented RK4
-    below, whose rigid part is still dynamics.state_rate.
+    its terms (effects.py): the commanded torque is transformed (actuator effects), the
+    disturbance hook of dynamics.state_rate carries the body torques, a flexible mode and
+    internal dissipation are added around it, an inertia change happens with the momentum kept
+    (J1 w1 = J2 w2). This is the model diagnose fits (discrepancy.model), integrated by the one
+    compiled augmented integrator, dynamics.propagate_model_batch.
     momentum: None, or a known internal angular momentum relative to the body (reaction wheels,
-    a rotor) as a function t (s) -> (h (3,) kg·m²/s, h_dot (3,) N·m), body frame; the body then
-    obeys J w_dot = tau - h_dot - w x (J w + h) (plus the effects' terms), evaluated at each RK4
-    stage time.
+    a rotor) at t = 0, dt, ..., n dt, shape (n+1, 3) kg·m²/s, body frame, linear in between;
+    the body then obeys J w_dot = tau - h_dot - w x (J w + h) (plus the effects' terms).
     Returns q (n+1, 4), omega (n+1, 3) — the body's true rates (sensor effects not applied).
     """
-    effects = _effects_tuple(effects)
-    inertia = np.asarray(inertia, float)
-    for e in effects:  # inertia_offset: the body is not the nominal one
-        true = e.model.true_inertia(e.params)
-        inertia = inertia if true is None else true
-    applied = np.asarray(torque_cmd, float)
-    fields: dict = {}
-    for e in effects:
-        applied = e.model.applied(e.params, applied, dt)
-        hook = e.model.disturbance(e.params)
-        if set(hook) & set(fields):
-            raise ConfigError(f"effects {[x.name for x in effects]} set the same disturbance term")
-        fields.update(hook)
-    dist = Disturbance(**fields).pack()
-    n = applied.shape[0]
-    k_change, j_after = n, inertia
-    for e in effects:
-        if e.name == "inertia_change":
-            after = np.flatnonzero(np.arange(n) * dt >= float(e.params["t_change"]))
-            k_change = int(after[0]) if after.size else n
-            j_after = inertia + np.asarray(e.params["delta_inertia"], float)
-    extra = [e for e in effects if type(e.model).body_torque is not EffectModel.body_torque]
-    flex = next((e for e in effects if e.name == "flexible_mode"), None)
-    y0 = np.concatenate([np.asarray(q0, float), np.asarray(omega0, float)])
-    if not extra and flex is None and momentum is None:
-        q1, w1 = propagate(y0[:4], y0[4:], inertia, applied[:k_change], dt, dist)
-        if k_change == n:
-            return q1, w1
-        q2, w2 = propagate(q1[-1], np.linalg.solve(j_after, inertia @ w1[-1]), j_after,
-                           applied[k_change:], dt, dist)
-        return np.vstack([q1, q2[1:]]), np.vstack([w1, w2[1:]])
-    return _augmented_rk4(y0, inertia, j_after, k_change, applied, dt, dist, extra, flex, momentum)
-
-
-def _augmented_rk4(y0, inertia, j_after, k_change, applied, dt, dist, extra, flex, momentum):
-    """RK4 of (q, w, eta, eta_dot): the rigid rate a = dynamics.state_rate with the stored
-    momentum h + h_known(t) + delta eta_dot in the hook and tau - h_known_dot + extra torques;
-    a flexible mode then solves J w_dot + delta eta_ddot = J a with the modal equation
-    eta_ddot + delta . w_dot = -2 zeta Omega eta_dot - Omega^2 eta in closed form.
-    """
-    delta = np.asarray(flex.params["coupling"], float) if flex else np.zeros(3)
-    om = float(flex.params["omega_n"]) if flex else 0.0
-    ze = float(flex.params["zeta"]) if flex else 0.0
-    h_hook = dist[3:6].copy()
-
-    def rate(y, tau, j, j_inv, t):
-        w, eta, eta_d = y[4:7], y[7], y[8]
-        d_t, tau_t = dist.copy(), tau.copy()
-        h = h_hook + delta * eta_d
-        if momentum is not None:
-            h_known, h_known_dot = momentum(t)
-            h = h + h_known
-            tau_t = tau_t - h_known_dot
-        for e in extra:
-            tau_t = tau_t + e.model.body_torque(e.params, w, j)
-        d_t[3:6] = h
-        r = state_rate(y[0], y[1], y[2], y[3], w[0], w[1], w[2], j, j_inv, tau_t, d_t)
-        a = np.array(r[4:])
-        eta_dd = 0.0
-        if flex is not None:
-            jd = j_inv @ delta
-            eta_dd = (-2 * ze * om * eta_d - om * om * eta - delta @ a) / (1.0 - delta @ jd)
-            a = a - jd * eta_dd
-        return np.concatenate([r[:4], a, [eta_d, eta_dd]])
-
-    y = np.concatenate([y0, [0.0, 0.0]])
-    n = applied.shape[0]
-    out = np.empty((n + 1, 9))
-    out[0] = y
-    j, j_inv = inertia, inv3(inertia)
-    for k in range(n):
-        if k == k_change:
-            y[4:7] = np.linalg.solve(j_after, inertia @ y[4:7])
-            j, j_inv = j_after, inv3(j_after)
-        tau, t = applied[k], k * dt
-        k1 = rate(y, tau, j, j_inv, t)
-        k2 = rate(y + 0.5 * dt * k1, tau, j, j_inv, t + 0.5 * dt)
-        k3 = rate(y + 0.5 * dt * k2, tau, j, j_inv, t + 0.5 * dt)
-        k4 = rate(y + dt * k3, tau, j, j_inv, t + dt)
-        y = y + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        y[:4] /= np.linalg.norm(y[:4])
-        out[k + 1] = y
-    return out[:, :4], out[:, 4:7]
+    torque_cmd = np.asarray(torque_cmd, float)
+    n = torque_cmd.shape[0]
+    t = np.arange(n + 1) * dt
+    grid = Grid.of(t, np.ones(n, np.int64))
+    rows = np.vstack([torque_cmd, torque_cmd[-1:]]) if n else np.zeros((1, 3))
+    h = None if momentum is None else np.asarray(momentum, float)
+    if h is not None and h.shape != (n + 1, 3):
+        raise ConfigError(f"momentum must have shape ({n + 1}, 3), got {h.shape}")
+    terms = model_terms(inertia, [(e.model, e.params) for e in _effects_tuple(effects)], grid,
+                        held_cumulative(t, rows), h)
+    y0 = np.concatenate([np.asarray(q0, float), np.asarray(omega0, float)])[None, None]
+    out = simulate(grid, np.array([0, n]), y0, [terms])[0]
+    return out[:, :4], out[:, 4:]
 
 
 def gyro_reading(w, effects=()) -> np.ndarray:
     """Noise-free gyro output (n, 3) from true rates w (n, 3) under the effects' sensor terms."""
-    for e in _effects_tuple(effects):
-        w = e.model.gyro(e.params, w)
-    return w
+    return gyro_output([(e.model, e.params) for e in _effects_tuple(effects)], w)
 
 
-def burst_schedule(n: int, dt: float, tau_max: float, rng: np.random.Generator) -> np.ndarray:
-    """(n, 3) N·m: bursts of magnitude tau_max, random direction, 2-6 s on, 2-6 s off."""
+def burst_schedule(n: int, dt: float, tau_max: float, rng: np.random.Generator, every: int = 1) -> np.ndarray:
+    """(n, 3) N·m: bursts of magnitude tau_max, random direction, 2-6 s on, 2-6 s off.
+
+    Bursts switch only at multiples of `every` steps (the recording's rows), so a recording that
+    logs the command at its rows, held from each row on, logs exactly the torque that acted.
+    """
     tau = np.zeros((n, 3))
     t = rng.uniform(1.0, 3.0)
     while t < n * dt:
         on = rng.uniform(2.0, 6.0)
         v = rng.normal(size=3)
-        a, b = int(t / dt), int(min(t + on, n * dt) / dt)
+        a, b = (int(x / (dt * every)) * every for x in (t, min(t + on, n * dt)))
         tau[a:b] = tau_max * v / np.linalg.norm(v)
         t += on + rng.uniform(2.0, 6.0)
     return tau
@@ -161,19 +86,12 @@ def rotor_profile(t, duration: float) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (1.0 - np.cos(phase)), np.pi / duration * np.sin(phase)
 
 
-def rotor_momentum(h_max: float, axis, duration: float):
-    """Known internal momentum of a rotor: t (s) -> (h (3,) kg·m²/s, h_dot (3,) N·m), body frame.
-
+def rotor_momentum(h_max: float, axis, duration: float, t) -> np.ndarray:
+    """Known internal momentum of a rotor (k, 3) kg·m²/s, body frame, at times t (k,) s:
     h(t) = h_max * rotor_profile(t) * axis, h_max kg·m²/s, axis (3,) a unit body-frame vector,
-    duration s. This is the ``momentum`` argument of simulate_truth.
+    duration s. On the integration grid this is the ``momentum`` argument of simulate_truth.
     """
-    axis = np.asarray(axis, float)
-
-    def momentum(t: float) -> tuple[np.ndarray, np.ndarray]:
-        prof, prof_dot = rotor_profile(t, duration)
-        return h_max * prof * axis, h_max * prof_dot * axis
-
-    return momentum
+    return h_max * rotor_profile(t, duration)[0][:, None] * np.asarray(axis, float) + 0.0  # no -0
 
 
 def parse_effect(text: str | None) -> tuple[str | None, dict]:
@@ -222,7 +140,7 @@ def simulate_recording(scenario: Scenario, duration: float, effect_name: str | l
     every = 1 if sample_dt is None else max(1, int(round(sample_dt / dt)))
     n = int(round(duration / dt))
     inertia = scenario.inertia_true_array
-    tau = burst_schedule(n, dt, scenario.tau_max, rng) if torque else np.zeros((n, 3))
+    tau = burst_schedule(n, dt, scenario.tau_max, rng, every) if torque else np.zeros((n, 3))
     effects = []
     for name in [] if effect_name is None else [effect_name] if isinstance(effect_name, str) \
             else list(effect_name):
@@ -240,8 +158,8 @@ def simulate_recording(scenario: Scenario, duration: float, effect_name: str | l
     if rotor_h_max is not None:
         v = rng.normal(size=3)
         axis = v / np.linalg.norm(v)
-        momentum = rotor_momentum(rotor_h_max, axis, duration)
-        h_rows = rotor_h_max * rotor_profile(idx * dt, duration)[0][:, None] * axis + 0.0  # no -0
+        momentum = rotor_momentum(rotor_h_max, axis, duration, np.arange(n + 1) * dt)
+        h_rows = momentum[idx]
     q, w = simulate_truth(euler_to_quat(scenario.attitude0_euler_deg), np.asarray(scenario.omega0),
                           inertia, tau, dt, effects, momentum)
     gyro = gyro_reading(w[idx], effects) + gyro_noise

@@ -1,0 +1,162 @@
+"""The body with its effects as inputs of the compiled integrator (dynamics.propagate_model_batch).
+
+One path turns a nominal inertia and a list of (effect model, parameters) into the integrator's
+inputs: the truth simulator (synthetic.py) and the model that diagnose fits (fit.py) both call
+it, so the physics of every effect is written once, in its class (effects.py).
+
+A commanded torque is carried as its running integral (N·m·s, a piecewise-linear function of
+time for a torque held from each row on): actuator effects transform that function (scale,
+rotation, delay), and the torque applied over each grid interval is its increment divided by
+the interval's length, exact for a held torque and smooth in a delay.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from inertia_gym.discrepancy.effects import Cumulative, EffectModel
+from inertia_gym.dynamics import Disturbance, propagate_model_batch
+
+
+@dataclasses.dataclass(frozen=True)
+class Grid:
+    """The integration grid of a recording: its sample times and RK4 sub-steps between them.
+
+    t (m+1,) s; sample_pos (n,) grid index of each sample (sample_pos[0] = 0, [-1] = m).
+    """
+
+    t: np.ndarray
+    sample_pos: np.ndarray
+
+    @classmethod
+    def of(cls, t_samples, substeps) -> "Grid":
+        """Grid of sample times t_samples (n,) s with substeps (n-1,) >= 1 equal steps per interval."""
+        t_samples = np.asarray(t_samples, float)
+        substeps = np.maximum(np.asarray(substeps, np.int64), 1)
+        pos = np.concatenate([[0], np.cumsum(substeps)])
+        frac = np.arange(pos[-1]) - np.repeat(pos[:-1], substeps)
+        start = np.repeat(t_samples[:-1], substeps)
+        step = np.repeat(np.diff(t_samples) / substeps, substeps)
+        return cls(np.append(start + frac * step, t_samples[-1]), pos)
+
+    @property
+    def steps(self) -> int:
+        """Grid intervals m."""
+        return self.t.size - 1
+
+
+def held_cumulative(t_rows, tau_rows) -> Cumulative:
+    """Running integral (N·m·s) of a torque tau_rows (n, 3) N·m held from each row t_rows (n,) s
+    on: zero before the first row, the last row's torque held after it.
+    """
+    t_rows = np.asarray(t_rows, float)
+    tau_rows = np.asarray(tau_rows, float)
+    knots = np.vstack([np.zeros(3), np.cumsum(tau_rows[:-1] * np.diff(t_rows)[:, None], axis=0)])
+
+    def cumulative(t):
+        t = np.atleast_1d(np.asarray(t, float))
+        out = np.stack([np.interp(t, t_rows, knots[:, i], left=0.0) for i in range(3)], axis=1)
+        after = t > t_rows[-1]
+        out[after] = knots[-1] + tau_rows[-1] * (t[after] - t_rows[-1])[:, None]
+        return out
+
+    return cumulative
+
+
+@dataclasses.dataclass(frozen=True)
+class Terms:
+    """The integrator's inputs of one model: inertia and inertia_after (3, 3) kg·m², change_t s
+    (inf: none), tau (m, 3) N·m applied over each grid interval, h (m+1, 3) kg·m²/s internal
+    momentum at the grid points (known plus modelled), dist (DISTURBANCE_SIZE,) packed hook.
+    """
+
+    inertia: np.ndarray
+    inertia_after: np.ndarray
+    change_t: float
+    tau: np.ndarray
+    h: np.ndarray
+    dist: np.ndarray
+
+
+def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
+                commanded=None) -> Terms:
+    """Integrator inputs of the body `inertia` (3, 3) with effects [(EffectModel, params)].
+
+    cumulative: running integral of the commanded torque (held_cumulative), None for none;
+    h_known (m+1, 3) kg·m²/s: the recording's known internal momentum on the grid, or None;
+    commanded (m, 3) N·m: the command on the grid when already computed (used as is when no
+    effect changes what the body receives: the same array, so simulate() passes it once).
+    """
+    inertia = np.asarray(inertia, float)
+    fields: dict = {}
+    change_t, inertia_after = np.inf, inertia
+    h = h_known
+    for model, params in effects:
+        true = model.true_inertia(params)
+        inertia = inertia if true is None else np.asarray(true, float)
+    applied = cumulative
+    for model, params in effects:
+        hook = model.disturbance(params)
+        clash = set(hook) & set(fields)
+        if clash:
+            raise ValueError(f"effects set the same disturbance term {sorted(clash)}")
+        fields.update(hook)
+        change = model.inertia_change(params)
+        if change is not None:
+            change_t, inertia_after = float(change[0]), inertia + np.asarray(change[1], float)
+        extra = model.momentum(params, grid.t)
+        if extra is not None:
+            h = extra if h is None else h + extra
+        if applied is not None:
+            applied = model.applied(params, applied)
+    if applied is None:
+        tau = np.zeros((grid.steps, 3))
+    elif applied is cumulative and commanded is not None:
+        tau = commanded
+    else:
+        tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
+    if h is None:
+        h = np.zeros((grid.t.size, 3))
+    return Terms(inertia, inertia_after, change_t, tau, h, Disturbance(**fields).pack())
+
+
+def gyro_output(effects, w) -> np.ndarray:
+    """What the gyro reads (n, 3) of the true rates w (n, 3) under the effects' sensor terms."""
+    for model, params in effects:
+        w = model.gyro(params, w)
+    return w
+
+
+def simulate(grid: Grid, seg_pos, y0, terms: list[Terms]) -> np.ndarray:
+    """Integrate one trajectory per Terms (B of them) on the grid; y0 (B, S, 7) (q, w) at the
+    segment starts seg_pos (S+1,) grid indices. Returns (B, n, 7) q and w at the samples.
+
+    Equal tau and h arrays are passed to the integrator once.
+    """
+    taus, tau_index = _unique([tm.tau for tm in terms])
+    hs, h_index = _unique([tm.h for tm in terms])
+    return propagate_model_batch(grid.t, grid.sample_pos, seg_pos, y0,
+                                 np.stack([tm.inertia for tm in terms]),
+                                 np.stack([tm.inertia_after for tm in terms]),
+                                 np.array([tm.change_t for tm in terms]), np.stack(taus), np.stack(hs),
+                                 np.stack([tm.dist for tm in terms]), tau_index, h_index)
+
+
+def _unique(arrays) -> tuple[list[np.ndarray], list[int]]:
+    """Distinct arrays (by value) and each input's index among them."""
+    out: list[np.ndarray] = []
+    index = []
+    for a in arrays:
+        at = next((i for i, b in enumerate(out) if a is b or np.array_equal(a, b)), None)
+        if at is None:
+            at = len(out)
+            out.append(a)
+        index.append(at)
+    return out, index
+
+
+def unpacked(effect_models: list[EffectModel], vectors) -> list[tuple[EffectModel, dict]]:
+    """[(model, named params)] of fitted vectors p, one per model."""
+    return [(m, m.unpack(np.asarray(p, float))) for m, p in zip(effect_models, vectors)]
