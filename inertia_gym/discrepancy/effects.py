@@ -31,7 +31,7 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
 
 #: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
-FLEX_BAND = (0.05, 0.4)
+FLEX_BAND = (0.05, 0.25)
 
 #: A function t (k,) s -> (k, 3): the running integral of a torque (N·m·s) from the recording's
 #: start; the applied torque over an interval is its increment over the interval's length.
@@ -291,7 +291,7 @@ class InternalMomentum(EffectModel):
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
     #: Knots of the varying form: one per this many residual rows, within these bounds.
-    ROWS_PER_KNOT, KNOTS = 40, (4, 24)
+    ROWS_PER_KNOT, KNOTS = 10, (4, 16)
 
     @override
     def draw(self, rng, body):

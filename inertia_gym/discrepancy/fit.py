@@ -30,7 +30,7 @@ import dataclasses
 import numpy as np
 from scipy import signal, stats
 
-from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, skew
+from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, matrix6, skew
 from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.estimation.equation_error import equation_error_theta, modulating_windows
@@ -40,8 +40,10 @@ from inertia_gym.sensors import estimate_white_noise
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
-#: At most this many effects in a compound explanation.
-MAX_EFFECTS = 3
+TIE_BIC = 0.5  # BICs closer than this are a tie (the solver's own spread on equivalent models)
+#: At most this many effects in a compound explanation; the best this many screens of each
+#: forward step are refitted jointly.
+MAX_EFFECTS, REFIT_SCREENED = 3, 3
 #: Largest rotation (rad) one segment spans; a first fit uses a quarter of it.
 MAX_TURN = 20.0
 #: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each).
@@ -54,9 +56,9 @@ BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 #: Solver iterations: a screen, a start's trial run, a full fit; a fit stops when an iteration
 #: gains less than CONVERGED in BIC units (cost gain / mean square per residual).
 SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 6, 60, 0.1
-#: A flexible mode's fit may move its frequency up to this factor above its fastest start; a
-#: spectral peak of the residual starts a mode fit only if this many times the band's median.
-MODE_REACH, MODE_PEAK = 1.5, 3.0
+#: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
+#: screen scans frequencies this factor apart.
+MODE_REACH, MODE_GRID = 1.5, 1.1
 #: An impulse at a record's end: the whitened residual jumps by more than this many times its
 #: median step, within this share of the record from its end.
 IMPULSE_JUMP, IMPULSE_SPAN = 8.0, 0.15
@@ -638,7 +640,7 @@ def replay(d: Data) -> Fit | None:
     lb, ub = _bounds(layout, d)
     exact = dataclasses.replace(d, scale_fixed=False)  # the nominal's own trace
     x, _ = solve(x0, free, layout, exact, lb, ub, FULL_ITER)
-    return finish(layout, x, exact, k=0)
+    return dataclasses.replace(finish(layout, x, exact, k=0), inertia=np.array(d.inertia0, float))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -667,35 +669,50 @@ class Probe:
         costs = self.costs(ps)
         return [ps[i] for i in np.argsort(costs)[:keep]]
 
-    def mode_starts(self, keep: int = 3) -> list[np.ndarray]:
-        """Starts of flexible_mode: the largest peaks of the base residual's spectrum in the mode
-        band; at each, the coupling along J times the residual's direction there (a mode moves
-        the rates by J^-1 delta eta_ddot), its size chosen by cost from a geometric scan.
+    def mode_starts(self, keep: int = 3, zeta: float = 0.03) -> list[np.ndarray]:
+        """Starts of flexible_mode from a linear screen over the modal frequency.
+
+        To first order the mode's effect on the predicted rates is linear in M = delta delta^T
+        (a symmetric 3x3): six integrations with small couplings along e_i and e_i + e_j give
+        its six columns (polarization), and one least-squares solve the M that explains most at
+        that frequency. Over a geometric grid of frequencies (MODE_GRID apart) in the band, then
+        finer around the best, the `keep` best frequencies give delta = sqrt(lambda) v from M's
+        leading eigenpair (size within the room J leaves: J - delta delta^T stays positive).
         """
         d, base = self.d, self.base
         lam_min = float(np.linalg.eigvalsh(base.inertia)[0])
         if not lam_min > 0 or d.n_rows < 16:
             return []
-        dt_row = float(np.median(np.diff(d.t_row)))
-        f, pxy = signal.csd(base.r[:, :, None], base.r[:, None, :], fs=1 / dt_row, axis=0,
-                            nperseg=min(256, d.n_rows))
-        power = np.einsum("fii->f", pxy).real
-        band = (f >= FLEX_BAND[0]) & (f <= FLEX_BAND[1] / d.dt) & (f > 0)
-        if not band.any():
-            return []
-        idx = np.flatnonzero(band)
-        peaks = idx[signal.argrelmax(np.r_[0.0, power[idx], 0.0])[0] - 1] if idx.size > 2 else idx
-        # a mode is a resonance: its peak stands well above the band's typical level
-        peaks = peaks[power[peaks] > MODE_PEAK * np.median(power[idx])]
-        peaks = peaks[np.argsort(power[peaks])[::-1][:keep]]
+        lo, hi = 2 * np.pi * FLEX_BAND[0], 2 * np.pi * FLEX_BAND[1] / d.dt
+        eps = np.sqrt(1e-4 * lam_min)
+        directions = [np.eye(3)[i] for i in range(3)] + [np.eye(3)[i] + np.eye(3)[j]
+                                                         for i, j in ((0, 1), (0, 2), (1, 2))]
+        r0 = objective(self.x(np.zeros(5))[None], self.layout, self.d)[0]
+
+        def screen(omega):
+            layout = dataclasses.replace(self.layout, omega_max=omega)
+            xs = [self.x(np.r_[omega, zeta, eps * v]) for v in directions]
+            resp = (objective(np.stack(xs), layout, d) - r0) / eps ** 2
+            cols = np.stack([resp[0], resp[1], resp[2], resp[3] - resp[0] - resp[1],
+                             resp[4] - resp[0] - resp[2], resp[5] - resp[1] - resp[2]], 1)
+            m = np.linalg.lstsq(cols, -r0, rcond=None)[0]
+            gain = float(r0 @ r0 - np.sum((r0 + cols @ m) ** 2))
+            return gain, omega, m
+
+        grid = np.geomspace(lo, hi, max(2, int(np.log(hi / lo) / np.log(MODE_GRID)) + 1))
+        scan = [screen(om) for om in grid]
+        best = sorted(scan, key=lambda g: -g[0])[:keep]
+        for _, om, _ in list(best):
+            scan += [screen(om * f) for f in MODE_GRID ** np.linspace(-1, 1, 5)[[1, 3]]]
         out = []
-        for i in peaks:
-            vals, vecs = np.linalg.eigh(pxy[i].real)
-            u = base.inertia @ vecs[:, -1]
-            u /= np.linalg.norm(u)
-            sizes = np.sqrt(lam_min) * np.geomspace(0.02, 0.7, 12)
-            cands = [np.r_[2 * np.pi * f[i], 0.03, s * u] for s in sizes]
-            out += self.best_of(cands, keep=1)
+        for gain, om, m in sorted(scan, key=lambda g: -g[0]):
+            vals, vecs = np.linalg.eigh(matrix6(m))
+            if gain <= 0 or vals[-1] <= 0 or any(abs(om - o) < 0.02 * om for o in [x[0] for x in out]):
+                continue
+            size = min(np.sqrt(vals[-1]), 0.7 * np.sqrt(lam_min))
+            out.append(np.r_[om, zeta, size * vecs[:, -1]])
+            if len(out) == keep:
+                break
         return out
 
     def change_starts(self) -> list[np.ndarray]:
@@ -822,12 +839,13 @@ def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
     actuator_scale is only a candidate with the trace pinned to a trusted nominal (skip_reason):
     J at the nominal trace, torque scaled by 1 + s. Exactly confounded effects (actuator_scale
     and inertia_offset: c J with c tau) tie to rounding; the tie goes to the earlier one in the
-    catalogue, the report names both.
+    catalogue (BICs within TIE_BIC), the report names both.
     """
     names, skipped = candidates(d)
     order = {name: i for i, name in enumerate(REGISTRY)}
+    # BICs are compared to TIE_BIC: two solver runs of equivalent models differ below it
     fits = sorted((fit_effect(name, d, nominal) for name in names),
-                  key=lambda f: (np.round(f.bic, 6), order[f.name]))
+                  key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
     return fits, skipped
 
 
@@ -863,11 +881,12 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
 
     Step 1 takes the best single-effect fit if it beats the nominal by SIGNIFICANT_DELTA_BIC.
     Each further step fits every remaining candidate's own parameters on top of the current
-    fit (everything else held: a screen), refits the best of them jointly with the inertia and
-    the effects already chosen, and keeps it if that improves the BIC by the same margin; at
-    most max_effects. Every testable effect is screened at every step, also those that explain
-    nothing alone: a large effect can hide a second one. The backward check then refits without
-    each chosen effect and drops any whose removal costs less than the margin, until none does.
+    fit (everything else held: a screen, started from the candidate's single-effect fit),
+    refits the REFIT_SCREENED best jointly with the inertia and the effects already chosen,
+    and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
+    testable effect is screened at every step, also those that explain nothing alone: a large
+    effect can hide a second one. The backward check then refits without each chosen effect and
+    drops any whose removal costs less than the margin, until none does.
     """
     by_name = {f.name: f for f in singles}
     ranked = [f for f in singles if np.isfinite(f.bic) and nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC]
@@ -895,9 +914,10 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
         trials = [t for t in trials if np.isfinite(t.bic)]
         if not trials:
             break
-        screened = min(trials, key=lambda t: t.bic)
-        best = fit_model(screened.names, screened.forms, d, current, start=screened.x,
-                         omega_max=screened.layout.omega_max)
+        # a screen holds everything else and stops early: the leading few are refitted jointly
+        refits = [fit_model(t.names, t.forms, d, current, start=t.x, omega_max=t.layout.omega_max)
+                  for t in sorted(trials, key=lambda t: t.bic)[:REFIT_SCREENED]]
+        best = min(refits, key=lambda f: f.bic)
         if not current.bic - best.bic > SIGNIFICANT_DELTA_BIC:
             break
         current = best

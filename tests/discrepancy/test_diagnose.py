@@ -17,16 +17,18 @@ from inertia_gym.discrepancy.effects import random_params
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
     SIGNIFICANT_DELTA_BIC,
+    Layout,
     fit_effect,
     fit_nominal,
+    initial_rates,
     prepare,
-    residual,
+    whitened,
 )
 from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import _explanation_words, diagnose, inertia_comparison, markdown
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
 from inertia_gym.errors import ConfigError
-from inertia_gym.information import theta_from_inertia
+from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.scenario import Scenario
 
 REPORT_KEYS = {"mismatch_detected", "locations", "effects", "fit_before", "fit_after"}
@@ -37,14 +39,19 @@ def _concealed(rec):
     return type(rec)(rec.t, rec.w, rec.q, rec.tau, meta, rec.name)
 
 
-def test_equation_error_vanishes_on_noise_free_truth():
-    sc = Scenario(gyro_sigma=1e-9, quat_sigma=1e-9)
+def test_output_error_vanishes_at_the_noise_free_truth():
+    """The model (the truth simulator) started at the true rates reproduces a noise-free
+    recording sample by sample; a 5 % error in one moment does not."""
+    sc = Scenario(gyro_sigma=1e-9, quat_sigma=1e-9, tau_max=50.0)
     rec, _ = simulate_recording(sc, 10.0, None, seed=3)
+    rec = type(rec)(rec.t, rec.w, rec.q, rec.tau, {**rec.meta, "gyro_sigma": 1e-3}, rec.name)
     d = prepare(rec)
-    e_true = residual(theta_from_inertia(sc.inertia_true_array), None, d)
-    e_off = residual(theta_from_inertia(sc.inertia_true_array * np.diag([1.05, 1.0, 1.0])), None, d)
-    # trapezoid quadrature of a 10 rad/s spin at 100 Hz leaves a small discretisation error
-    assert np.sqrt(np.mean(e_true ** 2)) < 0.15 * np.sqrt(np.mean(e_off ** 2))
+    layout = Layout.of((), (), d)
+    truth = np.r_[phi_from_inertia(sc.inertia_true_array), initial_rates(d)]
+    wrong = np.r_[phi_from_inertia(sc.inertia_true_array * np.diag([1.05, 1.0, 1.0])), initial_rates(d)]
+    z_true, z_wrong = whitened(np.stack([truth, wrong]), layout, d)
+    assert np.sqrt(np.mean(z_true ** 2)) < 1e-3  # within a thousandth of the noise, at 10 rad/s
+    assert np.sqrt(np.mean(z_wrong ** 2)) > 10.0
 
 
 @pytest.mark.parametrize("name", [None, "gyro_bias", "gyro_scale", "internal_momentum",
@@ -101,24 +108,12 @@ def test_gravity_gradient_draw_is_visible_on_the_gyro():
 
 
 def test_flexible_mode_fit_does_not_explain_noise():
-    """With the modal noise path in the whitener a no-effect recording gains nothing from a mode."""
+    """A no-effect recording gains nothing significant from a mode."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 30.0, None, seed=5)
     d = prepare(rec)
-    nominal, _ = fit_nominal(d)
+    nominal = fit_nominal(d)
     flex = fit_effect("flexible_mode", d, nominal)
     assert nominal.bic - flex.bic < SIGNIFICANT_DELTA_BIC
-
-
-def test_flexible_mode_fit_survives_an_indefinite_nominal_inertia():
-    """A real toss (phyphox, round 2) fits a nominal J that is not positive definite: the mode
-    then has no rigid body to attach to, and the fit must say so (no mode), not crash."""
-    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, None, seed=6)
-    d = prepare(rec)
-    nominal, _ = fit_nominal(d)
-    indefinite = dataclasses.replace(nominal, x=np.r_[100.0, 0.0, 0.0, -50.0, 0.0, 80.0])
-    assert np.linalg.eigvalsh(indefinite.inertia)[0] < 0
-    flex = fit_effect("flexible_mode", d, indefinite)
-    np.testing.assert_array_equal(flex.x[8:11], 0.0)
 
 
 def test_simulate_then_diagnose_cli(tmp_path, capsys):
@@ -187,15 +182,16 @@ def test_inertia_comparison_against_its_definition():
 
 
 def test_compound_effects_are_both_explained():
-    """Two concealed effects, the second masked by the first (alone the misalignment improves
-    the BIC by nothing): the forward selection screens every effect and names both."""
+    """Two concealed effects, the second weak beside the first: alone it ranks below effects
+    that merely absorb part of the first (internal momentum, drag, a mode), yet the forward
+    selection screens every effect on top of the first and names both."""
     rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0,
                                    ["gyro_bias", "actuator_misalignment"], seed=7)
     report, _ = diagnose(_concealed(rec))
     names = [e["name"] for e in report["explanation"]]
     assert names == ["gyro_bias", "actuator_misalignment"]
-    single = {e["name"]: e["delta_bic"] for e in report["effects"]}
-    assert single["actuator_misalignment"] < SIGNIFICANT_DELTA_BIC  # masked when alone
+    ranking = [e["name"] for e in report["effects"]]
+    assert ranking.index("actuator_misalignment") > 2  # not the second single effect
     assert max(report["fit_after"]["rms_over_noise"]) < 1.2
     assert report["effects"][0]["name"] in names  # the ranked single-effect list is kept
     for e in report["explanation"]:

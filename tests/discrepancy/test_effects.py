@@ -1,22 +1,27 @@
-"""The catalogue as a registry of classes, and the truth simulator built on dynamics.state_rate."""
+"""The catalogue as a registry of classes, and the truth simulator (the model diagnose fits)
+against an independent integration of each effect's stated equations."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 
-from inertia_gym.discrepancy.effects import EFFECTS, REGISTRY, Body, Effect, random_params
-from inertia_gym.discrepancy.synthetic import simulate_truth
-from inertia_gym.scenario import Scenario
+from inertia_gym.discrepancy.effects import EFFECTS, REGISTRY, Body, Effect, random_params, rotvec_matrix
+from inertia_gym.discrepancy.synthetic import gyro_reading, simulate_truth
+from inertia_gym.dynamics import Disturbance, propagate, quat_to_rotation
 
 BODY = Body(np.diag([70.0, 80.0, 100.0]), 10.0, 50.0, 0.03, 60.0)
+INERTIA = np.array([[100.0, 2.0, -3.0], [2.0, 80.0, 1.5], [-3.0, 1.5, 70.0]])
+W0 = np.array([0.5, 3.0, -0.45])
+Q0 = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2])
 
 
 def test_registry_is_the_catalogue():
     assert list(EFFECTS) == list(REGISTRY)
     assert "inertia_offset" in REGISTRY and len(REGISTRY) == 14
     for name, model in REGISTRY.items():
-        assert model.name == name and EFFECTS[name] == model.params
+        assert model.name == name and EFFECTS[name] == model.params and model.family
 
 
 @pytest.mark.parametrize("name", sorted(REGISTRY))
@@ -37,69 +42,185 @@ def test_draw_pack_unpack_round_trip(name):
                                   params[model.params[0]])
 
 
-def _run(effects, momentum=None, n=400, dt=0.005, torque=None):
-    sc = Scenario()
-    tau = np.zeros((n, 3)) if torque is None else torque
-    return simulate_truth(np.array([1.0, 0.0, 0.0, 0.0]), np.asarray(sc.omega0),
-                          sc.inertia_true_array, tau, dt, effects, momentum)
+def test_varying_internal_momentum_round_trip():
+    model = REGISTRY["internal_momentum"]
+    params = {"h": [0.1, -0.2, 0.3], "axis": [0.0, 0.6, 0.8], "profile_t": [0.0, 1.0, 2.0],
+              "profile": [0.0, 2.0, 1.5]}
+    back = model.unpack(model.pack(params))
+    for key, value in params.items():
+        np.testing.assert_allclose(back[key], value, atol=1e-12)
+    h = model.momentum(back, np.array([0.5, 1.5]))
+    np.testing.assert_allclose(h, np.outer([1.0, 1.75], [0.0, 0.6, 0.8]), atol=1e-12)
 
 
-@pytest.mark.parametrize("name", ["constant_body_torque", "internal_momentum", "viscous_damping",
-                                  "aero_drag", "gravity_gradient", "inertia_change",
-                                  "actuator_scale"])
-def test_hook_path_matches_augmented_rk4(name):
-    """The compiled path (dynamics.propagate with the disturbance hook) and the augmented RK4
-    (taken when a known momentum is given: here zero) integrate the same equations."""
-    sc = Scenario()
-    body = Body(sc.inertia_true_array, 10.0, 50.0, 0.03, 2.0)
-    effect = Effect(name, REGISTRY[name].draw(np.random.default_rng(1), body))
-    torque = np.tile([20.0, -10.0, 5.0], (400, 1))
-    q1, w1 = _run(effect, torque=torque)
-    q2, w2 = _run(effect, momentum=lambda t: (np.zeros(3), np.zeros(3)), torque=torque)
-    _, w0 = _run(None, torque=torque)
-    np.testing.assert_allclose(w1, w2, atol=1e-9)
-    np.testing.assert_allclose(q1, q2, atol=1e-9)
-    assert np.abs(w1 - w0).max() > 1e-3  # the effect acted
+# --- an independent reference: scipy's adaptive integrator on the stated equations -----------
 
-
-def _reference(inertia, w0, t_end, extra_torque, flex):
-    """Independent integration (scipy, tight tolerances) of the mass-matrix form
-    [[J, d], [d^T, 1]] [w_dot, eta_ddot] = [-w x (J w + d eta_dot) + torque, -2 z W eta_dot - W^2 eta].
+def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)), extra=None,
+               inertia=INERTIA, flex=None, breaks=(), w0=W0):
+    """w(t_end) and q(t_end) of J w_dot + h_dot + d eta_ddot + w x (J w + h + d eta_dot) = tau + extra,
+    eta_ddot + 2 z W eta_dot + W^2 eta = -d . w_dot, q_dot = q (x) (0, w) / 2, integrated by
+    solve_ivp piece by piece between `breaks` (where the torque or h_dot jumps).
     """
-    from scipy.integrate import solve_ivp
+    delta, om, ze = flex if flex is not None else (np.zeros(3), 0.0, 0.0)
 
-    delta, om, ze = flex
-
-    def rhs(_, y):
-        w, eta, eta_d = y[:3], y[3], y[4]
+    def rhs(t, y):
+        q, w, eta, eta_d = y[:4], y[4:7], y[7], y[8]
+        h, h_dot = momentum_at(t)
+        tau = torque_at(t) - h_dot + (extra(q, w, h) if extra else 0.0)
         m = np.zeros((4, 4))
         m[:3, :3], m[:3, 3], m[3, :3], m[3, 3] = inertia, delta, delta, 1.0
-        f = np.append(-np.cross(w, inertia @ w + delta * eta_d) + extra_torque(w),
-                      -2 * ze * om * eta_d - om * om * eta)
+        f = np.append(tau - np.cross(w, inertia @ w + h + delta * eta_d), -2 * ze * om * eta_d - om * om * eta)
         acc = np.linalg.solve(m, f)
-        return np.concatenate([acc, [eta_d], acc[3:]])[[0, 1, 2, 4, 3]]
+        qw, qx, qy, qz = q
+        q_dot = 0.5 * np.array([-qx * w[0] - qy * w[1] - qz * w[2], qw * w[0] + qy * w[2] - qz * w[1],
+                                qw * w[1] - qx * w[2] + qz * w[0], qw * w[2] + qx * w[1] - qy * w[0]])
+        return np.concatenate([q_dot, acc[:3], [eta_d, acc[3]]])
 
-    sol = solve_ivp(rhs, (0.0, t_end), np.r_[w0, 0.0, 0.0], rtol=1e-11, atol=1e-12)
-    return sol.y[:3, -1]
+    y = np.r_[Q0, w0, 0.0, 0.0]
+    edges = [0.0, *[b for b in breaks if 0 < b < t_end], t_end]
+    for a, b in zip(edges[:-1], edges[1:]):
+        y = solve_ivp(rhs, (a, b), y, rtol=1e-11, atol=1e-12, method="DOP853").y[:, -1]
+    return y[4:7], y[:4] / np.linalg.norm(y[:4])
 
 
-def test_flexible_mode_and_dissipation_truth_match_an_independent_integration():
-    sc = Scenario()
-    inertia, dt, n = sc.inertia_true_array, 0.002, 1000
+N, DT = 400, 0.005
+T_END = N * DT
+TORQUE = np.array([20.0, -10.0, 5.0])
+
+
+def _truth(effects, torque=None, momentum=None):
+    tau = np.tile(TORQUE, (N, 1)) if torque is None else torque
+    q, w = simulate_truth(Q0, W0, INERTIA, tau, DT, effects, momentum)
+    return w[-1], q[-1]
+
+
+def _check(effects, ref_w, ref_q=None, torque=None, momentum=None, tol=2e-6):
+    w, q = _truth(effects, torque, momentum)
+    w_rigid, _ = _truth(())
+    np.testing.assert_allclose(w, ref_w, atol=tol)
+    if ref_q is not None:
+        np.testing.assert_allclose(q, ref_q, atol=tol)
+    assert np.abs(w - w_rigid).max() > 100 * tol  # the effect acted
+
+
+def test_rigid_body_with_torque_matches_reference_and_the_closed_loop_integrator():
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE)
+    w, q = _truth(())
+    np.testing.assert_allclose(w, w_ref, atol=2e-6)
+    np.testing.assert_allclose(q, q_ref, atol=2e-6)
+    qp, wp = propagate(Q0, W0, INERTIA, np.tile(TORQUE, (N, 1)), DT)  # the closed loop's RK4
+    np.testing.assert_allclose(w, wp[-1], atol=1e-12)
+    np.testing.assert_allclose(q, qp[-1], atol=1e-12)
+
+
+def test_body_torques_match_their_stated_equations():
+    nadir = np.array([0.3, -0.2, -0.9]) / np.linalg.norm([0.3, -0.2, -0.9])
+    cases = {
+        "constant_body_torque": ({"torque": [3.0, -2.0, 1.0]}, lambda q, w, h: np.array([3.0, -2.0, 1.0])),
+        "internal_momentum": ({"h": [20.0, 5.0, -10.0]},
+                              lambda q, w, h: -np.cross(w, [20.0, 5.0, -10.0])),
+        "viscous_damping": ({"c_diag": [2.0, 1.0, 3.0]}, lambda q, w, h: -np.array([2.0, 1.0, 3.0]) * w),
+        "aero_drag": ({"c": [0.5, 1.5, 0.2]},
+                      lambda q, w, h: -np.array([0.5, 1.5, 0.2]) * np.linalg.norm(w) * w),
+        "internal_dissipation": ({"d": 4.0}, None),
+        "gravity_gradient": ({"orbit_rate": 0.3, "nadir_inertial": nadir}, None),
+    }
+
+    def dissipation(q, w, h):
+        u = INERTIA @ w + h
+        u = u / np.linalg.norm(u)
+        return -4.0 * (w - u * (u @ w))
+
+    def gradient(q, w, h):
+        r = quat_to_rotation(q).T @ nadir
+        return 3 * 0.3 ** 2 * np.cross(r, INERTIA @ r)
+
+    cases["internal_dissipation"] = (cases["internal_dissipation"][0], dissipation)
+    cases["gravity_gradient"] = (cases["gravity_gradient"][0], gradient)
+    for name, (params, torque) in cases.items():
+        w_ref, q_ref = _reference(T_END, lambda t: TORQUE, extra=torque)
+        _check(Effect(name, params), w_ref, q_ref)
+
+
+def test_actuator_effects_transform_the_applied_torque():
+    rot = rotvec_matrix([0.2, -0.1, 0.3])
+    w_ref, _ = _reference(T_END, lambda t: 1.3 * TORQUE)
+    _check(Effect("actuator_scale", {"scale": 0.3}), w_ref)
+    w_ref, _ = _reference(T_END, lambda t: rot @ TORQUE)
+    _check(Effect("actuator_misalignment", {"rotvec": [0.2, -0.1, 0.3]}), w_ref)
+    # a burst from 0.5 s on, arriving 0.3127 s late (not a multiple of the step: the increment
+    # of the running integral splits the step it falls in)
+    on = int(0.5 / DT)
+    burst = np.zeros((N, 3))
+    burst[on:] = TORQUE
+    w_ref, _ = _reference(T_END, lambda t: TORQUE * (t >= 0.8127), breaks=[0.8127])
+    w, _ = _truth(Effect("actuator_delay", {"delay": 0.3127}), torque=burst)
+    np.testing.assert_allclose(w, w_ref, atol=0.02)  # the split step is averaged: O(dt) at one step
+    w_late, _ = _truth(Effect("actuator_delay", {"delay": 0.35}), torque=burst)
+    assert np.abs(w_late - w).max() > 10 * np.abs(w - w_ref).max()
+
+
+def test_flexible_mode_matches_the_mass_matrix_form():
     delta = np.array([2.0, -1.0, 1.5])
-    flex = Effect("flexible_mode", {"omega_n": 6.0, "zeta": 0.02, "coupling": delta})
-    _, w = _run(flex, n=n, dt=dt)
-    ref = _reference(inertia, np.asarray(sc.omega0), n * dt, lambda w: np.zeros(3), (delta, 6.0, 0.02))
-    np.testing.assert_allclose(w[-1], ref, atol=1e-6)
-    _, w_rigid = _run(None, n=n, dt=dt)
-    assert np.abs(w[-1] - w_rigid[-1]).max() > 1e-2  # the mode moved the rates
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, flex=(delta, 6.0, 0.02))
+    _check(Effect("flexible_mode", {"omega_n": 6.0, "zeta": 0.02, "coupling": delta}), w_ref, q_ref)
 
-    diss = Effect("internal_dissipation", {"d": 5.0})
 
-    def torque(w):
-        u = inertia @ w / np.linalg.norm(inertia @ w)
-        return -5.0 * (w - u * (u @ w))
+def test_inertia_change_keeps_the_momentum():
+    delta = np.diag([5.0, -3.0, -2.0])
+    t_change = 0.8123  # inside a step: the step is split there
+    w_mid, q_mid = _reference(t_change, lambda t: TORQUE)
+    after = INERTIA + delta
+    w_switch = np.linalg.solve(after, INERTIA @ w_mid)
 
-    _, w = _run(diss, n=n, dt=dt)
-    ref = _reference(inertia, np.asarray(sc.omega0), n * dt, torque, (np.zeros(3), 1.0, 0.0))
-    np.testing.assert_allclose(w[-1], ref, atol=1e-6)
+    def rest():
+        from scipy.integrate import solve_ivp as ivp
+
+        def rhs(t, y):
+            w = y[4:]
+            q = y[:4]
+            qw, qx, qy, qz = q
+            q_dot = 0.5 * np.array([-qx * w[0] - qy * w[1] - qz * w[2], qw * w[0] + qy * w[2] - qz * w[1],
+                                    qw * w[1] - qx * w[2] + qz * w[0], qw * w[2] + qx * w[1] - qy * w[0]])
+            return np.r_[q_dot, np.linalg.solve(after, TORQUE - np.cross(w, after @ w))]
+
+        return ivp(rhs, (t_change, T_END), np.r_[q_mid, w_switch], rtol=1e-11, atol=1e-12).y[4:, -1]
+
+    _check(Effect("inertia_change", {"t_change": t_change, "delta_inertia": delta}), rest())
+
+
+def test_known_and_varying_internal_momentum():
+    """A rotor's momentum h(t) (piecewise linear) enters as h and h_dot: given as the known
+    momentum (the recording's h columns) or as internal_momentum's varying form, the same body."""
+    axis = np.array([0.0, 0.6, 0.8])
+    knots_t, knots = np.array([0.0, 0.7, 1.4, 2.0]), np.array([0.0, 30.0, 30.0, 5.0])
+
+    def momentum_at(t):
+        m = np.interp(t, knots_t, knots)
+        slope = np.diff(knots) / np.diff(knots_t)
+        return m * axis + np.array([1.0, 0.0, -2.0]), slope[min(np.searchsorted(knots_t, t, "right") - 1, 2)] * axis
+
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, momentum_at, breaks=knots_t)
+    h_grid = np.array([momentum_at(t)[0] for t in np.arange(N + 1) * DT])
+    w, q = _truth((), momentum=h_grid)
+    np.testing.assert_allclose(w, w_ref, atol=2e-6)
+    effect = Effect("internal_momentum", {"h": [1.0, 0.0, -2.0], "axis": axis, "profile_t": knots_t,
+                                          "profile": knots})
+    _check(effect, w_ref, q_ref)
+
+
+def test_sensor_effects_change_only_the_reading():
+    w = np.array([[1.0, -2.0, 0.5], [0.3, 0.1, -0.2]])
+    np.testing.assert_allclose(gyro_reading(w, Effect("gyro_bias", {"bias": [0.1, 0.2, -0.3]})),
+                               w + [0.1, 0.2, -0.3])
+    np.testing.assert_allclose(gyro_reading(w, Effect("gyro_scale", {"scale": [0.01, -0.02, 0.03]})),
+                               w * [1.01, 0.98, 1.03])
+
+
+def test_per_axis_drag_in_the_closed_loop_hook():
+    """dynamics.state_rate's drag hook per axis, as the closed loop integrates it."""
+    dist = Disturbance(aero_drag=(0.5, 1.5, 0.2))
+    q, w = propagate(Q0, W0, INERTIA, np.tile(TORQUE, (N, 1)), DT, dist)
+    w_ref, _ = _reference(T_END, lambda t: TORQUE,
+                          extra=lambda q, w, h: -np.array([0.5, 1.5, 0.2]) * np.linalg.norm(w) * w)
+    np.testing.assert_allclose(w[-1], w_ref, atol=2e-6)

@@ -20,10 +20,9 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
 
 
-def _inertial_momentum(q, w, inertia, momentum, dt):
+def _inertial_momentum(q, w, inertia, h):
     """(n+1, 3) kg·m²/s: R(q) (J w + h), the total angular momentum in the inertial frame."""
-    return np.array([quat_to_rotation(q[i]) @ (inertia @ w[i] + momentum(i * dt)[0])
-                     for i in range(q.shape[0])])
+    return np.array([quat_to_rotation(q[i]) @ (inertia @ w[i] + h[i]) for i in range(q.shape[0])])
 
 
 def test_rotor_profile_derivative_and_ends():
@@ -38,22 +37,20 @@ def test_torque_free_truth_with_rotor_conserves_inertial_momentum():
     inertia, duration, dt = sc.inertia_true_array, 20.0, 0.005
     n = int(round(duration / dt))
     # A rotor of a quarter of the body's momentum (|J w| ~ 800 kg·m²/s): it moves the rates a lot.
-    mom = rotor_momentum(200.0, np.array([1.0, 2.0, -2.0]) / 3.0, duration)
+    h = rotor_momentum(200.0, np.array([1.0, 2.0, -2.0]) / 3.0, duration, np.arange(n + 1) * dt)
     q0 = np.array([1.0, 0.0, 0.0, 0.0])
-    q, w = simulate_truth(q0, np.asarray(sc.omega0), inertia, np.zeros((n, 3)), dt, momentum=mom)
-    big_l = _inertial_momentum(q, w, inertia, mom, dt)
+    q, w = simulate_truth(q0, np.asarray(sc.omega0), inertia, np.zeros((n, 3)), dt, momentum=h)
+    big_l = _inertial_momentum(q, w, inertia, h)
     drift = np.abs(big_l - big_l[0]).max() / np.linalg.norm(big_l[0])
     assert drift < 2e-8
     _, w_free = simulate_truth(q0, np.asarray(sc.omega0), inertia, np.zeros((n, 3)), dt)
     assert np.abs(w - w_free).max() > 1.0  # not vacuous: the rotor changed the motion
-
-    # Leaving out h_dot (only w x h) breaks the balance: the test would catch it.
-    def no_rate(t):
-        return mom(t)[0], np.zeros(3)
-
-    qb, wb = simulate_truth(q0, np.asarray(sc.omega0), inertia, np.zeros((n, 3)), dt, momentum=no_rate)
-    big_lb = _inertial_momentum(qb, wb, inertia, mom, dt)
-    assert np.abs(big_lb - big_lb[0]).max() / np.linalg.norm(big_lb[0]) > 1e-2
+    # the rotor's momentum counted without its rate (as a wheel held at each value) breaks the
+    # balance: the test would catch a truth that left h_dot out
+    big_l_wrong = _inertial_momentum(q, w, inertia, np.zeros_like(h))
+    assert np.abs(big_l_wrong - big_l_wrong[0]).max() / np.linalg.norm(big_l_wrong[0]) > 1e-2
+    with pytest.raises(ConfigError, match="momentum"):
+        simulate_truth(q0, np.asarray(sc.omega0), inertia, np.zeros((n, 3)), dt, momentum=h[:-1])
 
 
 def test_simulate_cli_rotor_writes_h_columns(tmp_path, capsys):
