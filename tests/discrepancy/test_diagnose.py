@@ -6,7 +6,6 @@ fixed seeds, thresholds with margin. The full matrix is scripts/confusion_matrix
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np

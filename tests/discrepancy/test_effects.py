@@ -69,7 +69,8 @@ def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)
         tau = torque_at(t) - h_dot + (extra(q, w, h) if extra else 0.0)
         m = np.zeros((4, 4))
         m[:3, :3], m[:3, 3], m[3, :3], m[3, 3] = inertia, delta, delta, 1.0
-        f = np.append(tau - np.cross(w, inertia @ w + h + delta * eta_d), -2 * ze * om * eta_d - om * om * eta)
+        f = np.append(tau - np.cross(w, inertia @ w + h + delta * eta_d),
+                      -2 * ze * om * eta_d - om * om * eta)
         acc = np.linalg.solve(m, f)
         qw, qx, qy, qz = q
         q_dot = 0.5 * np.array([-qx * w[0] - qy * w[1] - qz * w[2], qw * w[0] + qy * w[2] - qz * w[1],
@@ -198,7 +199,8 @@ def test_known_and_varying_internal_momentum():
     def momentum_at(t):
         m = np.interp(t, knots_t, knots)
         slope = np.diff(knots) / np.diff(knots_t)
-        return m * axis + np.array([1.0, 0.0, -2.0]), slope[min(np.searchsorted(knots_t, t, "right") - 1, 2)] * axis
+        piece = min(np.searchsorted(knots_t, t, "right") - 1, 2)
+        return m * axis + np.array([1.0, 0.0, -2.0]), slope[piece] * axis
 
     w_ref, q_ref = _reference(T_END, lambda t: TORQUE, momentum_at, breaks=knots_t)
     h_grid = np.array([momentum_at(t)[0] for t in np.arange(N + 1) * DT])
