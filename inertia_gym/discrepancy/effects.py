@@ -521,7 +521,7 @@ class ActuatorDelay(EffectModel):
 
     @override
     def starts(self, form, d, probe):
-        grid = np.geomspace(max(d.dt, 1e-3), 0.25 * d.duration, 24)
+        grid = np.geomspace(max(d.dt, 1e-3), 0.25 * d.duration, 16)
         return probe.best_of([np.array([v]) for v in grid], keep=2)
 
     @override
@@ -568,7 +568,7 @@ class GravityGradient(EffectModel):
     @override
     def starts(self, form, d, probe):
         n0 = np.sqrt(d.tau_ref / (3.0 * d.j_ref))
-        return probe.best_of([n0 * c for c in np.vstack([np.eye(3), -np.eye(3)])], keep=3)
+        return probe.best_of([n0 * c for c in np.vstack([np.eye(3), -np.eye(3)])], keep=2)
 
     @override
     def disturbance(self, params):

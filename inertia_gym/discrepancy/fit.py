@@ -48,8 +48,10 @@ MAX_EFFECTS, REFIT_SCREENED = 3, 3
 MAX_TURN = 20.0
 #: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each).
 MIN_SEGMENT_ROWS, MIN_ROWS = 30, 20
-#: RK4 sub-steps: at most this rotation (rad) per step, and a mode at most this phase per step.
-TURN_PER_STEP, MODAL_PHASE_PER_STEP = 0.1, 0.3
+#: RK4 sub-steps: a mode turns at most this phase per step; the body at most the rotation whose
+#: error over a segment, about (w h)^4 / 6 of the rate, stays within STEP_ERROR of the noise
+#: (within these bounds, rad).
+MODAL_PHASE_PER_STEP, STEP_ERROR, TURN_PER_STEP = 0.3, 0.1, (0.02, 0.3)
 #: Residual rows are block means once the sampling exceeds both this rate (Hz) and this multiple
 #: of the fastest rotation frequency.
 BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
@@ -58,7 +60,7 @@ BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 6, 60, 0.1
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
-MODE_REACH, MODE_GRID = 1.5, 1.1
+MODE_REACH, MODE_GRID = 1.5, 1.15
 #: An impulse at a record's end: the whitened residual jumps by more than this many times its
 #: median step, within this share of the record from its end.
 IMPULSE_JUMP, IMPULSE_SPAN = 8.0, 0.15
@@ -214,10 +216,15 @@ def _rows(seg, keep, block: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return row, used // (n + 1), np.sqrt(block / np.maximum(counts, 1))
 
 
-def _substeps(t, w) -> np.ndarray:
-    """RK4 steps per sample interval (n-1,): TURN_PER_STEP rad at the interval's larger rate."""
+def _substeps(t, w, sigma: float) -> np.ndarray:
+    """RK4 steps per sample interval (n-1,) for gyro noise sigma rad/s: RK4's error over a
+    segment of MAX_TURN rad is about (w h)^4 / 6 of the rate w, so the step turns the body by
+    (6 STEP_ERROR sigma / |w|_max)^(1/4) rad at most (within TURN_PER_STEP).
+    """
     rate = np.maximum(np.linalg.norm(w[1:], axis=1), np.linalg.norm(w[:-1], axis=1))
-    return np.clip(np.ceil(rate * np.diff(t) / TURN_PER_STEP), 1, 256).astype(np.int64)
+    top = max(float(rate.max()), 1e-12)
+    turn = float(np.clip((6 * STEP_ERROR * sigma / top) ** 0.25, *TURN_PER_STEP))
+    return np.clip(np.ceil(rate * np.diff(t) / turn), 1, 256).astype(np.int64)
 
 
 def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MAX_TURN) -> Data:
@@ -258,8 +265,9 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     duration = float(t[-1] - t[0])
     tau_max = float(np.abs(tau).max())
     tau_ref = tau_max if tau_max > 0 else trace0 / 3 * max(omega_ref, float(sigma.mean())) / max(duration, dt)
+    grid = Grid.of(t, _substeps(t, w, float(sigma.min() / np.sqrt(block))))
     return Data(t, w, None if rec.q is None else np.asarray(rec.q, float), tau,
-                None if rec.h is None else np.asarray(rec.h, float), Grid.of(t, _substeps(t, w)), seg, row,
+                None if rec.h is None else np.asarray(rec.h, float), grid, seg, row,
                 row_seg, row_scale, sigma, source, rec.has_torque, has_momentum, trace0,
                 (not excited) or nominal is not None, nominal, omega_ref, trace0 / 3, tau_ref, dt,
                 duration, block, notes)
@@ -379,7 +387,7 @@ def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
 def objective(xs, layout: Layout, d: Data) -> np.ndarray:
     """(B, N) the least-squares vector: whitened residual rows, then any constraint rows."""
     z = whitened(xs, layout, d).reshape(len(xs), -1)
-    z = np.where(np.isfinite(z), z, 1e6)
+    z = np.clip(np.nan_to_num(z, nan=1e6), -1e6, 1e6)  # a model that blew up costs a lot, finitely
     pen = [_penalty_rows(x, layout, d, z.shape[1]) for x in xs]
     return np.hstack([z, np.stack(pen)]) if pen[0].size else z
 

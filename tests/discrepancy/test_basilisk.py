@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from inertia_gym.discrepancy.basilisk import TRUTH_KEY, SpacecraftCase, equilibrium_inertia, simulate
-from inertia_gym.discrepancy.effects import quat_rotations
 from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.dynamics import quat_to_rotation
 from inertia_gym.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
@@ -44,6 +44,11 @@ requires_bsk = pytest.mark.skipif(not _basilisk_importable(),
 
 def _case(name: str, duration: float = 30.0) -> SpacecraftCase:
     return next(c for c in harness.cases(duration) if c.name == name)
+
+
+def quat_rotations(q) -> np.ndarray:
+    """(n, 4) quaternions -> (n, 3, 3) body-to-inertial rotations."""
+    return np.array([quat_to_rotation(qk) for qk in np.asarray(q, float)])
 
 
 def _momentum_from_recording_columns(run, inertia) -> np.ndarray:
