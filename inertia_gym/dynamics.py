@@ -34,13 +34,15 @@ SQRT3_6 = math.sqrt(3.0) / 6.0
 _D_TAU = slice(0, 3)  # constant body torque, N·m
 _D_H = slice(3, 6)  # internal angular momentum (wheel bias), N·m·s
 _D_C = slice(6, 15)  # viscous damping matrix, row-major, N·m·s
-_D_AERO = slice(15, 18)  # aerodynamic drag per body axis c_i in -c_i |w| w_i, N·m·s²
-_D_N = 18  # orbital rate for gravity gradient, rad/s
-_D_NADIR = slice(19, 22)  # nadir direction in the inertial frame (unit)
+_D_AERO_ON = 15  # 1 when the drag matrix is not zero (one test in the hot loop)
+_D_AERO = slice(16, 25)  # aerodynamic drag matrix C in -|w| C w, row-major, N·m·s²
+_D_N = 25  # orbital rate for gravity gradient, rad/s
+_D_NADIR = slice(26, 29)  # nadir direction in the inertial frame (unit)
 # Terms only the augmented integrator (propagate_model_batch) adds around state_rate:
-_D_DISS = 22  # internal dissipation d: torque -d (w - u (u . w)), u along the total momentum, N·m·s
-_D_FLEX = slice(23, 28)  # flexible mode: omega_n rad/s, zeta, coupling delta (3,) sqrt(kg)·m
-DISTURBANCE_SIZE = 28
+_D_DISS = 29  # internal dissipation d: torque -d (w - u (u . w)), u along the total momentum, N·m·s
+_D_OMEGA, _D_ZETA, _D_DELTA = 30, 31, 32  # flexible mode: omega_n rad/s, zeta, coupling (3,) sqrt(kg)·m
+_D_FLEX = slice(_D_OMEGA, _D_DELTA + 3)
+DISTURBANCE_SIZE = 35
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,8 +54,9 @@ class Disturbance:
     constant_torque : (3,) N·m, body frame.
     internal_momentum : (3,) N·m·s, a stored momentum h (e.g. a wheel) in J w_dot + w x (J w + h).
     damping : (3, 3) N·m·s, viscous torque -C w.
-    aero_drag : N·m·s², torque -c |w| w; a number (isotropic) or (3,) per body axis
-        (-c_i |w| w_i: a body whose drag differs about its axes, e.g. a flat plate).
+    aero_drag : N·m·s², torque -|w| C w; C a number (isotropic), (3,) per body axis or a (3, 3)
+        matrix (a body whose drag differs about its own axes, e.g. a flat plate or a racquet's
+        head, in any orientation to the gyro's).
     orbit_rate : rad/s, gravity-gradient torque 3 n^2 (r x J r) with r the nadir in the body frame.
     nadir_inertial : (3,), nadir direction in the inertial frame (normalised internally).
     dissipation : N·m·s, internal dissipation (slosh, dampers): torque -d (w - u (u . w)) with u
@@ -83,7 +86,12 @@ class Disturbance:
         v[_D_H] = _checked(self.internal_momentum, (3,), "internal_momentum")
         v[_D_C] = _checked(self.damping, (3, 3), "damping").ravel()
         aero = np.asarray(self.aero_drag, dtype=float)
-        v[_D_AERO] = _checked(np.broadcast_to(aero, (3,)) if aero.ndim == 0 else aero, (3,), "aero_drag")
+        if aero.ndim == 0:
+            aero = aero * np.eye(3)
+        elif aero.ndim == 1:
+            aero = np.diag(_checked(aero, (3,), "aero_drag"))
+        v[_D_AERO] = _checked(aero, (3, 3), "aero_drag").ravel()
+        v[_D_AERO_ON] = float(np.any(aero != 0.0))
         v[_D_N] = float(_checked(self.orbit_rate, (), "orbit_rate"))
         nadir = _checked(self.nadir_inertial, (3,), "nadir_inertial")
         norm = np.linalg.norm(nadir)
@@ -201,18 +209,18 @@ def state_rate(qw, qx, qy, qz, wx, wy, wz, inertia, inertia_inv, tau, dist):
     mx = tau[0] + dist[0] - (wy * hz - wz * hy)
     my = tau[1] + dist[1] - (wz * hx - wx * hz)
     mz = tau[2] + dist[2] - (wx * hy - wy * hx)
-    if dist[15] != 0.0 or dist[16] != 0.0 or dist[17] != 0.0:
+    if dist[15] != 0.0:
         nw = math.sqrt(wx * wx + wy * wy + wz * wz)
-        mx -= dist[15] * nw * wx
-        my -= dist[16] * nw * wy
-        mz -= dist[17] * nw * wz
+        mx -= nw * (dist[16] * wx + dist[17] * wy + dist[18] * wz)
+        my -= nw * (dist[19] * wx + dist[20] * wy + dist[21] * wz)
+        mz -= nw * (dist[22] * wx + dist[23] * wy + dist[24] * wz)
     mx -= dist[6] * wx + dist[7] * wy + dist[8] * wz
     my -= dist[9] * wx + dist[10] * wy + dist[11] * wz
     mz -= dist[12] * wx + dist[13] * wy + dist[14] * wz
-    n = dist[18]
+    n = dist[25]
     if n != 0.0:
         # Nadir in the body frame: r_B = R(q)^T r_I.
-        ix, iy, iz = dist[19], dist[20], dist[21]
+        ix, iy, iz = dist[26], dist[27], dist[28]
         rx = (1 - 2 * (qy * qy + qz * qz)) * ix + 2 * (qx * qy + qw * qz) * iy \
             + 2 * (qx * qz - qw * qy) * iz
         ry = 2 * (qx * qy - qw * qz) * ix + (1 - 2 * (qx * qx + qz * qz)) * iy \
@@ -428,11 +436,11 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
     form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). dl: scratch copy of dist (its
     momentum slots are overwritten), tau_buf: scratch (3,). Scalars in and out, like state_rate.
     """
-    cx, cy, cz = dist[25], dist[26], dist[27]
+    cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
     dl[3] = dist[3] + hx + cx * etad
     dl[4] = dist[4] + hy + cy * etad
     dl[5] = dist[5] + hz + cz * etad
-    diss = dist[22]
+    diss = dist[_D_DISS]
     if diss != 0.0:
         lx = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2 + dl[3]
         ly = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2 + dl[4]
@@ -449,8 +457,8 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
     ax, ay, az = r[4], r[5], r[6]
     eta_dd = 0.0
     if cx != 0.0 or cy != 0.0 or cz != 0.0:
-        om = dist[23]
-        eta_dd = (-2.0 * dist[24] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
+        om = dist[_D_OMEGA]
+        eta_dd = (-2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
         ax -= jd[0] * eta_dd
         ay -= jd[1] * eta_dd
         az -= jd[2] * eta_dd
@@ -460,9 +468,10 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
 @nb.njit(cache=True)
 def _modal_coupling(inertia_inv, dist, jd):
     """Write J^-1 delta into jd (3,); return 1 - delta . J^-1 delta."""
+    cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
     for i in range(3):
-        jd[i] = inertia_inv[i, 0] * dist[25] + inertia_inv[i, 1] * dist[26] + inertia_inv[i, 2] * dist[27]
-    return 1.0 - (dist[25] * jd[0] + dist[26] * jd[1] + dist[27] * jd[2])
+        jd[i] = inertia_inv[i, 0] * cx + inertia_inv[i, 1] * cy + inertia_inv[i, 2] * cz
+    return 1.0 - (cx * jd[0] + cy * jd[1] + cz * jd[2])
 
 
 @nb.njit(cache=True, inline="always")

@@ -171,7 +171,7 @@ class EffectModel:
 
     def penalty(self, p, d) -> list[float]:
         """Constraint rows (relative units) appended to the whitened residual when the inertia's
-        scale is pinned (d.scale_fixed).
+        scale is not seen (d.scale_fixed).
         """
         return []
 
@@ -380,47 +380,82 @@ class InternalMomentum(EffectModel):
         return m[:, None] * np.asarray(params["axis"], float)
 
 
-@register
-class ViscousDamping(EffectModel):
-    """Torque -C w with C diagonal (N·m·s)."""
-
-    name, params, size, family = "viscous_damping", ("c_diag",), 3, "drag"
-    ambiguities = (("aero_drag", "-C w and -c|w| w coincide while |w| stays nearly constant"),)
-
-    @override
-    def draw(self, rng, body):
-        return {"c_diag": rng.uniform(0.004, 0.015, 3) * body.j}
-
-    @override
-    def typical(self, form, d):
-        return np.full(3, 0.01 * d.j_ref)
-
-    @override
-    def disturbance(self, params):
-        return {"damping": tuple(map(tuple, np.diag(np.asarray(params["c_diag"], float))))}
+def _drag_matrix(value) -> np.ndarray:
+    """A drag coefficient as a symmetric (3, 3) matrix: a number (isotropic), three (per body
+    axis), six (xx, xy, xz, yy, yz, zz) or a 3x3.
+    """
+    v = np.asarray(value, float)
+    if v.size == 1:
+        return float(v) * np.eye(3)
+    if v.size == 3:
+        return np.diag(np.ravel(v))
+    return matrix6(np.ravel(v)) if v.size == 6 else v.reshape(3, 3)
 
 
-@register
-class AeroDrag(EffectModel):
-    """Quadratic drag per body axis: torque -c_i |w| w_i (c (3,) N·m·s²). A body whose drag
-    differs about its axes (a flat plate, a racquet's head) has different c_i; equal c_i is the
-    isotropic -c |w| w.
+class _Drag(EffectModel):
+    """A drag torque with a symmetric coefficient matrix C (3, 3): its eigenvectors are the
+    body's drag axes (a plate's normal, a racquet's handle), which need not be the gyro's, and
+    its eigenvalues the coefficient about each; fitted as C's six entries.
     """
 
-    name, params, size, family = "aero_drag", ("c",), 3, "drag"
-    ambiguities = (("viscous_damping", "-C w and -c|w| w coincide while |w| stays nearly constant"),)
+    params, size, family = ("c",), 6, "drag"
+
+    def _scale(self, d) -> float:
+        raise NotImplementedError
 
     @override
-    def draw(self, rng, body):
-        return {"c": rng.uniform(0.004, 0.015) * rng.uniform(0.3, 1.0, 3) * body.j / body.omega_ref}
+    def unpack(self, p):
+        return {"c": matrix6(p)}
+
+    @override
+    def pack(self, params):
+        return inertia6(_drag_matrix(params["c"]))
 
     @override
     def typical(self, form, d):
-        return np.full(3, 0.01 * d.j_ref / d.omega_ref)
+        return np.full(6, self._scale(d))
+
+
+@register
+class ViscousDamping(_Drag):
+    """Torque -C w (C symmetric, N·m·s)."""
+
+    name = "viscous_damping"
+    ambiguities = (("aero_drag", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
+
+    @override
+    def _scale(self, d):
+        return 0.01 * d.j_ref
+
+    @override
+    def draw(self, rng, body):
+        return {"c": np.diag(rng.uniform(0.004, 0.015, 3) * body.j)}
 
     @override
     def disturbance(self, params):
-        return {"aero_drag": tuple(np.broadcast_to(np.asarray(params["c"], float), (3,)))}
+        return {"damping": tuple(map(tuple, _drag_matrix(params["c"])))}
+
+
+@register
+class AeroDrag(_Drag):
+    """Quadratic drag: torque -|w| C w (C symmetric, N·m·s²); C = c I is the isotropic
+    -c |w| w, a diagonal C the per-axis -c_i |w| w_i.
+    """
+
+    name = "aero_drag"
+    ambiguities = (("viscous_damping", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
+
+    @override
+    def _scale(self, d):
+        return 0.01 * d.j_ref / d.omega_ref
+
+    @override
+    def draw(self, rng, body):
+        return {"c": np.diag(rng.uniform(0.004, 0.015) * rng.uniform(0.3, 1.0, 3) * body.j / body.omega_ref)}
+
+    @override
+    def disturbance(self, params):
+        return {"aero_drag": tuple(map(tuple, _drag_matrix(params["c"])))}
 
 
 @register
@@ -456,7 +491,7 @@ class ActuatorScale(EffectModel):
 
     @override
     def skip_reason(self, d):
-        if not d.scale_fixed:
+        if d.inertia0 is None:
             return ("indistinguishable from the inertia's scale: no nominal inertia in the sidecar "
                     "to pin it")
         return super().skip_reason(d)
@@ -622,7 +657,7 @@ class FlexibleMode(EffectModel):
 @register
 class InertiaChange(EffectModel):
     """At t_change (s) the inertia becomes J + delta_J (momentum kept); fitted at fixed trace
-    where the scale is pinned.
+    where the scale is not seen.
     """
 
     name, params, size, family = "inertia_change", ("t_change", "delta_inertia"), 7, "mass change"
@@ -672,12 +707,13 @@ class InertiaChange(EffectModel):
 
 @register
 class InertiaOffset(EffectModel):
-    """The body's inertia differs from the sidecar's nominal, including its overall scale.
+    """The body's inertia differs from the sidecar's nominal.
 
-    Every model already fits J's shape with its trace pinned to the nominal's (fit.py); this
-    effect frees the trace too, with J in the positive-definite log-Cholesky parameterization
-    p = phi (estimation.inertia_param): never indefinite. The comparison of the fitted J with
-    the nominal (% per principal moment, axis rotation) is report.inertia_comparison.
+    Every other model holds the user's nominal inertia as given (fit.py); this effect fits J in
+    the positive-definite log-Cholesky parameterization p = phi (estimation.inertia_param: never
+    indefinite), its overall scale too where a known torque or changing momentum shows it, else
+    its shape at the nominal's trace. The comparison of the fitted J with the nominal (% per
+    principal moment, axis rotation) is report.inertia_comparison.
     """
 
     name, params, size, family = "inertia_offset", ("inertia",), 6, "inertia"
@@ -690,10 +726,11 @@ class InertiaOffset(EffectModel):
     def skip_reason(self, d):
         if d.inertia0 is None:
             return "no inertia_nominal in the sidecar: the inertia is fitted in every model"
-        if not d.excited:
-            return ("no commanded torque or changing internal momentum: the inertia's scale is not "
-                    "seen, and its shape is fitted in every model")
         return None
+
+    @override
+    def held(self, form, d):
+        return np.r_[d.scale_fixed, np.zeros(5, bool)]  # unseen scale: the shape only
 
     @override
     def draw(self, rng, body):

@@ -76,8 +76,10 @@ class Data:
     seg (S+1,) sample index of each segment's start (seg[-1] = n); row (n,) residual row of each
     sample (-1: left out); row_seg (n_rows,) segment of each row; row_scale (n_rows,) noise of a
     row's mean relative to a full block's; sigma (3,) rad/s noise of a full block's mean;
-    trace0 kg·m² the trace the inertia is pinned to when scale_fixed; inertia0 the sidecar's
-    nominal or None; omega_ref rad/s, j_ref kg·m², tau_ref N·m, dt s (median sample interval),
+    inertia0: the sidecar's nominal (3, 3) kg·m², held in every model but inertia_offset, or
+    None (the inertia is then fitted in every model); scale_fixed: neither a known torque nor a
+    changing known momentum acts, so a fitted inertia's trace is pinned to trace0 kg·m² (the
+    nominal's, or 1); omega_ref rad/s, j_ref kg·m², tau_ref N·m, dt s (median sample interval),
     duration s: scales for starts and step sizes; block: samples per row; notes: what was left
     out and how the noise was set (reported).
     """
@@ -269,7 +271,7 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     return Data(t, w, None if rec.q is None else np.asarray(rec.q, float), tau,
                 None if rec.h is None else np.asarray(rec.h, float), grid, seg, row,
                 row_seg, row_scale, sigma, source, rec.has_torque, has_momentum, trace0,
-                (not excited) or nominal is not None, nominal, omega_ref, trace0 / 3, tau_ref, dt,
+                not excited, nominal, omega_ref, trace0 / 3, tau_ref, dt,
                 duration, block, notes)
 
 
@@ -281,7 +283,8 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
 @dataclasses.dataclass(frozen=True)
 class Layout:
     """x = [phi (6), p_1, ..., p_k, w0 (S, 3)]: the inertia (log-Cholesky, its trace pinned to
-    d.trace0 when d.scale_fixed), each effect's vector in its form, each segment's initial rates.
+    d.trace0 when d.scale_fixed; not used when the sidecar's nominal is held), each effect's
+    vector in its form, each segment's initial rates.
     """
 
     names: tuple[str, ...]
@@ -320,24 +323,42 @@ class Layout:
             i += s
         return out
 
-    def parts(self, x) -> list[tuple[EffectModel, dict]]:
-        """[(model, named params)] of x."""
-        return [(m, m.unpack(np.asarray(x[s], float))) for m, s in zip(self.models, self.slices())]
+    def parts(self, x, d: "Data") -> list[tuple[EffectModel, dict]]:
+        """[(model, named params)] of x; an inertia an effect sets has its trace pinned to
+        d.trace0 where the scale is not seen.
+        """
+        out = []
+        for m, s in zip(self.models, self.slices()):
+            params = m.unpack(np.asarray(x[s], float))
+            if m.sets_inertia and d.scale_fixed:
+                params = {**params, "inertia": _pinned(params["inertia"], d)}
+            out.append((m, params))
+        return out
 
     def w0(self, x) -> np.ndarray:
         """(S, 3) segments' initial rates."""
         return np.asarray(x[self.n_global:], float).reshape(-1, 3)
 
 
+def _pinned(j, d: Data) -> np.ndarray:
+    """Inertia j scaled to trace d.trace0."""
+    j = np.asarray(j, float)
+    return j * (d.trace0 / np.trace(j))
+
+
 def base_inertia(x, d: Data) -> np.ndarray:
-    """The inertia (3, 3) of phi = x[:6], scaled to d.trace0 when the scale is pinned."""
+    """The inertia (3, 3) kg·m² of every model but inertia_offset: the sidecar's nominal where
+    given, else phi = x[:6] (its trace pinned to d.trace0 when the scale is not seen).
+    """
+    if d.inertia0 is not None:
+        return d.inertia0
     j = inertia_from_phi(np.asarray(x[:6], float))
-    return j * (d.trace0 / np.trace(j)) if d.scale_fixed else j
+    return _pinned(j, d) if d.scale_fixed else j
 
 
 def model_inertia(layout: Layout, x, d: Data) -> np.ndarray:
     """The model's inertia (3, 3) kg·m²: an effect's (inertia_offset) where one sets it."""
-    for model, params in layout.parts(x):
+    for model, params in layout.parts(x, d):
         j = model.true_inertia(params)
         if j is not None:
             return np.asarray(j, float)
@@ -352,7 +373,7 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     q0 = d.q0()
     terms, y0, parts = [], [], []
     for x in xs:
-        p = layout.parts(x)
+        p = layout.parts(x, d)
         parts.append(p)
         terms.append(model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded))
         y0.append(np.hstack([q0, layout.w0(x)]))
@@ -525,7 +546,8 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
 @dataclasses.dataclass(frozen=True)
 class Fit:
     """One fitted model: its layout, x, the whitened residual rows z (n_rows, 3), the rate
-    residual rows r (n_rows, 3) rad/s, bic, k (free global parameters), inertia (3, 3) kg·m².
+    residual rows r (n_rows, 3) rad/s, bic, k (free global parameters), inertia (3, 3) kg·m²,
+    and each effect's named parameters.
     """
 
     layout: Layout
@@ -535,6 +557,7 @@ class Fit:
     bic: float
     k: int
     inertia: np.ndarray
+    effect_params: dict  # effect name -> its named parameters, in the order the effects were added
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -552,11 +575,6 @@ class Fit:
         return self.layout.forms
 
     @property
-    def effect_params(self) -> dict:
-        """Effect name -> its named parameters, in the order the effects were added."""
-        return {m.name: params for m, params in self.layout.parts(self.x)}
-
-    @property
     def params(self) -> dict:
         """The last effect's named parameters ({} for the nominal)."""
         return self.effect_params[self.name] if self.names else {}
@@ -565,7 +583,7 @@ class Fit:
 def _free(layout: Layout, d: Data) -> np.ndarray:
     """Bool mask over x of what the solver moves."""
     sets = any(m.sets_inertia for m in layout.models)
-    phi = np.full(6, not sets)
+    phi = np.full(6, not sets and d.inertia0 is None)
     phi[0] &= not d.scale_fixed
     held = [~m.held(f, d) for m, f in zip(layout.models, layout.forms)]
     return np.concatenate([phi] + held + [np.ones(3 * layout.segments, bool)])
@@ -592,7 +610,8 @@ def finish(layout: Layout, x, d: Data, k: int | None = None) -> Fit:
     n = z.size
     mse = float(np.mean(z ** 2)) if np.all(np.isfinite(z)) else np.inf
     bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
-    return Fit(layout, np.asarray(x, float), z, z * d.sigma * d.row_scale[:, None], float(bic), k, jm)
+    named = {m.name: params for m, params in layout.parts(x, d)}
+    return Fit(layout, np.asarray(x, float), z, z * d.sigma * d.row_scale[:, None], float(bic), k, jm, named)
 
 
 def initial_rates(d: Data) -> np.ndarray:
@@ -601,9 +620,9 @@ def initial_rates(d: Data) -> np.ndarray:
 
 
 def _inertia_starts(d: Data) -> list[np.ndarray]:
-    """Starting phi of the nominal fit: the sidecar's nominal, the linear equation-error
-    estimate, and on a short record (one segment) the three elongated bodies too, since a
-    short flip can leave several inertias locally consistent.
+    """Starting phi of a fitted inertia: the sidecar's nominal (first, where given), the linear
+    equation-error estimate, and on a short record (one segment) the three elongated bodies too,
+    since a short flip can leave several inertias locally consistent.
     """
     out = []
     if d.inertia0 is not None:
@@ -617,11 +636,11 @@ def _inertia_starts(d: Data) -> list[np.ndarray]:
 
 
 def fit_nominal(d: Data) -> Fit:
-    """The rigid model alone: the inertia fitted (its trace pinned when the scale is not
-    identifiable or a nominal is given) with every segment's initial rates.
+    """The rigid model alone: the user's model as given where the sidecar has a nominal inertia
+    (only the segments' initial rates are fitted), else the inertia fitted (its trace pinned when
+    the scale is not seen) with every segment's initial rates.
 
-    Several inertia starts are tried briefly and the best run to convergence; on a long record
-    a first fit with quarter-length segments gives the start of the full one.
+    Without a nominal several inertia starts are tried briefly and the best run to convergence.
     """
     layout = Layout.of((), (), d)
     lb, ub = _bounds(layout, d)
@@ -629,26 +648,14 @@ def fit_nominal(d: Data) -> Fit:
     best = None
     for phi in _inertia_starts(d):
         x0 = np.concatenate([phi, initial_rates(d)])
+        if d.inertia0 is not None:
+            best = (x0, 0.0)
+            break
         x, cost = solve(x0, free, layout, d, lb, ub, START_ITER)
         if best is None or cost < best[1]:
             best = (x, cost)
     x, _ = solve(best[0], free, layout, d, lb, ub, FULL_ITER)
     return finish(layout, x, d)
-
-
-def replay(d: Data) -> Fit | None:
-    """The user's model as given: the sidecar's nominal inertia, nothing fitted but each
-    segment's initial rates (None without a nominal).
-    """
-    if d.inertia0 is None:
-        return None
-    layout = Layout.of((), (), d)
-    x0 = np.concatenate([phi_from_inertia(d.inertia0), initial_rates(d)])
-    free = np.concatenate([np.zeros(6, bool), np.ones(3 * d.segments, bool)])
-    lb, ub = _bounds(layout, d)
-    exact = dataclasses.replace(d, scale_fixed=False)  # the nominal's own trace
-    x, _ = solve(x0, free, layout, exact, lb, ub, FULL_ITER)
-    return dataclasses.replace(finish(layout, x, exact, k=0), inertia=np.array(d.inertia0, float))
 
 
 @dataclasses.dataclass(frozen=True)

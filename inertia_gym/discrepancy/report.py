@@ -21,7 +21,6 @@ from inertia_gym.discrepancy.fit import (
     impulses,
     intervals,
     prepare,
-    replay,
     select,
     sparse_terms,
 )
@@ -144,7 +143,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                                             f" < {AMBIGUOUS_DELTA_BIC}"})
         for other, reason in REGISTRY[top["name"]].ambiguities:
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
-    given = replay(d)  # the user's model as given (sidecar nominal), or None
+    offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     t_row = d.t_row
     locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
     after = _fit_summary(best, d.sigma)
@@ -157,18 +156,18 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
         "explanation": _explanation(chosen, d), "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
-        "fit_before": _fit_summary(given if given is not None else nominal, d.sigma),
-        "fit_inertia_fitted": _fit_summary(nominal, d.sigma), "fit_after": after,
-        "inertia_vs_nominal": None if given is None else {
-            "delta_bic": float(given.bic - nominal.bic) if np.isfinite(given.bic) else None,
-            **inertia_comparison(d.inertia0, nominal.inertia, False)},
+        "fit_before": _fit_summary(nominal, d.sigma),
+        "fit_inertia_fitted": _fit_summary(offset or nominal, d.sigma), "fit_after": after,
+        "inertia_vs_nominal": None if offset is None else {
+            "delta_bic": float(nominal.bic - offset.bic) if np.isfinite(offset.bic) else None,
+            **inertia_comparison(d.inertia0, offset.inertia, d.excited)},
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
         "noise": {"rows": "block means" if d.block > 1 else "samples", "samples_per_row": d.block,
                   "sigma": d.sigma.tolist(), "source": d.sigma_source},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
-        "scale_identified": not d.scale_fixed or (d.excited and rec.inertia_nominal is not None),
+        "scale_identified": d.excited,
         "inertia_nominal_given": d.inertia0 is not None, "inertia_trace_assumed": d.trace0,
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
@@ -198,7 +197,7 @@ def _explanation(chosen, d: Data) -> list[dict]:
                                      for other, why in model.ambiguities]}
         if name == "inertia_offset":
             entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
-                                                             d.has_torque)
+                                                             d.excited)
         out.append(entry)
     return out
 
@@ -313,18 +312,20 @@ def _explanation_words(report: dict) -> str:
                          f"{np.round(cmp['percent_change'], 1).tolist()} % (ascending), principal "
                          f"axes turn by {np.round(cmp['axis_rotation_deg'], 1).tolist()} deg"
                          + ("" if cmp["scale_compared"] else
-                            " (no torque: shapes compared at the nominal's trace)") + ".")
+                            " (no torque or changing momentum: shapes compared at the nominal's "
+                            "trace)") + ".")
             for c in e["confounded_with"]:
                 text += f"\n\n{e['name']} is confounded with {c['with']}: {c['reason']}."
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
-        text += (f"\n\nThe user's model as given (`fit_before`) against the same model with the "
-                 f"inertia's shape fitted at the nominal's trace (`fit_inertia_fitted`, the base "
-                 f"of every effect above): delta BIC {cmp['delta_bic']:.1f}; principal moments "
+        text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "
+                 f"inertia_offset) against the same model with the inertia fitted "
+                 f"(`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
     if not report["scale_identified"]:
-        text += ("\n\nNo commanded torque: the data fix the inertia only up to a common factor, "
+        text += ("\n\nNo commanded torque or changing known momentum: the data fix the inertia only up "
+                 "to a common factor, "
                  + ("so the fitted torques, momenta and damping are in units of the sidecar's "
                     "nominal inertia and scale with it if it is wrong."
                     if report.get("inertia_nominal_given") else

@@ -144,6 +144,7 @@ def test_diagnose_bad_input_exit_code(tmp_path, capsys):
 
 def test_parse_effect_errors():
     assert parse_effect("aero_drag:c=0.5") == ("aero_drag", {"c": 0.5})
+    assert parse_effect("viscous_damping:c=1;2;3") == ("viscous_damping", {"c": [1.0, 2.0, 3.0]})
     with pytest.raises(ConfigError, match="unknown effect"):
         parse_effect("magic")
     with pytest.raises(ConfigError, match="key=value"):

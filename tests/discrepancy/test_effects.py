@@ -14,6 +14,7 @@ from inertia_gym.dynamics import Disturbance, propagate, quat_to_rotation
 BODY = Body(np.diag([70.0, 80.0, 100.0]), 10.0, 50.0, 0.03, 60.0)
 INERTIA = np.array([[100.0, 2.0, -3.0], [2.0, 80.0, 1.5], [-3.0, 1.5, 70.0]])
 W0 = np.array([0.5, 3.0, -0.45])
+DRAG = np.array([[0.5, 0.2, -0.1], [0.2, 1.5, 0.05], [-0.1, 0.05, 0.2]])  # a plate at an angle
 Q0 = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2])
 
 
@@ -120,9 +121,8 @@ def test_body_torques_match_their_stated_equations():
         "constant_body_torque": ({"torque": [3.0, -2.0, 1.0]}, lambda q, w, h: np.array([3.0, -2.0, 1.0])),
         "internal_momentum": ({"h": [20.0, 5.0, -10.0]},
                               lambda q, w, h: -np.cross(w, [20.0, 5.0, -10.0])),
-        "viscous_damping": ({"c_diag": [2.0, 1.0, 3.0]}, lambda q, w, h: -np.array([2.0, 1.0, 3.0]) * w),
-        "aero_drag": ({"c": [0.5, 1.5, 0.2]},
-                      lambda q, w, h: -np.array([0.5, 1.5, 0.2]) * np.linalg.norm(w) * w),
+        "viscous_damping": ({"c": [2.0, 1.0, 3.0]}, lambda q, w, h: -np.array([2.0, 1.0, 3.0]) * w),
+        "aero_drag": ({"c": DRAG}, lambda q, w, h: -np.linalg.norm(w) * DRAG @ w),
         "internal_dissipation": ({"d": 4.0}, None),
         "gravity_gradient": ({"orbit_rate": 0.3, "nadir_inertial": nadir}, None),
     }
@@ -219,10 +219,11 @@ def test_sensor_effects_change_only_the_reading():
                                w * [1.01, 0.98, 1.03])
 
 
-def test_per_axis_drag_in_the_closed_loop_hook():
-    """dynamics.state_rate's drag hook per axis, as the closed loop integrates it."""
-    dist = Disturbance(aero_drag=(0.5, 1.5, 0.2))
-    q, w = propagate(Q0, W0, INERTIA, np.tile(TORQUE, (N, 1)), DT, dist)
-    w_ref, _ = _reference(T_END, lambda t: TORQUE,
-                          extra=lambda q, w, h: -np.array([0.5, 1.5, 0.2]) * np.linalg.norm(w) * w)
+@pytest.mark.parametrize("drag", [0.4, (0.5, 1.5, 0.2), DRAG])
+def test_drag_matrix_in_the_closed_loop_hook(drag):
+    """dynamics.state_rate's drag hook (isotropic, per axis, a full matrix), as the closed loop
+    integrates it."""
+    q, w = propagate(Q0, W0, INERTIA, np.tile(TORQUE, (N, 1)), DT, Disturbance(aero_drag=drag))
+    c = np.asarray(drag) * np.eye(3) if np.ndim(drag) == 0 else np.diag(drag) if np.ndim(drag) == 1 else drag
+    w_ref, _ = _reference(T_END, lambda t: TORQUE, extra=lambda q, w, h: -np.linalg.norm(w) * c @ w)
     np.testing.assert_allclose(w[-1], w_ref, atol=2e-6)
