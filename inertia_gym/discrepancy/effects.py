@@ -28,7 +28,7 @@ import numpy as np
 from typing_extensions import override
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
+from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
 
 #: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
 FLEX_BAND = (0.05, 0.25)
@@ -103,11 +103,12 @@ class EffectModel:
     """Base class of a catalogue effect; every hook defaults to "this effect has no such term".
 
     Class attributes: ``name`` (fixed by the contract), ``params`` (named parameters), ``size``
-    (length of the fitted vector p of the default form), ``needs_torque`` / ``needs_attitude``
-    (what the recording must hold), ``ambiguities`` ((other effect or "inertia", reason) pairs
-    that the data may not separate), ``sets_inertia`` (the effect's parameters are the inertia
-    itself: the base inertia is then not fitted), ``family`` (the physical cause, shared by
-    effects that model it at different fidelity, e.g. linear and quadratic drag).
+    (length of the fitted vector p of the default form), ``needs_torque``, ``needs_attitude``,
+    ``needs_momentum`` (what the recording must hold), ``ambiguities`` ((other effect or
+    "inertia", reason) pairs that the data may not separate), ``sets_inertia`` (the effect's
+    parameters are the inertia itself: the base inertia is then not fitted), ``family`` (the
+    physical cause, shared by effects that model it at different fidelity, e.g. linear and
+    quadratic drag).
     """
 
     name: ClassVar[str]
@@ -116,6 +117,7 @@ class EffectModel:
     family: ClassVar[str] = ""
     needs_torque: ClassVar[bool] = False
     needs_attitude: ClassVar[bool] = False
+    needs_momentum: ClassVar[bool] = False
     ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     sets_inertia: ClassVar[bool] = False
 
@@ -148,6 +150,8 @@ class EffectModel:
             return "no commanded torque in the recording"
         if self.needs_attitude and d.q is None:
             return "needs attitude (qw..qz) columns"
+        if self.needs_momentum and not d.has_momentum:
+            return "no changing internal momentum logged (h_x..h_z columns)"
         return None
 
     def bounds(self, form: str, d) -> tuple[np.ndarray, np.ndarray]:
@@ -164,8 +168,9 @@ class EffectModel:
         return np.ones(self.form_size(form, d))
 
     def starts(self, form: str, d, probe) -> list[np.ndarray]:
-        """Start vectors p of the fit (several where the cost is not convex); probe (fit.Probe)
-        can score candidates on top of the fit this effect is added to.
+        """Starts of the fit (several where the cost is not convex): vectors p of this effect
+        (the rest of the model as in the fit it is added to), or whole joint vectors x where the
+        start moves more (probe.x(p, inertia)); probe (fit.Probe) scores candidates.
         """
         return [np.zeros(self.form_size(form, d))]
 
@@ -187,6 +192,12 @@ class EffectModel:
     def momentum(self, params: dict, t: np.ndarray):
         """Internal momentum (k, 3) kg·m²/s at times t (k,) s that changes in time, or None."""
         return None
+
+    def known_momentum(self, params: dict, h: np.ndarray) -> np.ndarray:
+        """The internal momentum (k, 3) kg·m²/s the body carries, from h (k, 3), the one the
+        recording logs (its h columns).
+        """
+        return h
 
     def gyro(self, params: dict, w: np.ndarray) -> np.ndarray:
         """Gyro output (n, 3) from true rates w (n, 3)."""
@@ -291,7 +302,7 @@ class InternalMomentum(EffectModel):
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
     #: Knots of the varying form: one per this many residual rows, within these bounds.
-    ROWS_PER_KNOT, KNOTS = 10, (4, 16)
+    ROWS_PER_KNOT, KNOTS = 5, (4, 20)
 
     @override
     def draw(self, rng, body):
@@ -301,6 +312,14 @@ class InternalMomentum(EffectModel):
         """Profile knots on d (0: too few rows for a varying form)."""
         k = d.n_rows // self.ROWS_PER_KNOT
         return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
+
+    @override
+    def skip_reason(self, d):
+        if d.h is not None:
+            return ("the recording logs the internal momentum (h columns): they are taken as all of "
+                    "it, and an error in them is momentum_misalignment's to explain (an extra "
+                    "momentum would absorb whatever the model misses around the logged one's changes)")
+        return None
 
     @override
     def forms(self, d):
@@ -566,6 +585,30 @@ class ActuatorDelay(EffectModel):
 
 
 @register
+class MomentumMisalignment(EffectModel):
+    """The logged internal momentum (a rotor, wheels) is rotated by a rotation vector (rad): the
+    rotor's axis in the body is not the one the log assumes.
+    """
+
+    name, params, size, family = "momentum_misalignment", ("rotvec",), 3, "logged momentum"
+    needs_momentum = True
+    ambiguities = (("inertia", "with one rotor (h keeping its direction) the turn about the rotor's "
+                    "own axis is not seen: only where the axis points is"),)
+
+    @override
+    def draw(self, rng, body):
+        return {"rotvec": _unit(rng) * np.deg2rad(rng.uniform(3.0, 10.0))}
+
+    @override
+    def typical(self, form, d):
+        return np.full(3, 0.01)
+
+    @override
+    def known_momentum(self, params, h):
+        return h @ rotvec_matrix(params["rotvec"]).T
+
+
+@register
 class GravityGradient(EffectModel):
     """Torque 3 n^2 r x J r, r the inertial nadir in the body frame; fitted as n * nadir (3,)."""
 
@@ -747,6 +790,10 @@ class InertiaOffset(EffectModel):
     @override
     def pack(self, params):
         return phi_from_inertia(params["inertia"])
+
+    @override
+    def bounds(self, form, d):
+        return -PHI_BOUND, PHI_BOUND
 
     @override
     def typical(self, form, d):

@@ -33,8 +33,14 @@ from scipy import signal, stats
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, matrix6, skew
 from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
-from inertia_gym.estimation.equation_error import equation_error_theta, modulating_windows
-from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
+from inertia_gym.estimation.equation_error import (
+    equation_error_theta,
+    modulating_windows,
+    omega_matrix,
+    valid_theta,
+)
+from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
+from inertia_gym.identification import correlation_lags
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -46,8 +52,9 @@ TIE_BIC = 0.5  # BICs closer than this are a tie (the solver's own spread on equ
 MAX_EFFECTS, REFIT_SCREENED = 3, 3
 #: Largest rotation (rad) one segment spans; a first fit uses a quarter of it.
 MAX_TURN = 20.0
-#: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each).
-MIN_SEGMENT_ROWS, MIN_ROWS = 30, 20
+#: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each);
+#: records of fewer segments than SHORT_SEGMENTS choose between starts cut into that many.
+MIN_SEGMENT_ROWS, MIN_ROWS, SHORT_SEGMENTS = 30, 20, 4
 #: RK4 sub-steps: a mode turns at most this phase per step; the body at most the rotation whose
 #: error over a segment, about (w h)^4 / 6 of the rate, stays within STEP_ERROR of the noise
 #: (within these bounds, rad).
@@ -57,7 +64,10 @@ MODAL_PHASE_PER_STEP, STEP_ERROR, TURN_PER_STEP = 0.3, 0.1, (0.02, 0.3)
 BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 #: Solver iterations: a screen, a start's trial run, a full fit; a fit stops when an iteration
 #: gains less than CONVERGED in BIC units (cost gain / mean square per residual).
-SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 6, 60, 0.1
+SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
+#: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
+#: how far apart (deg) the few kept as starts are.
+MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
 MODE_REACH, MODE_GRID = 1.5, 1.15
@@ -109,6 +119,9 @@ class Data:
     block: int
     notes: dict
     cache: dict = dataclasses.field(default_factory=dict)
+    #: Independent rows per row: 1 for white residuals; 1/tau where what the models leave out is
+    #: correlated over tau rows (effective_share), so a BIC does not count them as independent.
+    effective_share: float = 1.0
 
     def grid_for(self, omega_mode: float = 0.0) -> Grid:
         """The integration grid for a model whose fastest mode is omega_mode rad/s (0: none):
@@ -137,6 +150,17 @@ class Data:
                                                       for i in range(3)], 1)
             self.cache[key] = (cumulative, commanded, h)
         return self.cache[key]
+
+    def resegmented(self, count: int) -> "Data":
+        """The same data cut into `count` segments (as far as each can hold MIN_SEGMENT_ROWS // 2
+        rows): shorter trajectories, a wider basin for a start far from the optimum.
+        """
+        keep = self.row >= 0
+        seg = _segments(self.t, self.w, int(keep.sum()) // self.block, MAX_TURN, MIN_SEGMENT_ROWS // 2,
+                        self.block, count)
+        row, row_seg, row_scale = _rows(seg, keep, self.block)
+        return dataclasses.replace(self, seg=seg, row=row, row_seg=row_seg, row_scale=row_scale,
+                                   cache=self.cache)
 
     @property
     def excited(self) -> bool:
@@ -188,14 +212,15 @@ def _saturated(rec: Recording) -> np.ndarray:
     return out
 
 
-def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int) -> np.ndarray:
+def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int, count: int = 0) -> np.ndarray:
     """Sample indices (S+1,) of segment starts: equal shares of the rotation angle, each at most
-    max_turn rad, each holding at least min_rows blocks, snapped to block boundaries.
+    max_turn rad (or `count` of them), each holding at least min_rows blocks, snapped to block
+    boundaries.
     """
     n = t.size
     turn = np.concatenate([[0.0], np.cumsum(0.5 * (np.linalg.norm(w[1:], axis=1)
                                                    + np.linalg.norm(w[:-1], axis=1)) * np.diff(t))])
-    count = int(min(np.ceil(turn[-1] / max_turn), max(1, keep_rows // min_rows)))
+    count = int(min(count or np.ceil(turn[-1] / max_turn), max(1, keep_rows // min_rows)))
     if count <= 1:
         return np.array([0, n])
     cuts = np.searchsorted(turn, turn[-1] * np.arange(1, count) / count)
@@ -526,6 +551,9 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             if seg_free:
                 xn[layout.n_global:] += ds.ravel()
             xn = np.clip(xn, lb, ub)
+            if not np.all(np.isfinite(xn)):
+                lam *= 6
+                continue
             rn = objective(xn[None], layout, d)[0]
             cn = float(rn @ rn)
             if cn < cost:
@@ -590,7 +618,7 @@ def _free(layout: Layout, d: Data) -> np.ndarray:
 
 
 def _bounds(layout: Layout, d: Data):
-    lo, hi = [np.full(6, -np.inf)], [np.full(6, np.inf)]
+    lo, hi = [-PHI_BOUND], [PHI_BOUND]
     for m, f in zip(layout.models, layout.forms):
         a, b = m.bounds(f, d)
         lo.append(a)
@@ -607,7 +635,7 @@ def finish(layout: Layout, x, d: Data, k: int | None = None) -> Fit:
         k = int(_free(layout, d)[:layout.n_global].sum())
     z = whitened(np.asarray(x, float)[None], layout, d)[0]
     jm = model_inertia(layout, x, d)
-    n = z.size
+    n = z.size * d.effective_share
     mse = float(np.mean(z ** 2)) if np.all(np.isfinite(z)) else np.inf
     bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
     named = {m.name: params for m, params in layout.parts(x, d)}
@@ -627,7 +655,9 @@ def _inertia_starts(d: Data) -> list[np.ndarray]:
     out = []
     if d.inertia0 is not None:
         out.append(phi_from_inertia(d.inertia0))
-    theta = equation_error_theta(d.t, d.w, d.tau if d.has_torque else None, d.h, trace=d.trace0)
+    kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
+    theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
+                                 None if d.h is None else d.h[kept], trace=d.trace0)
     out.append(phi_from_inertia(inertia_from_theta(theta)))
     if d.segments == 1:
         for diag in ([1.0, 1.0, 0.1], [1.0, 0.1, 1.0], [0.1, 1.0, 1.0], [1.0, 1.0, 1.0]):
@@ -645,17 +675,31 @@ def fit_nominal(d: Data) -> Fit:
     layout = Layout.of((), (), d)
     lb, ub = _bounds(layout, d)
     free = _free(layout, d)
-    best = None
-    for phi in _inertia_starts(d):
-        x0 = np.concatenate([phi, initial_rates(d)])
-        if d.inertia0 is not None:
-            best = (x0, 0.0)
-            break
-        x, cost = solve(x0, free, layout, d, lb, ub, START_ITER)
-        if best is None or cost < best[1]:
-            best = (x, cost)
-    x, _ = solve(best[0], free, layout, d, lb, ub, FULL_ITER)
+    starts = [np.concatenate([phi, initial_rates(d)]) for phi in _inertia_starts(d)]
+    if d.inertia0 is not None:
+        x = starts[0]
+    elif d.segments < SHORT_SEGMENTS:
+        x = _best_start_on_short_segments(starts, layout, d, lb, ub)
+    else:
+        best = None
+        for x0 in starts:
+            x, cost = solve(x0, free, layout, d, lb, ub, START_ITER)
+            if best is None or cost < best[1]:
+                best = (x, cost)
+        x = best[0]
+    x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
     return finish(layout, x, d)
+
+
+def hemisphere(count: int) -> np.ndarray:
+    """(count, 3) unit vectors spread evenly over a hemisphere (a Fibonacci lattice): the axes
+    a sign-free direction is searched over.
+    """
+    k = np.arange(count) + 0.5
+    z = k / count
+    r = np.sqrt(1 - z ** 2)
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -669,20 +713,28 @@ class Probe:
     d: Data
     base: Fit
 
-    def x(self, p) -> np.ndarray:
-        """Joint x of the base's parameters with the new effect's vector p."""
+    def x(self, p, inertia=None) -> np.ndarray:
+        """Joint x of the base's parameters with the new effect's vector p (and the inertia
+        (3, 3) instead of the base's, where the model fits one).
+        """
         b = self.base
-        return np.concatenate([b.x[:b.layout.n_global], p, b.x[b.layout.n_global:]])
+        head = b.x[:b.layout.n_global].copy()
+        if inertia is not None:
+            head[:6] = phi_from_inertia(inertia)
+        return np.concatenate([head, p, b.x[b.layout.n_global:]])
 
-    def costs(self, ps) -> np.ndarray:
-        """(len(ps),) least-squares cost of each candidate vector (everything else the base's)."""
-        r = objective(np.stack([self.x(p) for p in ps]), self.layout, self.d)
+    def costs(self, xs) -> np.ndarray:
+        """(len(xs),) least-squares cost of each joint x."""
+        r = objective(np.stack(xs), self.layout, self.d)
         return np.einsum("ij,ij->i", r, r)
 
+    def best_x(self, xs, keep: int = 1) -> list[np.ndarray]:
+        """The `keep` joint x of lowest cost."""
+        return [xs[i] for i in np.argsort(self.costs(xs))[:keep]]
+
     def best_of(self, ps, keep: int = 1) -> list[np.ndarray]:
-        """The `keep` candidates of lowest cost."""
-        costs = self.costs(ps)
-        return [ps[i] for i in np.argsort(costs)[:keep]]
+        """The `keep` candidate vectors p of the new effect of lowest cost (everything else the base's)."""
+        return [ps[i] for i in np.argsort(self.costs([self.x(p) for p in ps]))[:keep]]
 
     def mode_starts(self, keep: int = 3, zeta: float = 0.03) -> list[np.ndarray]:
         """Starts of flexible_mode from a linear screen over the modal frequency.
@@ -751,41 +803,103 @@ class Probe:
             scan += [gauss_newton(tc) for tc in np.linspace(lo, hi, 9)[1:-1]]
         return [max(scan, key=lambda gs: gs[0])[1]]
 
-    def momentum_estimate(self, knots: int) -> tuple[np.ndarray, np.ndarray]:
-        """Knot times tk (K,) s and a linear estimate of an unknown internal momentum H (K, 3)
-        kg·m²/s, piecewise linear through them, with the base's inertia held: the integral
-        equation error of d/dt (J w + h_known + h) + w x (J w + h_known + h) = tau over
-        modulating windows is linear in H (no derivative of the gyro is taken).
+    def momentum_estimate(self, knots: int, axes=None, with_inertia: bool = True, keep: int = 1
+                          ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Linear estimates (tk, H, J): knot times tk (K,) s, an unknown internal momentum H
+        (K, 3) kg·m²/s piecewise linear through them, and the inertia (3, 3) estimated with it
+        (the base's where the nominal is held, or with_inertia is False).
+
+        The integral equation error of d/dt (J w + h_known + h) + w x (J w + h_known + h) = tau
+        over modulating windows is linear in theta and H (no derivative of the gyro is taken);
+        an unseen scale is pinned to the trace the model uses. With `axes` (A, 3) unit vectors,
+        h = axis m(t) along each in turn (linear in theta and m): the `keep` axes (at least
+        MOMENTUM_AXES_APART deg apart) that explain most are returned, best first. A momentum
+        changing along one fixed axis is not confused with an inertia error J w(t), which a free
+        three-axis h(t) could partly absorb.
         """
         d, base = self.d, self.base
         tk = np.linspace(d.t[0], d.t[-1], knots) if knots > 1 else np.array([d.t[0]])
-        span = 2.0 / (d.omega_ref * d.dt)
-        edges, phi, dphi = modulating_windows(d.t, int(np.clip(span, 16, max(16, d.t.size // 12))))
+        # windows of a third of a turn at most, and twice as many equations as unknowns at least
+        span = min(2.0 / (d.omega_ref * d.dt), d.t.size // (4 * knots + 8))
+        edges, phi, dphi = modulating_windows(d.t, int(max(span, 8)))
         quad = np.gradient(d.t)
         w = d.w
-        mom = w @ base.inertia.T + (0.0 if d.h is None else d.h)
+        known = np.zeros_like(w) if d.h is None else d.h
+        fit_j = d.inertia0 is None and with_inertia
+        mom = known if fit_j else w @ base.inertia.T + known
         basis = (np.stack([np.interp(d.t, tk, e) for e in np.eye(knots)], 1) if knots > 1
                  else np.ones((d.t.size, 1)))
         op = quad[:, None, None] * (-dphi[:, None, None] * np.eye(3) + phi[:, None, None] * skew(w))
-        a = np.add.reduceat(np.einsum("nij,nk->nikj", op, basis), edges[:-1], axis=0)
-        a = a.reshape(-1, 3 * knots)
+        a_h = np.add.reduceat(np.einsum("nij,nk->nikj", op, basis), edges[:-1], axis=0)  # (win, 3, K, 3)
+        a_j = np.add.reduceat(op @ omega_matrix(w), edges[:-1], axis=0).reshape(-1, 6) if fit_j else None
         g = -dphi[:, None] * mom + phi[:, None] * (np.cross(w, mom) - d.tau)
         rhs = -np.add.reduceat(quad[:, None] * g, edges[:-1], axis=0).ravel()
-        return tk, np.linalg.lstsq(a, rhs, rcond=None)[0].reshape(knots, 3)
+
+        def solve_for(a):
+            """Least squares of a (..., rows, cols) theta-and-momentum against rhs, the pinned
+            trace as a heavily weighted row; returns solutions (..., cols) and costs (...).
+            """
+            rows = a
+            target = np.broadcast_to(rhs, a.shape[:-1])
+            if fit_j and d.scale_fixed:  # the trace the model pins
+                weight = 1e3 * (np.linalg.norm(a, axis=(-2, -1)) + 1e-300) / np.sqrt(a.shape[-1])
+                pin = np.r_[1, 0, 0, 1, 0, 1, np.zeros(a.shape[-1] - 6)]
+                rows = np.concatenate([a, weight[..., None, None] * pin], axis=-2)
+                target = np.concatenate([target, weight[..., None] * d.trace0], axis=-1)
+            col = np.linalg.norm(rows, axis=-2) + 1e-300
+            scaled = rows / col[..., None, :]
+            gram = np.swapaxes(scaled, -1, -2) @ scaled
+            gram = gram + 1e-12 * np.einsum("...ii->...", gram)[..., None, None] * np.eye(gram.shape[-1])
+            sol = np.linalg.solve(gram, (np.swapaxes(scaled, -1, -2) @ target[..., None]))[..., 0] / col
+            return sol, np.sum((np.einsum("...ij,...j->...i", a, sol) - rhs) ** 2, axis=-1)
+
+        def with_j(a):
+            return np.concatenate([np.broadcast_to(a_j, a.shape[:-1] + (6,)), a], axis=-1) if fit_j else a
+
+        def result(sol, u=None):
+            tail = sol[6 if fit_j else 0:]
+            hk = tail.reshape(knots, 3) if u is None else np.outer(tail, u)
+            inertia = inertia_from_theta(valid_theta(sol[:6], d.trace0 if d.scale_fixed else None)) \
+                if fit_j else base.inertia
+            return tk, hk, inertia
+
+        if axes is None:
+            return [result(solve_for(with_j(a_h.reshape(-1, 3 * knots)))[0])]
+        sols, costs = solve_for(with_j(np.einsum("wikj,aj->awik", a_h, axes).reshape(len(axes), -1, knots)))
+        out, kept = [], []
+        for i in np.argsort(costs):
+            u = axes[i]
+            if all(abs(u @ v) < np.cos(np.radians(MOMENTUM_AXES_APART)) for v in kept):
+                kept.append(u)
+                out.append(result(sols[i], u))
+            if len(out) == keep:
+                break
+        return out
 
     def momentum_starts(self, knots: int) -> list[np.ndarray]:
-        """Start of internal_momentum: constant (knots 0) or varying along one axis, from the
-        linear estimate: the axis is the dominant direction of the momentum's change (SVD).
+        """Start of internal_momentum (with the inertia estimated beside it): constant (knots 0),
+        or varying along the axis, of those searched, that explains most (momentum_estimate);
+        each kept only where it beats no momentum at all.
         """
         model = REGISTRY["internal_momentum"]
-        if not knots:
-            return self.best_of([self.momentum_estimate(1)[1][0], np.zeros(3)])
-        tk, hk = self.momentum_estimate(knots)
-        change = hk - hk[0]
-        axis = np.linalg.svd(change, full_matrices=False)[2][0]
-        estimate = model.pack({"h": hk[0], "axis": axis, "profile_t": tk, "profile": change @ axis})
-        none = model.pack({"h": np.zeros(3), "axis": axis, "profile_t": tk, "profile": np.zeros(knots)})
-        return self.best_of([estimate, none])  # the linear estimate can be worse than nothing
+        starts = []
+        for with_inertia in (True, False):  # the inertia estimated beside it, or the base's
+            if not knots:
+                (_, hk, inertia), = self.momentum_estimate(1, with_inertia=with_inertia)
+                starts.append(self.x(hk[0], inertia))
+                continue
+            for tk, hk, inertia in self.momentum_estimate(knots, hemisphere(MOMENTUM_AXES), with_inertia,
+                                                          keep=3):
+                change = hk - hk[0]
+                axis = np.linalg.svd(change, full_matrices=False)[2][0]
+                starts.append(self.x(model.pack({"h": hk[0], "axis": axis, "profile_t": tk,
+                                                 "profile": change @ axis}), inertia))
+        if knots:
+            starts.append(self.x(model.pack({"h": np.zeros(3), "axis": axis, "profile_t": tk,
+                                             "profile": np.zeros(knots)})))
+        else:
+            starts.append(self.x(np.zeros(3)))
+        return self.best_x(starts, keep=len(starts))  # ranked: an estimate can be worse than none
 
 
 def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
@@ -801,7 +915,8 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
     layout = Layout.of(names, forms, d, base.layout.omega_max if omega_max is None else omega_max)
     new, form = layout.models[-1], layout.forms[-1]
     probe = Probe(layout, d, base)
-    starts = [start] if start is not None else [probe.x(p) for p in new.starts(form, d, probe)]
+    starts = [start] if start is not None else [s if s.size == layout.size else probe.x(s)
+                                                for s in new.starts(form, d, probe)]
     if new.name == "flexible_mode" and starts:  # integrate finely enough for the fastest start
         i = layout.slices()[-1].start
         fastest = max(abs(x0[i]) for x0 in starts)
@@ -817,15 +932,43 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
     if not starts:  # no valid start (e.g. no rigid body to attach a mode to): the base, effect zero
         return finish(layout, probe.x(np.zeros(layout.sizes[-1])), d, k)
     first = SCREEN_ITER if not joint else (START_ITER if len(starts) > 1 else FULL_ITER)
-    best = None
-    for x0 in starts:
-        x, cost = solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, first)
-        if best is None or cost < best[1]:
-            best = (x, cost)
-    x = best[0]
+    if joint and len(starts) > 1 and d.segments < SHORT_SEGMENTS:
+        x = _best_start_on_short_segments(starts, layout, d, lb, ub)
+    else:
+        best = None
+        for x0 in starts:
+            x, cost = solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, first)
+            if best is None or cost < best[1]:
+                best = (x, cost)
+        x = best[0]
     if joint and first != FULL_ITER:
         x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
     return finish(layout, x, d, k)
+
+
+def _best_start_on_short_segments(starts, layout: Layout, d: Data, lb, ub) -> np.ndarray:
+    """The start (joint x on d) that fits best after START_ITER iterations on d cut into
+    SHORT_SEGMENTS segments, continued there to convergence and brought back to d.
+
+    On a record of few segments a start whose inertia or effect is somewhat off can send the
+    long trajectory astray, and its early cost then says little about where it leads; on short
+    segments (each with its own initial rates) the same start stays near the data.
+    """
+    short = d.resegmented(SHORT_SEGMENTS)
+    lay = dataclasses.replace(layout, segments=short.segments)
+    lo, hi = _bounds(lay, short)
+    free = _free(lay, short)
+    rates = initial_rates(short)
+    best = None
+    for x0 in starts:
+        x, cost = solve(np.clip(np.r_[x0[:layout.n_global], rates], lo, hi), free, lay, short, lo, hi,
+                        START_ITER)
+        if best is None or cost < best[1]:
+            best = (x, cost)
+    x, _ = solve(best[0], free, lay, short, lo, hi, FULL_ITER)
+    first_rates = x[lay.n_global:lay.n_global + 3] if d.seg[0] == short.seg[0] else initial_rates(d)[:3]
+    rates_back = np.r_[first_rates, initial_rates(d)[3:]]
+    return np.r_[x[:layout.n_global], rates_back]
 
 
 def candidates(d: Data) -> tuple[list[str], dict]:
@@ -1022,8 +1165,43 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
     return out
 
 
+def effective_share(d: Data, fit: Fit) -> float:
+    """1/tau: the share of fit's residual rows that are independent, tau = 1 + 2 sum_l
+    (1 - l/(L+1)) rho_l the integrated autocorrelation (Bartlett weights) of the whitened rows
+    over the L lags they stay correlated (identification.correlation_lags), within segments.
+
+    White residuals give 1. A smooth misfit the catalogue does not explain (real recordings) is
+    correlated over many rows: counted as independent it would make every extra parameter that
+    absorbs a little of it look significant, a flexible one most of all.
+    """
+    z = fit.z
+    if not np.all(np.isfinite(z)) or d.n_rows < 16:
+        return 1.0
+    pieces = [z[d.row_seg == s] for s in range(d.segments)]
+    pieces = [p - p.mean(axis=0) for p in pieces if p.shape[0] >= 8]
+    if not pieces:
+        return 1.0
+    lags = max(correlation_lags(np.vstack(pieces)), 0)
+    if lags == 0:
+        return 1.0
+    acf = np.zeros(lags + 1)
+    weight = 0.0
+    for p in pieces:
+        m = p.shape[0]
+        spec = np.fft.rfft(p, n=2 * m, axis=0)
+        a = np.fft.irfft(spec * np.conj(spec), axis=0)[:lags + 1]
+        a = (a / np.clip(a[0], 1e-300, None)).mean(axis=1)
+        a = np.pad(a, (0, lags + 1 - a.size))
+        acf += m * a
+        weight += m
+    acf /= weight
+    tau = 1.0 + 2.0 * np.sum((1.0 - np.arange(1, lags + 1) / (lags + 1.0)) * acf[1:])
+    return float(1.0 / max(tau, 1.0))
+
+
 def impulses(d: Data, fit: Fit) -> tuple[int, int]:
-    """Samples to leave out at the start and the end of the record: an impulse (a throw's
+    """Samples to leave out at the start and the end of the record (counted from its ends,
+    those already left out included): an impulse (a throw's
     release, a catch, a knock) makes the whitened residual jump from row to row by more than
     IMPULSE_JUMP times its median jump; the rows up to the last such jump near the start, and
     from the first one near the end, are trimmed (each side at most IMPULSE_SPAN of the rows).
@@ -1040,7 +1218,8 @@ def impulses(d: Data, fit: Fit) -> tuple[int, int]:
     big = np.flatnonzero(jump > thr)
     head = big[big < span]
     tail = big[big >= d.n_rows - 1 - span]
-    first_sample = np.array([np.flatnonzero(d.row == i)[0] for i in range(d.n_rows)])
+    kept = np.flatnonzero(d.row >= 0)
+    first_sample = kept[np.r_[True, np.diff(d.row[kept]) != 0]]  # of each row
     start = int(first_sample[head.max() + 1]) if head.size else 0
     end = int(d.t.size - first_sample[tail.min() + 1]) if tail.size else 0
     return start, end

@@ -97,6 +97,9 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         true = model.true_inertia(params)
         inertia = inertia if true is None else np.asarray(true, float)
     applied = cumulative
+    if h is not None:
+        for model, params in effects:
+            h = model.known_momentum(params, h)
     for model, params in effects:
         hook = model.disturbance(params)
         clash = set(hook) & set(fields)
@@ -145,15 +148,17 @@ def simulate(grid: Grid, seg_pos, y0, terms: list[Terms]) -> np.ndarray:
 
 
 def _unique(arrays) -> tuple[list[np.ndarray], list[int]]:
-    """Distinct arrays (by value) and each input's index among them."""
+    """Distinct arrays (by identity, then by value) and each input's index among them."""
     out: list[np.ndarray] = []
+    seen: dict = {}
     index = []
     for a in arrays:
-        at = next((i for i, b in enumerate(out) if a is b or np.array_equal(a, b)), None)
-        if at is None:
-            at = len(out)
+        key = id(a) if id(a) in seen else hash(np.ascontiguousarray(a).tobytes())
+        if key not in seen:
+            seen[key] = len(out)
+            seen[id(a)] = seen[key]
             out.append(a)
-        index.append(at)
+        index.append(seen[key])
     return out, index
 
 

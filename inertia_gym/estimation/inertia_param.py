@@ -21,6 +21,10 @@ import numpy as np
 
 from inertia_gym.errors import ConfigError
 
+#: Upper bounds of |phi| a fit may reach (the log entries; the others are free): within them
+#: exp() and its squares stay finite, and no body's moments differ by e^30.
+PHI_BOUND = np.array([100.0, np.inf, 30.0, np.inf, np.inf, 30.0])
+
 
 @nb.njit(cache=True)
 def theta_into(phi, out):

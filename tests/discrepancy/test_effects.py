@@ -20,7 +20,7 @@ Q0 = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2])
 
 def test_registry_is_the_catalogue():
     assert list(EFFECTS) == list(REGISTRY)
-    assert "inertia_offset" in REGISTRY and len(REGISTRY) == 14
+    assert "inertia_offset" in REGISTRY and len(REGISTRY) == 15
     for name, model in REGISTRY.items():
         assert model.name == name and EFFECTS[name] == model.params and model.family
 
