@@ -517,9 +517,11 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
     ref = refine(prob, p0, q0, info, START_REL_ERROR, trace_ref, source)
     if sigma_w is None:  # reweight with the residuals' own level and refit once
         level = np.sqrt(np.mean(ref.fit.evaluation.e_w ** 2, axis=0))
-        prob = prob.window(ref.fit.n_used) if ref.fit.n_used < prob.meas_idx.size else prob
-        prob = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
-        ref = refine(prob, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
+        # The refit runs over the span the first fit could follow (never beyond it), so its
+        # n_used counts rows of the whole record too.
+        span = prob.window(ref.fit.n_used) if ref.fit.n_used < prob.meas_idx.size else prob
+        span = dataclasses.replace(span, sigma_w=np.maximum(level, 1e-9))
+        ref = refine(span, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
     bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
     e_w = np.full(prob.z_w.shape, np.nan)  # rows past the fitted horizon stay unexplained
     e_w[: ref.fit.n_used] = ref.fit.evaluation.e_w

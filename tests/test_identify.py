@@ -254,6 +254,21 @@ def test_a_trajectory_the_model_cannot_follow_is_fitted_as_far_as_it_can_and_say
     assert _rel(res.estimate.inertia, Scenario().inertia_true_array) < 5 * res.crlb + 1e-4
 
 
+def test_without_a_sidecar_sigma_a_partly_followed_record_keeps_its_rows_and_note():
+    """No gyro_sigma: identify reweights with the residuals' own level and refits over the span
+    the first fit could follow. The result still has one row per recorded row (it raised a
+    broadcast error on a phyphox racquet segment) and the horizon note."""
+    rec, _ = simulate_recording(Scenario(), 60.0, seed=4, sample_dt=0.01)
+    tau = rec.tau.copy()
+    tau[rec.t > 20.0] = 0.0
+    meta = {k: v for k, v in rec.meta.items() if k != "gyro_sigma"}
+    res = identify(dataclasses.replace(rec, tau=tau, meta=meta))
+    assert res.noise.source == "estimated from the residuals"
+    assert res.w_fit.shape == rec.w.shape
+    assert 0.2 < np.isfinite(res.w_fit[:, 0]).mean() < 0.9
+    assert any("could be fitted only over the first" in n for n in res.notes)
+
+
 def test_package_level_api(paper_recording):
     import inertia_gym
 
