@@ -46,7 +46,10 @@ from inertia_gym.discrepancy.recordings import read_recordings  # noqa: E402
 from inertia_gym.estimation.ml import FROBENIUS_WEIGHTS  # noqa: E402
 from inertia_gym.identification import identify  # noqa: E402
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "rotor-throws"
+# ../shared/data beside the repository (or beside the folder holding its worktrees)
+DEFAULT_DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
+                     if (p / "shared" / "data").is_dir()),
+                    Path(__file__).resolve().parents[2] / "shared" / "data") / "rotor-throws"
 TRIU = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))  # theta order
 
 

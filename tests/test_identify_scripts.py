@@ -8,7 +8,10 @@ from pathlib import Path
 import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-ROTOR = Path(__file__).resolve().parents[2] / "shared" / "data" / "rotor-throws"
+# ../shared/data beside the repository (or beside the folder holding its worktrees)
+ROTOR = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
+              if (p / "shared" / "data").is_dir()),
+             Path(__file__).resolve().parents[2] / "shared" / "data") / "rotor-throws"
 
 
 def test_bench_identify_reports_both_walls_and_errors():
