@@ -39,6 +39,7 @@ from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
+from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -162,32 +163,6 @@ def inertia_estimate(phi, cov_phi, scale_fixed: bool, trace_ref: float | None = 
 # ------------------------------------------------------------------------------------------
 
 
-def correlation_lags(residuals, max_lag: int | None = None) -> int:
-    """Number of lags over which the residuals (M, c) stay correlated (0: white).
-
-    The mean autocorrelation over channels is significant at lag l when it exceeds 3/sqrt(M);
-    the count is the last significant lag before the first run of five insignificant ones.
-    """
-    x = residuals - residuals.mean(axis=0)
-    m = x.shape[0]
-    max_lag = min(m // 4, 2000 if max_lag is None else max_lag)
-    if max_lag < 1:
-        return 0
-    spec = np.fft.rfft(x, n=2 * m, axis=0)
-    acf = np.fft.irfft(spec * np.conj(spec), axis=0)[: max_lag + 1]
-    acf = (acf / np.clip(acf[0], 1e-300, None)).mean(axis=1)
-    bound = 3.0 / math.sqrt(m)
-    last, quiet = 0, 0
-    for lag in range(1, max_lag + 1):
-        if abs(acf[lag]) > bound:
-            last, quiet = lag, 0
-        else:
-            quiet += 1
-            if quiet >= 5:
-                break
-    return last
-
-
 def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     """A^-1 B A^-1 with A = J^T J and B the Bartlett long-run covariance of the per-measurement
     scores g_k = J_k^T r_k over `lags` lags. jac (R, n), r (R,) with R = c * n_meas rows laid
@@ -197,11 +172,7 @@ def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     blocks = jac.shape[0] // (3 * n_meas)
     j = jac.reshape(blocks, n_meas, 3, n_par)
     rr = r.reshape(blocks, n_meas, 3)
-    g = np.einsum("bmcn,bmc->mn", j, rr)
-    b = g.T @ g
-    for lag in range(1, lags + 1):
-        c = g[lag:].T @ g[:-lag]
-        b += (1.0 - lag / (lags + 1.0)) * (c + c.T)
+    b = long_run_covariance(np.einsum("bmcn,bmc->mn", j, rr), lags)
     a_inv = ml.jacobian_covariance(jac, np.ones(n_par, dtype=bool))
     cov = a_inv @ b @ a_inv
     return 0.5 * (cov + cov.T)
