@@ -13,7 +13,13 @@ and a statement of the noise model:
   autocorrelation and then the covariance is the sandwich A^-1 B A^-1 with B the Bartlett
   (Newey-West) long-run covariance of the score over as many lags as the correlation lasts, so
   the intervals widen by as much as the correlation costs; the report names the lag count and
-  the inflation.
+  the inflation;
+* model error (residuals in excess of the noise) on a gyro-only record with a logged, changing
+  internal momentum (a thrown device's rotor): the output-error fit bends the inertia to absorb
+  the unmodelled torque, so it is refined by the filter-error method (estimation/filter_error.py:
+  the model error as a white plus a random-walk disturbance torque in a Kalman filter, the
+  momentum log as a measurement with its own noise and lag, robust innovations), whose
+  M-estimator sandwich gives the covariance.
 
 The filters (``ekf``, ``ukf``) run the paper's estimator once over the rows (estimation/
 filters.py), with the same start; their covariance is the filter's own.
@@ -34,7 +40,7 @@ import numpy as np
 
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
-from inertia_gym.estimation import ml
+from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
@@ -64,7 +70,9 @@ class NoiseModel:
     used for weighting and its source; hac_lags (0 for white); inflation = the factor by which
     the intervals widened over the white-noise Fisher bound (1 for white noise);
     disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
-    model error (0: none; see model_error_covariance).
+    model error (0: none; see model_error_covariance); estimator 'output error' or 'filter
+    error' (the model error as process noise, estimation/filter_error.py), which adds
+    disturbance_q_rw N²·m²/s, the intensity of a random-walk disturbance torque's rate.
     """
 
     kind: str
@@ -73,6 +81,8 @@ class NoiseModel:
     hac_lags: int
     inflation: float
     disturbance_q: float = 0.0
+    disturbance_q_rw: float = 0.0
+    estimator: str = "output error"
 
     def describe(self) -> str:
         """One sentence for reports."""
@@ -81,7 +91,12 @@ class NoiseModel:
             return f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
         text = (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
                 f"sigma = ({sig}) rad/s ({self.source}), ")
-        if self.disturbance_q > 0:
+        if self.estimator == "filter error":
+            text += ("model error as process noise (filter-error maximum likelihood): a white "
+                     f"disturbance torque of intensity {self.disturbance_q:.3g} N²·m²·s and a "
+                     f"random-walk one of {self.disturbance_q_rw:.3g} N²·m²/s estimated with the "
+                     "inertia, covariance the robust M-estimator's sandwich")
+        elif self.disturbance_q > 0:
             text += ("covariance = the noise's Fisher bound plus the model error's, the model "
                      "error represented as a white disturbance torque of intensity "
                      f"{self.disturbance_q:.3g} N²·m²·s estimated from the residuals' excess")
@@ -369,6 +384,8 @@ class Identification:
             "noise_model": self.noise.describe(),
             "noise_kind": self.noise.kind,
             "disturbance_q": float(self.noise.disturbance_q),
+            "disturbance_q_rw": float(self.noise.disturbance_q_rw),
+            "estimator": self.noise.estimator,
             "gyro_bias": None if self.bias is None else self.bias.tolist(),
             "converged": bool(self.converged),
             "n_samples": int(self.t.size),
@@ -503,7 +520,45 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
                      f"{t[ref.fit.n_used - 1] - t[0]:.4g} s of {t[-1] - t[0]:.4g} s: beyond, its "
                      "sensitivity to the inertia grows too fast (a tumble near the separatrix, or "
                      "physics the model leaves out); the estimate rests on that span")
+    if filter_error_applies(prob, ref):
+        estimate, noise, fit = filter_error_refinement(prob, ref, trace_ref)
+        notes.append("model error detected: the inertia is the filter-error estimate (the rigid "
+                     "model run through a Kalman filter with a white and a random-walk disturbance "
+                     f"torque, intensities {fit.q_w:.3g} N²·m²·s and {fit.q_d:.3g} N²·m²/s, and the "
+                     f"logged momentum as a measurement with noise {fit.sigma_h:.3g} kg·m²/s "
+                     f"lagging the gyro by {1e3 * fit.delay:.2g} ms); the fitted curve and the rms "
+                     "are those of the output-error trajectory")
+        return (estimate, ref.crlb, noise, e_w, bias, ref.fit.converged and fit.converged,
+                notes)
     return ref.estimate, ref.crlb, ref.noise, e_w, bias, ref.fit.converged, notes
+
+
+def filter_error_applies(prob: ml.Problem, ref: Refinement) -> bool:
+    """The output-error fit ref of prob found model error (a disturbance intensity above zero)
+    on a gyro-only record with a changing logged momentum, over the whole record, without a
+    fitted bias or drag: then the filter-error fit (estimation/filter_error.py) replaces it.
+    """
+    return (ref.noise.disturbance_q > 0 and not prob.with_att and not prob.fit_bias
+            and not prob.fit_drag and ref.fit.n_used == prob.meas_idx.size
+            and np.array_equal(prob.meas_idx, np.arange(prob.t_grid.size))
+            and bool(np.ptp(prob.h_grid, axis=0).max() > 0.0))
+
+
+def filter_error_refinement(prob: ml.Problem, ref: Refinement, trace_ref: float | None):
+    """The filter-error fit started from the output-error refinement ref: (InertiaEstimate,
+    NoiseModel, filter_error.FilterErrorFit). The noise model's inflation compares the
+    filter-error standard deviations of phi with the output-error Fisher bound's.
+    """
+    fprob = filter_error.problem_from_rows(prob.t_grid, prob.z_w, prob.h_grid, prob.sigma_w,
+                                           prob.tau_grid, prob.n_sub, prob.fix_scale)
+    fit = filter_error.fit(fprob, ref.fit.p[:6], ref.noise.disturbance_q)
+    estimate = inertia_estimate(fit.phi, fit.cov[:6, :6], prob.fix_scale, trace_ref)
+    free = prob.free()[:6]
+    ratio = np.sqrt(np.clip(np.diag(fit.cov)[:6][free], 0, None)
+                    / np.clip(np.diag(ref.fisher_cov)[:6][free], 1e-300, None))
+    noise = dataclasses.replace(ref.noise, inflation=float(np.median(ratio)), disturbance_q=fit.q_w,
+                                disturbance_q_rw=fit.q_d, estimator="filter error")
+    return estimate, noise, fit
 
 
 #: Start uncertainty of the filter's inertia (standard deviation of each log-Cholesky parameter).
