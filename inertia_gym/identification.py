@@ -72,7 +72,8 @@ class NoiseModel:
     disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
     model error (0: none; see model_error_covariance); estimator 'output error' or 'filter
     error' (the model error as process noise, estimation/filter_error.py), which adds
-    disturbance_q_rw N²·m²/s, the intensity of a random-walk disturbance torque's rate.
+    disturbance_q_rw N²·m²/s, the intensity of a random-walk disturbance torque's rate, and the
+    logged momentum's noise log_sigma kg·m²/s and lag behind the gyro log_delay s.
     """
 
     kind: str
@@ -83,6 +84,8 @@ class NoiseModel:
     disturbance_q: float = 0.0
     disturbance_q_rw: float = 0.0
     estimator: str = "output error"
+    log_sigma: float = 0.0
+    log_delay: float = 0.0
 
     def describe(self) -> str:
         """One sentence for reports."""
@@ -386,6 +389,8 @@ class Identification:
             "disturbance_q": float(self.noise.disturbance_q),
             "disturbance_q_rw": float(self.noise.disturbance_q_rw),
             "estimator": self.noise.estimator,
+            "momentum_log_sigma": float(self.noise.log_sigma),
+            "momentum_log_delay_s": float(self.noise.log_delay),
             "gyro_bias": None if self.bias is None else self.bias.tolist(),
             "converged": bool(self.converged),
             "n_samples": int(self.t.size),
@@ -557,7 +562,8 @@ def filter_error_refinement(prob: ml.Problem, ref: Refinement, trace_ref: float 
     ratio = np.sqrt(np.clip(np.diag(fit.cov)[:6][free], 0, None)
                     / np.clip(np.diag(ref.fisher_cov)[:6][free], 1e-300, None))
     noise = dataclasses.replace(ref.noise, inflation=float(np.median(ratio)), disturbance_q=fit.q_w,
-                                disturbance_q_rw=fit.q_d, estimator="filter error")
+                                disturbance_q_rw=fit.q_d, estimator="filter error",
+                                log_sigma=fit.sigma_h, log_delay=fit.delay)
     return estimate, noise, fit
 
 
