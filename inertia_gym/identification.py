@@ -13,7 +13,13 @@ and a statement of the noise model:
   autocorrelation and then the covariance is the sandwich A^-1 B A^-1 with B the Bartlett
   (Newey-West) long-run covariance of the score over as many lags as the correlation lasts, so
   the intervals widen by as much as the correlation costs; the report names the lag count and
-  the inflation.
+  the inflation;
+* model error (residuals in excess of the noise) on a gyro-only record with a logged, changing
+  internal momentum (a thrown device's rotor): the output-error fit bends the inertia to absorb
+  the unmodelled torque, so it is refined by the filter-error method (estimation/filter_error.py:
+  the model error as a white plus a random-walk disturbance torque in a Kalman filter, the
+  momentum log as a measurement with its own noise and lag, robust innovations), whose
+  M-estimator sandwich gives the covariance.
 
 The filters (``ekf``, ``ukf``) run the paper's estimator once over the rows (estimation/
 filters.py), with the same start; their covariance is the filter's own.
@@ -34,11 +40,12 @@ import numpy as np
 
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
-from inertia_gym.estimation import ml
+from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
+from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -63,7 +70,10 @@ class NoiseModel:
     used for weighting and its source; hac_lags (0 for white); inflation = the factor by which
     the intervals widened over the white-noise Fisher bound (1 for white noise);
     disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
-    model error (0: none; see model_error_covariance).
+    model error (0: none; see model_error_covariance); estimator 'output error' or 'filter
+    error' (the model error as process noise, estimation/filter_error.py), which adds
+    disturbance_q_rw N²·m²/s, the intensity of a random-walk disturbance torque's rate, and the
+    logged momentum's noise log_sigma kg·m²/s and lag behind the gyro log_delay s.
     """
 
     kind: str
@@ -72,6 +82,10 @@ class NoiseModel:
     hac_lags: int
     inflation: float
     disturbance_q: float = 0.0
+    disturbance_q_rw: float = 0.0
+    estimator: str = "output error"
+    log_sigma: float = 0.0
+    log_delay: float = 0.0
 
     def describe(self) -> str:
         """One sentence for reports."""
@@ -80,7 +94,12 @@ class NoiseModel:
             return f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
         text = (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
                 f"sigma = ({sig}) rad/s ({self.source}), ")
-        if self.disturbance_q > 0:
+        if self.estimator == "filter error":
+            text += ("model error as process noise (filter-error maximum likelihood): a white "
+                     f"disturbance torque of intensity {self.disturbance_q:.3g} N²·m²·s and a "
+                     f"random-walk one of {self.disturbance_q_rw:.3g} N²·m²/s estimated with the "
+                     "inertia, covariance the robust M-estimator's sandwich")
+        elif self.disturbance_q > 0:
             text += ("covariance = the noise's Fisher bound plus the model error's, the model "
                      "error represented as a white disturbance torque of intensity "
                      f"{self.disturbance_q:.3g} N²·m²·s estimated from the residuals' excess")
@@ -162,32 +181,6 @@ def inertia_estimate(phi, cov_phi, scale_fixed: bool, trace_ref: float | None = 
 # ------------------------------------------------------------------------------------------
 
 
-def correlation_lags(residuals, max_lag: int | None = None) -> int:
-    """Number of lags over which the residuals (M, c) stay correlated (0: white).
-
-    The mean autocorrelation over channels is significant at lag l when it exceeds 3/sqrt(M);
-    the count is the last significant lag before the first run of five insignificant ones.
-    """
-    x = residuals - residuals.mean(axis=0)
-    m = x.shape[0]
-    max_lag = min(m // 4, 2000 if max_lag is None else max_lag)
-    if max_lag < 1:
-        return 0
-    spec = np.fft.rfft(x, n=2 * m, axis=0)
-    acf = np.fft.irfft(spec * np.conj(spec), axis=0)[: max_lag + 1]
-    acf = (acf / np.clip(acf[0], 1e-300, None)).mean(axis=1)
-    bound = 3.0 / math.sqrt(m)
-    last, quiet = 0, 0
-    for lag in range(1, max_lag + 1):
-        if abs(acf[lag]) > bound:
-            last, quiet = lag, 0
-        else:
-            quiet += 1
-            if quiet >= 5:
-                break
-    return last
-
-
 def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     """A^-1 B A^-1 with A = J^T J and B the Bartlett long-run covariance of the per-measurement
     scores g_k = J_k^T r_k over `lags` lags. jac (R, n), r (R,) with R = c * n_meas rows laid
@@ -197,11 +190,7 @@ def sandwich_covariance(jac, r, n_meas: int, lags: int) -> np.ndarray:
     blocks = jac.shape[0] // (3 * n_meas)
     j = jac.reshape(blocks, n_meas, 3, n_par)
     rr = r.reshape(blocks, n_meas, 3)
-    g = np.einsum("bmcn,bmc->mn", j, rr)
-    b = g.T @ g
-    for lag in range(1, lags + 1):
-        c = g[lag:].T @ g[:-lag]
-        b += (1.0 - lag / (lags + 1.0)) * (c + c.T)
+    b = long_run_covariance(np.einsum("bmcn,bmc->mn", j, rr), lags)
     a_inv = ml.jacobian_covariance(jac, np.ones(n_par, dtype=bool))
     cov = a_inv @ b @ a_inv
     return 0.5 * (cov + cov.T)
@@ -398,6 +387,10 @@ class Identification:
             "noise_model": self.noise.describe(),
             "noise_kind": self.noise.kind,
             "disturbance_q": float(self.noise.disturbance_q),
+            "disturbance_q_rw": float(self.noise.disturbance_q_rw),
+            "estimator": self.noise.estimator,
+            "momentum_log_sigma": float(self.noise.log_sigma),
+            "momentum_log_delay_s": float(self.noise.log_delay),
             "gyro_bias": None if self.bias is None else self.bias.tolist(),
             "converged": bool(self.converged),
             "n_samples": int(self.t.size),
@@ -517,9 +510,11 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
     ref = refine(prob, p0, q0, info, START_REL_ERROR, trace_ref, source)
     if sigma_w is None:  # reweight with the residuals' own level and refit once
         level = np.sqrt(np.mean(ref.fit.evaluation.e_w ** 2, axis=0))
-        prob = prob.window(ref.fit.n_used) if ref.fit.n_used < prob.meas_idx.size else prob
-        prob = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
-        ref = refine(prob, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
+        # The refit runs over the span the first fit could follow (never beyond it), so its
+        # n_used counts rows of the whole record too.
+        span = prob.window(ref.fit.n_used) if ref.fit.n_used < prob.meas_idx.size else prob
+        span = dataclasses.replace(span, sigma_w=np.maximum(level, 1e-9))
+        ref = refine(span, ref.fit.p, ref.fit.q0, info, START_REL_ERROR, trace_ref, source)
     bias = ref.fit.p[-3:].copy() if prob.fit_bias else None
     e_w = np.full(prob.z_w.shape, np.nan)  # rows past the fitted horizon stay unexplained
     e_w[: ref.fit.n_used] = ref.fit.evaluation.e_w
@@ -530,7 +525,46 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
                      f"{t[ref.fit.n_used - 1] - t[0]:.4g} s of {t[-1] - t[0]:.4g} s: beyond, its "
                      "sensitivity to the inertia grows too fast (a tumble near the separatrix, or "
                      "physics the model leaves out); the estimate rests on that span")
+    if filter_error_applies(prob, ref):
+        estimate, noise, fit = filter_error_refinement(prob, ref, trace_ref)
+        notes.append("model error detected: the inertia is the filter-error estimate (the rigid "
+                     "model run through a Kalman filter with a white and a random-walk disturbance "
+                     f"torque, intensities {fit.q_w:.3g} N²·m²·s and {fit.q_d:.3g} N²·m²/s, and the "
+                     f"logged momentum as a measurement with noise {fit.sigma_h:.3g} kg·m²/s "
+                     f"lagging the gyro by {1e3 * fit.delay:.2g} ms); the fitted curve and the rms "
+                     "are those of the output-error trajectory")
+        return (estimate, ref.crlb, noise, e_w, bias, ref.fit.converged and fit.converged,
+                notes)
     return ref.estimate, ref.crlb, ref.noise, e_w, bias, ref.fit.converged, notes
+
+
+def filter_error_applies(prob: ml.Problem, ref: Refinement) -> bool:
+    """The output-error fit ref of prob found model error (a disturbance intensity above zero)
+    on a gyro-only record with a changing logged momentum, over the whole record, without a
+    fitted bias or drag: then the filter-error fit (estimation/filter_error.py) replaces it.
+    """
+    return (ref.noise.disturbance_q > 0 and not prob.with_att and not prob.fit_bias
+            and not prob.fit_drag and ref.fit.n_used == prob.meas_idx.size
+            and np.array_equal(prob.meas_idx, np.arange(prob.t_grid.size))
+            and bool(np.ptp(prob.h_grid, axis=0).max() > 0.0))
+
+
+def filter_error_refinement(prob: ml.Problem, ref: Refinement, trace_ref: float | None):
+    """The filter-error fit started from the output-error refinement ref: (InertiaEstimate,
+    NoiseModel, filter_error.FilterErrorFit). The noise model's inflation compares the
+    filter-error standard deviations of phi with the output-error Fisher bound's.
+    """
+    fprob = filter_error.problem_from_rows(prob.t_grid, prob.z_w, prob.h_grid, prob.sigma_w,
+                                           prob.tau_grid, prob.n_sub, prob.fix_scale)
+    fit = filter_error.fit(fprob, ref.fit.p[:6], ref.noise.disturbance_q)
+    estimate = inertia_estimate(fit.phi, fit.cov[:6, :6], prob.fix_scale, trace_ref)
+    free = prob.free()[:6]
+    ratio = np.sqrt(np.clip(np.diag(fit.cov)[:6][free], 0, None)
+                    / np.clip(np.diag(ref.fisher_cov)[:6][free], 1e-300, None))
+    noise = dataclasses.replace(ref.noise, inflation=float(np.median(ratio)), disturbance_q=fit.q_w,
+                                disturbance_q_rw=fit.q_d, estimator="filter error",
+                                log_sigma=fit.sigma_h, log_delay=fit.delay)
+    return estimate, noise, fit
 
 
 #: Start uncertainty of the filter's inertia (standard deviation of each log-Cholesky parameter).

@@ -14,10 +14,12 @@ estimate ``authors_estimate_inertia``) runs ``identify(rec)`` and scores:
   misalignment (~1.5-2 degrees) that shows in the off-diagonal terms;
 * coverage: whether each of the 6 reference parameters lies in its reported 95 % interval, and
   whether each of the 3 reference principal moments lies in its reported 95 % interval;
-* rms/noise, the noise model's kind (and HAC lags), the model-error disturbance torque's
-  estimated intensity q (N²·m²·s), identify's wall time.
+* rms/noise, the estimator (output error, or filter error where identify found model error),
+  the model-error disturbance torque's estimated intensities (white q N²·m²·s, random-walk
+  q_rw N²·m²/s), the rotor log's estimated lag behind the gyro, identify's wall time.
 
-Prints a markdown table, the median and worst error and the coverage over 6 x 20 parameters.
+Prints a markdown table, the median and worst error and the coverage over 6 x 20 parameters,
+and the same split by configuration (the 10 Empty throws against the 10 calibration throws).
 ``--withhold-h`` drops the rotor momentum (the h columns): torque-free motion then fixes the
 inertia only up to scale, so identify reports it normalised (to trace 1 kg·m², no nominal in the
 sidecars); the error is then that of the ratios after rescaling the estimate to the reference's
@@ -46,7 +48,10 @@ from inertia_gym.discrepancy.recordings import read_recordings  # noqa: E402
 from inertia_gym.estimation.ml import FROBENIUS_WEIGHTS  # noqa: E402
 from inertia_gym.identification import identify  # noqa: E402
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "rotor-throws"
+# ../shared/data beside the repository (or beside the folder holding its worktrees)
+DEFAULT_DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
+                     if (p / "shared" / "data").is_dir()),
+                    Path(__file__).resolve().parents[2] / "shared" / "data") / "rotor-throws"
 TRIU = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))  # theta order
 
 
@@ -100,6 +105,10 @@ def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> dict:
         "hac_lags": int(ident.noise.hac_lags),
         "interval_inflation": float(ident.noise.inflation),
         "disturbance_q": float(ident.noise.disturbance_q),
+        "disturbance_q_rw": float(ident.noise.disturbance_q_rw),
+        "estimator": ident.noise.estimator,
+        "momentum_log_delay_s": float(ident.noise.log_delay),
+        "configuration": truth_entry.get("configuration", ""),
         "scale_identified": bool(est.scale_identified),
         "converged": bool(ident.converged),
         "wall_s": float(ident.wall_s),
@@ -115,17 +124,28 @@ def pct(x) -> str:
 
 def table(rows) -> str:
     lines = ["| throw | error % | principal-moment error % | authors' error % | CRLB % "
-             "| reported 1-sigma % | rms/noise | noise | q N²m²s | theta in 95 % CI "
-             "| moments in 95 % CI | wall s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| reported 1-sigma % | rms/noise | estimator | q N²m²s | q_rw N²m²/s | log lag ms "
+             "| theta in 95 % CI | moments in 95 % CI | wall s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        noise = r["noise_kind"] + (f" ({r['hac_lags']} lags)" if r["hac_lags"] else "")
         lines.append(f"| {r['throw']} | {pct(r['rel_error'])} | {pct(r['principal_rel_error'])} "
                      f"| {pct(r['authors_rel_error'])} | {pct(r['crlb'])} | {pct(r['rel_sigma'])} "
-                     f"| {r['rms_over_noise']:.2f} | {noise} | {r['disturbance_q']:.2g} "
+                     f"| {r['rms_over_noise']:.2f} | {r['estimator']} | {r['disturbance_q']:.2g} "
+                     f"| {r['disturbance_q_rw']:.2g} | {1e3 * r['momentum_log_delay_s']:.2f} "
                      f"| {sum(r['covered'])}/6 | {sum(r['principal_covered'])}/3 "
                      f"| {r['wall_s']:.3f} |")
     return "\n".join(lines)
+
+
+def group_stats(rows) -> dict:
+    """Median and worst error, and coverage, of a group of rows."""
+    errors = np.array([r["rel_error"] for r in rows])
+    covered = np.array([r["covered"] for r in rows])
+    moments = np.array([r["principal_covered"] for r in rows])
+    return {"throws": len(rows), "median_rel_error": float(np.median(errors)),
+            "worst_rel_error": float(errors.max()), "covered": int(covered.sum()),
+            "parameters": int(covered.size), "moments_covered": int(moments.sum()),
+            "moments": int(moments.size)}
 
 
 def main():
@@ -170,6 +190,14 @@ def main():
           f"({100 * covered.mean():.0f} %); per parameter (xx, xy, xz, yy, yz, zz): "
           f"{covered.sum(axis=0).tolist()} of {len(rows)}; principal moments: "
           f"{int(moments_covered.sum())} of {moments_covered.size}")
+    groups = {"Empty (the device on the base plate)": [r for r in rows if r["configuration"] == "Empty"],
+              "calibration (device only, proof body)":
+                  [r for r in rows if r["configuration"] != "Empty"]}
+    split = {name: group_stats(members) for name, members in groups.items() if members}
+    for name, g in split.items():
+        print(f"- {name}: {g['throws']} throws, median error {100 * g['median_rel_error']:.2f} %, "
+              f"worst {100 * g['worst_rel_error']:.2f} %; intervals cover {g['covered']} of "
+              f"{g['parameters']} parameters and {g['moments_covered']} of {g['moments']} moments")
     print(f"- {len(rows)} throws identified in {total:.1f} s")
     if args.out:
         out = Path(args.out)
@@ -179,7 +207,7 @@ def main():
                   "median_principal_rel_error": float(np.median(principal)),
                   "worst_principal_rel_error": float(principal.max()),
                   "covered": int(covered.sum()), "parameters": int(covered.size),
-                  "moments_covered": int(moments_covered.sum()),
+                  "moments_covered": int(moments_covered.sum()), "split": split,
                   "wall_s_total": total, "rows": rows}
         (out / "rotor_throws.json").write_text(json.dumps(report, indent=1))
 

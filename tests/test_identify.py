@@ -200,23 +200,25 @@ def test_unknown_method_is_refused():
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_real_rotor_throws_against_their_reference_inertia():
-    """20 real throws with a logged rotor: error vs the CAD+calibration reference. The scale is
-    fitted on every throw; where the model error makes it uncertain beyond 5 % (1 sigma of the
-    trace: Empty_LOG00189, 6.5 %, rms 10x the noise) the result says so instead of claiming it."""
+    """20 real throws with a logged rotor: error vs the CAD+calibration reference. Every throw
+    shows model error, so identify refines by the filter-error fit (measured: median 1.60 %,
+    worst 2.23 %; the output-error fit alone: 2.00 % and 5.03 %). The scale is fitted on every
+    throw; where it is uncertain beyond 5 % the result says so instead of claiming it (none now;
+    the output-error fit flagged Empty_LOG00189)."""
     truth = json.loads((ROTOR / "truth.json").read_text())
     errors, flagged = [], 0
     for path in sorted(ROTOR.glob("*.csv")):
         rec = read_recordings(path)[0]
         res = identify(rec)
-        assert res.converged
+        assert res.converged and res.noise.estimator == "filter error"
         if not res.estimate.scale_identified:
             assert any("scale is poorly determined" in note for note in res.notes)
             flagged += 1
         assert np.all(np.isfinite(res.estimate.theta_cov))
         errors.append(_rel(res.estimate.inertia, np.array(truth[path.stem]["inertia"])))
     assert len(errors) == 20 and flagged <= 2
-    assert np.median(errors) <= 0.021
-    assert max(errors) <= 0.055
+    assert np.median(errors) <= 0.018
+    assert max(errors) <= 0.03
 
 
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
@@ -252,6 +254,21 @@ def test_a_trajectory_the_model_cannot_follow_is_fitted_as_far_as_it_can_and_say
     fitted = np.isfinite(res.w_fit[:, 0])
     assert 0.2 < fitted.mean() < 0.9
     assert _rel(res.estimate.inertia, Scenario().inertia_true_array) < 5 * res.crlb + 1e-4
+
+
+def test_without_a_sidecar_sigma_a_partly_followed_record_keeps_its_rows_and_note():
+    """No gyro_sigma: identify reweights with the residuals' own level and refits over the span
+    the first fit could follow. The result still has one row per recorded row (it raised a
+    broadcast error on a phyphox racquet segment) and the horizon note."""
+    rec, _ = simulate_recording(Scenario(), 60.0, seed=4, sample_dt=0.01)
+    tau = rec.tau.copy()
+    tau[rec.t > 20.0] = 0.0
+    meta = {k: v for k, v in rec.meta.items() if k != "gyro_sigma"}
+    res = identify(dataclasses.replace(rec, tau=tau, meta=meta))
+    assert res.noise.source == "estimated from the residuals"
+    assert res.w_fit.shape == rec.w.shape
+    assert 0.2 < np.isfinite(res.w_fit[:, 0]).mean() < 0.9
+    assert any("could be fitted only over the first" in n for n in res.notes)
 
 
 def test_package_level_api(paper_recording):
