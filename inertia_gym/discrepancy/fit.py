@@ -40,7 +40,7 @@ from inertia_gym.estimation.equation_error import (
     valid_theta,
 )
 from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
-from inertia_gym.identification import correlation_lags
+from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -1168,7 +1168,7 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
 def effective_share(d: Data, fit: Fit) -> float:
     """1/tau: the share of fit's residual rows that are independent, tau = 1 + 2 sum_l
     (1 - l/(L+1)) rho_l the integrated autocorrelation (Bartlett weights) of the whitened rows
-    over the L lags they stay correlated (identification.correlation_lags), within segments.
+    over the L lags they stay correlated (estimation.longrun.correlation_lags), within segments.
 
     White residuals give 1. A smooth misfit the catalogue does not explain (real recordings) is
     correlated over many rows: counted as independent it would make every extra parameter that

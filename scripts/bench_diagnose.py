@@ -1,0 +1,103 @@
+"""Speed of `diagnose` (issue 11): a 600-s 10-Hz recording and a 1-s toss, whole diagnoses.
+
+Each case is diagnosed `--repeat` times (the first run also compiles the kernels, so it is
+excluded); the median wall time is reported. The peer, in the same run: the nominal fit of each
+recording by scipy.optimize.least_squares (trust-region reflective, finite-difference Jacobian
+over every parameter, the segments' rates included) against the package's own solver
+(fit.fit_nominal: Levenberg-Marquardt on the arrow-shaped Jacobian, columns batched) on the
+same objective from the same start.
+
+Usage: PYTHONPATH=. python scripts/bench_diagnose.py [--repeat 3] [--json OUT.json]
+Limits asked by the issue on this 2-core machine: 600-s 10-Hz <= 10 s, 1-s toss <= 5 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import numpy as np
+from scipy import optimize
+
+from inertia_gym.discrepancy import fit as F
+from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
+from inertia_gym.scenario import Scenario
+
+RACQUET = np.diag([20.7e-3, 18.8e-3, 1.39e-3])  # kg·m² (phyphox-racquet README)
+
+
+def long_recording() -> Recording:
+    """600 s at 10 Hz of a 1 rad/s tumble with a wheel's momentum concealed (the issue's case)."""
+    rec, _ = simulate_recording(Scenario(omega0=(0.05, 1.0, 0.045)), 600.0, "internal_momentum", seed=4,
+                                sample_dt=0.1)
+    return dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k != "effect"})
+
+
+def toss() -> Recording:
+    """1 s at 100 Hz of a racquet flipping at 15 rad/s with quadratic drag, gyro only."""
+    from inertia_gym.discrepancy.effects import Effect
+
+    drag = Effect("aero_drag", {"c": np.diag([4e-5, 3e-5, 2e-6])})
+    q, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.array([0.3, 15.0, 0.4]), RACQUET,
+                          np.zeros((1000, 3)), 1e-3, drag)
+    idx = np.arange(0, 1001, 10)
+    noise = np.random.default_rng(0).normal(0, 0.005, (idx.size, 3))
+    return Recording(idx * 1e-3, w[idx] + noise, None, None, {"gyro_sigma": 0.005}, "toss")
+
+
+def timed(fn, repeat: int) -> tuple[float, object]:
+    """Median wall time (s) of fn() over `repeat` runs after one warm-up, and its last result."""
+    out = fn()
+    walls = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        walls.append(time.perf_counter() - t0)
+    return float(np.median(walls)), out
+
+
+def peer_nominal(d: F.Data) -> tuple[float, float]:
+    """Wall time (s) and cost of scipy's least_squares on the nominal fit's objective, started
+    where fit_nominal starts (its first inertia start)."""
+    layout = F.Layout.of((), (), d)
+    free = F._free(layout, d)
+    x0 = np.concatenate([F._inertia_starts(d)[0], F.initial_rates(d)])
+
+    def residual(y):
+        x = x0.copy()
+        x[free] = y
+        return F.objective(x[None], layout, d)[0]
+
+    t0 = time.perf_counter()
+    sol = optimize.least_squares(residual, x0[free], x_scale="jac", method="trf")
+    return time.perf_counter() - t0, float(2 * sol.cost)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    out = {}
+    for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", toss(), 5.0)):
+        wall, (report, _) = timed(lambda r=rec: diagnose(r), args.repeat)
+        d = F.prepare(rec)
+        own, nominal = timed(lambda d=d: F.fit_nominal(d), args.repeat)
+        peer, peer_cost = peer_nominal(d)
+        own_cost = float(np.sum(nominal.z ** 2))
+        out[name] = {"rows": d.n_rows, "segments": d.segments, "diagnose_s": wall, "limit_s": limit,
+                     "within_limit": wall <= limit, "explanation": [e["name"] for e in report["explanation"]],
+                     "nominal_fit_s": own, "peer_least_squares_s": peer, "speedup": peer / own,
+                     "nominal_cost": own_cost, "peer_cost": peer_cost}
+        print(json.dumps({name: out[name]}), flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()
