@@ -4,8 +4,7 @@ Two kinds of checks. The recording generator's physics, against Basilisk's own b
 the total angular momentum it reports equals R (J w + h) built from the recording's columns and
 the sidecar's nominal, it changes only by the commanded torque held from each row on, and the
 concealed truth is never read by `diagnose`. Then a fixed subset of the harness (30-s
-recordings) scored as the full harness scores it; expectations today's `diagnose` does not meet
-are strict xfails, so they flip to failures (remove the marker) when it improves.
+recordings) scored as the full harness scores it: every case, controls included, must be right.
 Skipped when Basilisk (`pip install 'inertia-gym[bsk]'`) is absent.
 """
 
@@ -157,18 +156,6 @@ def test_score_follows_the_accepted_table():
 # The fixed subset of the harness: diagnose on 30-s Basilisk recordings
 # ------------------------------------------------------------------------------------------
 
-#: Subset cases today's diagnose gets wrong (measured on this branch), with what it says.
-NOT_YET = {
-    "control_smallsat_bursts": "false alarm (gyro_scale) on a clean 10-Hz recording with bursts: at 10 Hz "
-                               "the equation error's quadrature error on the exact model is 2.3x the part "
-                               "the gyro noise makes, and each row's torque is weighted half a row early",
-    "slosh_smallsat_bursts": "the 10 % propellant mass missing from the hub-only nominal goes unseen "
-                             "(no significant effect; inertia_offset does not exist yet)",
-    "torque_smallsat_free": "a constant body torque of 1e-4 x the largest moment (15 gyro sigmas of rate "
-                            "change over 30 s) goes unseen",
-}
-
-
 @pytest.fixture(scope="module")
 def subset_rows(tmp_path_factory):
     """The harness run once over the subset (each case simulated, written, read and diagnosed)."""
@@ -178,9 +165,7 @@ def subset_rows(tmp_path_factory):
 
 @requires_bsk
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=NOT_YET[n])) if n in NOT_YET else n
-    for n in harness.SMOKE])
+@pytest.mark.parametrize("name", harness.SMOKE)
 def test_subset_diagnosis_is_correct(subset_rows, name):
     row = subset_rows[0][name]
     assert row["correct"], f"{name}: concealed {row['components']}, diagnose named {row['named']}"
