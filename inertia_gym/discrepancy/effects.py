@@ -174,6 +174,11 @@ class EffectModel:
         """
         return [np.zeros(self.form_size(form, d))]
 
+    def neutral(self, form: str, d, base) -> np.ndarray:
+        """A vector p at which the effect changes nothing of the fit `base` it is added to (zero
+        within the bounds: a zero coupling, momentum, scale or rotation)."""
+        return np.clip(np.zeros(self.form_size(form, d)), *self.bounds(form, d))
+
     def penalty(self, p, d) -> list[float]:
         """Constraint rows (relative units) appended to the whitened residual when the inertia's
         scale is not seen (d.scale_fixed).
@@ -241,6 +246,10 @@ class GyroBias(EffectModel):
         return w + np.asarray(params["bias"], float)
 
 
+#: Largest gyro scale-factor error fitted, per axis (relative).
+GYRO_SCALE_BOUND = 0.1
+
+
 @register
 class GyroScale(EffectModel):
     """Gyro reads (1 + s) w, s per axis."""
@@ -258,7 +267,9 @@ class GyroScale(EffectModel):
 
     @override
     def bounds(self, form, d):
-        return np.full(3, -0.5), np.full(3, np.inf)  # a reading at least half the true rate
+        # a scale-factor error within 10 %: beyond any gyro's uncalibrated error (MEMS data sheets
+        # give <= 3 %); larger fitted scales would be another effect's missing physics
+        return np.full(3, -GYRO_SCALE_BOUND), np.full(3, GYRO_SCALE_BOUND)
 
     @override
     def typical(self, form, d):
@@ -364,6 +375,14 @@ class InternalMomentum(EffectModel):
         if form == "varying":  # the axis turns at most 45 deg from its start per component
             lo[6:8], hi[6:8] = -1.0, 1.0
         return lo, hi
+
+    @override
+    def neutral(self, form, d, base):
+        if form != "varying":
+            return np.zeros(3)
+        k = self.knots(d)
+        return self.pack({"h": np.zeros(3), "axis": np.eye(3)[2], "profile": np.zeros(k),
+                          "profile_t": np.linspace(d.t[0], d.t[-1], k)})
 
     @override
     def held(self, form, d):
@@ -801,7 +820,11 @@ class InertiaOffset(EffectModel):
 
     @override
     def starts(self, form, d, probe):
-        return [phi_from_inertia(probe.base.inertia)]
+        return [self.neutral(form, d, probe.base)]
+
+    @override
+    def neutral(self, form, d, base):
+        return phi_from_inertia(base.inertia)
 
     @override
     def true_inertia(self, params):

@@ -1000,11 +1000,14 @@ def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
     catalogue (BICs within TIE_BIC), the report names both.
     """
     names, skipped = candidates(d)
+    return _ranked([fit_effect(name, d, nominal) for name in names]), skipped
+
+
+def _ranked(fits: list[Fit]) -> list[Fit]:
+    """Single-effect fits best first; BICs within TIE_BIC (two solver runs of equivalent models
+    differ below it) in the catalogue's order."""
     order = {name: i for i, name in enumerate(REGISTRY)}
-    # BICs are compared to TIE_BIC: two solver runs of equivalent models differ below it
-    fits = sorted((fit_effect(name, d, nominal) for name in names),
-                  key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
-    return fits, skipped
+    return sorted(fits, key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1035,11 +1038,29 @@ def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
 
 
 def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS) -> Explanation:
+    """The compound explanation of lowest BIC of two searches (_search): over the singles as
+    fitted (each effect in its best form), and, where that explanation holds an effect in a
+    richer form than its simplest (internal_momentum varying), over the singles with every
+    effect in its simplest form. A rich form can soak up a second effect and lead the greedy
+    search astray; the BIC of the final explanation, the same criterion, then decides.
+    """
+    first = _search(d, nominal, singles, max_effects)
+    simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
+    if not first.chain or all(f == simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
+        return first
+    plain = _ranked([f if f.forms[0] == simplest[f.name]
+                     else fit_model((f.name,), (simplest[f.name],), d, nominal) for f in singles])
+    second = _search(d, nominal, plain, max_effects)
+    return second if second.chain and second.fit.bic < first.fit.bic - TIE_BIC else first
+
+
+def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Explanation:
     """Forward selection over the catalogue, then a backward check.
 
     Step 1 takes the best single-effect fit if it beats the nominal by SIGNIFICANT_DELTA_BIC.
     Each further step fits every remaining candidate's own parameters on top of the current
-    fit (everything else held: a screen, started from the candidate's single-effect fit),
+    fit (everything else held: a screen, started from the candidate's single-effect fit or
+    from its neutral parameters, whichever fits better),
     refits the REFIT_SCREENED best jointly with the inertia and the effects already chosen,
     and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
     testable effect is screened at every step, also those that explain nothing alone: a large
@@ -1057,18 +1078,21 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     chain = [current]
     pool = [f.name for f in singles if np.isfinite(f.bic)]
     while len(current.names) < max_effects:
-        # each candidate screened from its own single-effect fit's parameters and form
+        # each candidate screened in the form of its single-effect fit, from that fit's
+        # parameters or from where it changes nothing, whichever fits better
         trials = []
         for n in pool:
             if n in current.names:
                 continue
             single = by_name[n]
-            p = single.x[single.layout.slices()[0]]
-            layout = Layout.of((*current.names, n), (*current.forms, single.forms[0]), d,
+            form = single.forms[0]
+            layout = Layout.of((*current.names, n), (*current.forms, form), d,
                                max(current.layout.omega_max, single.layout.omega_max))
+            probe = Probe(layout, d, current)
+            start = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
+                                  probe.x(REGISTRY[n].neutral(form, d, current))])[0]
             trials.append(fit_model(layout.names, layout.forms, d, current, joint=False,
-                                    start=Probe(layout, d, current).x(p),
-                                    omega_max=layout.omega_max))
+                                    start=start, omega_max=layout.omega_max))
         trials = [t for t in trials if np.isfinite(t.bic)]
         if not trials:
             break
