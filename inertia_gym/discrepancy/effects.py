@@ -176,7 +176,8 @@ class EffectModel:
 
     def neutral(self, form: str, d, base) -> np.ndarray:
         """A vector p at which the effect changes nothing of the fit `base` it is added to (zero
-        within the bounds: a zero coupling, momentum, scale or rotation)."""
+        within the bounds: a zero coupling, momentum, scale or rotation).
+        """
         return np.clip(np.zeros(self.form_size(form, d)), *self.bounds(form, d))
 
     def penalty(self, p, d) -> list[float]:

@@ -33,6 +33,7 @@ from scipy import signal, stats
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, matrix6, skew
 from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.equation_error import (
     equation_error_theta,
     modulating_windows,
@@ -262,6 +263,11 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     t, w = np.asarray(rec.t, float), np.asarray(rec.w, float)
     n = t.size
     dt = float(np.median(np.diff(t)))
+    turn = float(np.median(np.linalg.norm(w, axis=1))) * dt
+    if turn > np.pi:
+        raise RecordingError(f"{rec.name}: the body turns {turn:.3g} rad between consecutive rows "
+                             f"(median rate x median interval {dt:.3g} s): the rows are too far apart "
+                             "to follow the rotation; is the time column in seconds (--time-unit)?")
     clipped = _saturated(rec)
     keep = ~clipped.any(axis=1)
     keep[:trim[0]] = False
@@ -1000,12 +1006,13 @@ def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
     catalogue (BICs within TIE_BIC), the report names both.
     """
     names, skipped = candidates(d)
-    return _ranked([fit_effect(name, d, nominal) for name in names]), skipped
+    return ranked([fit_effect(name, d, nominal) for name in names]), skipped
 
 
-def _ranked(fits: list[Fit]) -> list[Fit]:
+def ranked(fits: list[Fit]) -> list[Fit]:
     """Single-effect fits best first; BICs within TIE_BIC (two solver runs of equivalent models
-    differ below it) in the catalogue's order."""
+    differ below it) in the catalogue's order.
+    """
     order = {name: i for i, name in enumerate(REGISTRY)}
     return sorted(fits, key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
 
@@ -1048,7 +1055,7 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
     if not first.chain or all(f == simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         return first
-    plain = _ranked([f if f.forms[0] == simplest[f.name]
+    plain = ranked([f if f.forms[0] == simplest[f.name]
                      else fit_model((f.name,), (simplest[f.name],), d, nominal) for f in singles])
     second = _search(d, nominal, plain, max_effects)
     return second if second.chain and second.fit.bic < first.fit.bic - TIE_BIC else first

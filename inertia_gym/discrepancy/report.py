@@ -15,7 +15,6 @@ from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
     SIGNIFICANT_DELTA_BIC,
-    TIE_BIC,
     Data,
     Fit,
     effective_share,
@@ -25,10 +24,12 @@ from inertia_gym.discrepancy.fit import (
     impulses,
     intervals,
     prepare,
+    ranked,
     select,
     sparse_terms,
 )
 from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.errors import RecordingError
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
@@ -128,6 +129,9 @@ def _fits(rec: Recording):
     """
     d = prepare(rec)
     nominal = fit_nominal(d)
+    if not np.isfinite(nominal.bic):
+        raise RecordingError(f"{rec.name}: the rigid-body model could not be integrated over this "
+                             "recording (its residual is not finite); check the units of t and w")
     trim = impulses(d, nominal)
     for attempt in range(2):
         if any(trim):
@@ -145,9 +149,7 @@ def _fits(rec: Recording):
     if share < RECOUNT_BELOW:
         d = dataclasses.replace(d, effective_share=share)
         nominal = finish(nominal.layout, nominal.x, d, nominal.k)
-        order = {name: i for i, name in enumerate(REGISTRY)}
-        fits = sorted((finish(f.layout, f.x, d, f.k) for f in fits),
-                      key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
+        fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
     return d, nominal, fits, skipped, chosen
 

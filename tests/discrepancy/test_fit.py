@@ -17,6 +17,7 @@ from inertia_gym.discrepancy.model import Grid, held_cumulative
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
+from inertia_gym.errors import RecordingError
 from inertia_gym.scenario import Scenario
 
 RACQUET = np.diag([20.7e-3, 18.8e-3, 1.39e-3])  # kg·m², a tennis racquet (phyphox README)
@@ -208,3 +209,29 @@ def test_a_rotated_rotor_axis_is_momentum_misalignment():
     true = rotvec_matrix([0.08, -0.05, 0.0]) @ axis
     assert np.degrees(np.arccos(min(1.0, fitted @ true))) < 0.5
     assert REGISTRY["momentum_misalignment"].skip_reason(F.prepare(dataclasses.replace(rec, h=None)))
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_an_effect_at_its_neutral_parameters_changes_nothing(name):
+    """The start a candidate may screen from: added to a fit at its neutral parameters, every
+    effect (in every form) leaves that fit's residual as it was."""
+    model = REGISTRY[name]
+    other = "gyro_scale" if name == "gyro_bias" else "gyro_bias"
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 12.0, other, seed=3,
+                                rotor_h_max=30.0 if model.needs_momentum else None)
+    d = F.prepare(rec)
+    base = F.fit_model((other,), ("",), d, F.fit_nominal(d))
+    assert model.skip_reason(d) is None
+    forms = model.forms(d)
+    assert len(forms) == (2 if name == "internal_momentum" else 1)
+    for form in forms:
+        layout = F.Layout.of((other, name), ("", form), d, base.layout.omega_max)
+        x = F.Probe(layout, d, base).x(model.neutral(form, d, base))
+        np.testing.assert_allclose(F.whitened(x[None], layout, d)[0], base.z, atol=1e-9)
+
+
+def test_rows_too_far_apart_for_the_rotation_are_refused():
+    """A time column in the wrong unit (rows 1000 s apart at 10 rad/s) is a one-line error."""
+    rec, _ = simulate_recording(Scenario(), 1.0, seed=4)
+    with pytest.raises(RecordingError, match="too far apart"):
+        diagnose(dataclasses.replace(rec, t=rec.t * 1e5))
