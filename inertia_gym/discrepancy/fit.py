@@ -708,6 +708,10 @@ def hemisphere(count: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
+#: Refinements of an inertia change's time around each scan peak (each a quarter of the last span).
+REFINE_LEVELS = 3
+
+
 @dataclasses.dataclass(frozen=True)
 class Probe:
     """What an effect's starts() may ask while it is added to the fit `base`: costs of the joint
@@ -788,26 +792,51 @@ class Probe:
                 break
         return out
 
-    def change_starts(self) -> list[np.ndarray]:
-        """Start of inertia_change: over ~30 change times, the delta_J of one Gauss-Newton step
-        from zero (everything else held); the time whose step explains most.
+    def change_starts(self, keep: int = 2) -> list[np.ndarray]:
+        """Starts of inertia_change (joint x): over ~30 change times, one Gauss-Newton step from
+        no change in delta_J, the segments' rates held or moved with it (everything else held;
+        the rates after a change absorb part of it: moving them finds a large change's time,
+        holding them a precise one); for each, the `keep` times whose steps explain most among
+        the scan's local maxima, each refined REFINE_LEVELS times around itself.
         """
-        d = self.d
+        d, layout = self.d, self.layout
         times = d.t_row[np.linspace(2, d.n_rows - 3, min(30, d.n_rows - 4)).astype(int)]
-        h = 1e-4 * d.j_ref
-        r0 = objective(self.x(np.zeros(7))[None], self.layout, d)[0]
-        def gauss_newton(tc):
-            xs = [self.x(np.r_[tc, h * e]) for e in np.eye(6)]
-            cols = ((objective(np.stack(xs), self.layout, d) - r0) / h).T
-            step = np.linalg.lstsq(cols, -r0, rcond=None)[0]
-            return float(r0 @ r0 - np.sum((r0 + cols @ step) ** 2)), np.r_[tc, step]
+        x0 = self.x(np.zeros(7))
+        delta = np.arange(layout.n_global)[layout.slices()[-1]][1:]
+        n_res = d.n_rows * 3
+        seg_of = np.full(objective(x0[None], layout, d).shape[1], -1)
+        seg_of[:n_res] = np.repeat(d.row_seg, 3)
 
-        scan = [gauss_newton(tc) for tc in times]
-        i = int(np.argmax([g for g, _ in scan]))
-        if times.size > 1:  # refine between the best time's neighbours
-            lo, hi = times[max(i - 1, 0)], times[min(i + 1, times.size - 1)]
-            scan += [gauss_newton(tc) for tc in np.linspace(lo, hi, 9)[1:-1]]
-        return [max(scan, key=lambda gs: gs[0])[1]]
+        def gauss_newton(tc, rates):
+            x = x0.copy()
+            x[delta[0] - 1] = tc
+            free = np.zeros(x.size, bool)
+            free[delta] = True
+            free[layout.n_global:] = rates
+            r, g, js = jacobian(x, free, layout, d)
+            g, js = np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
+            dg, ds = _lm_step(g, js, r, seg_of, layout.segments, 1e-9, rates)
+            pred = r + g @ dg
+            pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])
+            x[delta] += dg
+            x[layout.n_global:] += ds.ravel()
+            return float(r @ r - pred @ pred), x
+
+        starts = []
+        for rates in (True, False):
+            scan = [gauss_newton(tc, rates) for tc in times]
+            gain = np.array([g for g, _ in scan])
+            padded = np.r_[-np.inf, gain, -np.inf]
+            peaks = np.flatnonzero((gain >= padded[:-2]) & (gain >= padded[2:]))
+            for i in peaks[np.argsort(-gain[peaks])][:keep]:
+                best, half = scan[i], (times[-1] - times[0]) / max(times.size - 1, 1)
+                for _ in range(REFINE_LEVELS):  # ever finer, around the best time so far
+                    grid = np.clip(best[1][delta[0] - 1] + np.linspace(-half, half, 9)[1:-1],
+                                   times[0], times[-1])
+                    best = max([best] + [gauss_newton(t, rates) for t in grid], key=lambda gs: gs[0])
+                    half /= 4
+                starts.append(best[1])
+        return starts
 
     def momentum_estimate(self, knots: int, axes=None, with_inertia: bool = True, keep: int = 1
                           ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
