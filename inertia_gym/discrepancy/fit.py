@@ -422,9 +422,11 @@ def _row_means(d: Data, values) -> np.ndarray:
 
 
 def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
-    """(B, n_rows, 3) residual rows (predicted - measured) in units of their noise."""
-    diff = predict(xs, layout, d) - d.w
-    return _row_means(d, diff) / (d.sigma * d.row_scale[:, None])
+    """(B, n_rows, 3) residual rows (predicted - measured) in units of their noise; a model that
+    blew up gives non-finite rows, silently (objective and finish price them)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        diff = predict(xs, layout, d) - d.w
+        return _row_means(d, diff) / (d.sigma * d.row_scale[:, None])
 
 
 def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
@@ -642,7 +644,8 @@ def finish(layout: Layout, x, d: Data, k: int | None = None) -> Fit:
     z = whitened(np.asarray(x, float)[None], layout, d)[0]
     jm = model_inertia(layout, x, d)
     n = z.size * d.effective_share
-    mse = float(np.mean(z ** 2)) if np.all(np.isfinite(z)) else np.inf
+    with np.errstate(over="ignore"):
+        mse = float(np.mean(z ** 2)) if np.all(np.isfinite(z)) else np.inf
     bic = n * np.log(max(mse, 1e-300)) + k * np.log(n) if np.isfinite(mse) else np.inf
     named = {m.name: params for m, params in layout.parts(x, d)}
     return Fit(layout, np.asarray(x, float), z, z * d.sigma * d.row_scale[:, None], float(bic), k, jm, named)

@@ -227,3 +227,17 @@ def test_drag_matrix_in_the_closed_loop_hook(drag):
     c = np.asarray(drag) * np.eye(3) if np.ndim(drag) == 0 else np.diag(drag) if np.ndim(drag) == 1 else drag
     w_ref, _ = _reference(T_END, lambda t: TORQUE, extra=lambda q, w, h: -np.linalg.norm(w) * c @ w)
     np.testing.assert_allclose(w[-1], w_ref, atol=2e-6)
+
+
+@pytest.mark.parametrize("name", ["viscous_damping", "aero_drag"])
+def test_drag_is_fitted_dissipative(name):
+    """Any fitted vector gives a positive semi-definite C (the drag power -w^T C w <= 0); a C
+    given with a negative eigenvalue packs to its positive part."""
+    model = REGISTRY[name]
+    rng = np.random.default_rng(0)
+    for p in rng.normal(size=(50, 6)):
+        assert np.linalg.eigvalsh(model.unpack(p)["c"]).min() >= -1e-12
+    c = np.array([[2.0, 0.5, 0.0], [0.5, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    vals, vecs = np.linalg.eigh(c)
+    positive = (vecs * np.clip(vals, 0, None)) @ vecs.T
+    np.testing.assert_allclose(model.unpack(model.pack({"c": c}))["c"], positive, atol=1e-12)
