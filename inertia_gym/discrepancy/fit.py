@@ -423,7 +423,8 @@ def _row_means(d: Data, values) -> np.ndarray:
 
 def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
     """(B, n_rows, 3) residual rows (predicted - measured) in units of their noise; a model that
-    blew up gives non-finite rows, silently (objective and finish price them)."""
+    blew up gives non-finite rows, silently (objective and finish price them).
+    """
     with np.errstate(over="ignore", invalid="ignore"):
         diff = predict(xs, layout, d) - d.w
         return _row_means(d, diff) / (d.sigma * d.row_scale[:, None])
