@@ -193,19 +193,28 @@ def euler_to_quat(roll_pitch_yaw_deg) -> np.ndarray:
 
 
 @nb.njit(cache=True, inline="always")
-def state_rate(qw, qx, qy, qz, wx, wy, wz, inertia, inertia_inv, tau, dist):
+def mat3_entries(m):
+    """The entries of a 3x3 matrix as a row-major 9-tuple, the form :func:`body_rate` reads."""
+    return (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
+
+
+@nb.njit(cache=True, inline="always")
+def body_rate(qw, qx, qy, qz, wx, wy, wz, j, j_inv, tau, dist):
     """(q_dot, w_dot) of the state (q, w) given as seven scalars; returns a 7-tuple.
 
-    Scalars in, scalars out, so that the integrators keep their stages in registers (an RK4 step
-    costs about 60 ns instead of 300 ns through scratch arrays).
+    j, j_inv : the inertia (kg·m²) and its inverse as row-major 9-sequences; tau (3,) N·m;
+    dist (DISTURBANCE_SIZE,) the packed :class:`Disturbance` (arrays or tuples). Scalars in,
+    scalars out, so that the integrators keep their stages in registers (an RK4 step costs
+    about 60 ns instead of 300 ns through scratch arrays) and a loop over runs vectorizes
+    (simulation.py).
     """
     dqw = 0.5 * (-qx * wx - qy * wy - qz * wz)
     dqx = 0.5 * (qw * wx + qy * wz - qz * wy)
     dqy = 0.5 * (qw * wy - qx * wz + qz * wx)
     dqz = 0.5 * (qw * wz + qx * wy - qy * wx)
-    hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz + dist[3]
-    hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz + dist[4]
-    hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz + dist[5]
+    hx = j[0] * wx + j[1] * wy + j[2] * wz + dist[3]
+    hy = j[3] * wx + j[4] * wy + j[5] * wz + dist[4]
+    hz = j[6] * wx + j[7] * wy + j[8] * wz + dist[5]
     mx = tau[0] + dist[0] - (wy * hz - wz * hy)
     my = tau[1] + dist[1] - (wz * hx - wx * hz)
     mz = tau[2] + dist[2] - (wx * hy - wy * hx)
@@ -227,17 +236,28 @@ def state_rate(qw, qx, qy, qz, wx, wy, wz, inertia, inertia_inv, tau, dist):
             + 2 * (qy * qz + qw * qx) * iz
         rz = 2 * (qx * qz + qw * qy) * ix + 2 * (qy * qz - qw * qx) * iy \
             + (1 - 2 * (qx * qx + qy * qy)) * iz
-        jx = inertia[0, 0] * rx + inertia[0, 1] * ry + inertia[0, 2] * rz
-        jy = inertia[1, 0] * rx + inertia[1, 1] * ry + inertia[1, 2] * rz
-        jz = inertia[2, 0] * rx + inertia[2, 1] * ry + inertia[2, 2] * rz
+        jx = j[0] * rx + j[1] * ry + j[2] * rz
+        jy = j[3] * rx + j[4] * ry + j[5] * rz
+        jz = j[6] * rx + j[7] * ry + j[8] * rz
         g = 3.0 * n * n
         mx += g * (ry * jz - rz * jy)
         my += g * (rz * jx - rx * jz)
         mz += g * (rx * jy - ry * jx)
-    dwx = inertia_inv[0, 0] * mx + inertia_inv[0, 1] * my + inertia_inv[0, 2] * mz
-    dwy = inertia_inv[1, 0] * mx + inertia_inv[1, 1] * my + inertia_inv[1, 2] * mz
-    dwz = inertia_inv[2, 0] * mx + inertia_inv[2, 1] * my + inertia_inv[2, 2] * mz
+    dwx = j_inv[0] * mx + j_inv[1] * my + j_inv[2] * mz
+    dwy = j_inv[3] * mx + j_inv[4] * my + j_inv[5] * mz
+    dwz = j_inv[6] * mx + j_inv[7] * my + j_inv[8] * mz
     return dqw, dqx, dqy, dqz, dwx, dwy, dwz
+
+
+@nb.njit(cache=True, inline="always")
+def state_rate(qw, qx, qy, qz, wx, wy, wz, inertia, inertia_inv, tau, dist):
+    """(q_dot, w_dot) of the state (q, w) given as seven scalars; returns a 7-tuple.
+
+    inertia, inertia_inv : (3, 3) kg·m² and its inverse; tau (3,) N·m; dist (DISTURBANCE_SIZE,)
+    packed disturbance. :func:`body_rate` with the matrices as entries.
+    """
+    return body_rate(qw, qx, qy, qz, wx, wy, wz, mat3_entries(inertia), mat3_entries(inertia_inv),
+                     tau, dist)
 
 
 @nb.njit(cache=True)
@@ -316,31 +336,90 @@ def gauss_legendre_step(y, dt, inertia, inertia_inv, tau, dist):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def rk4_state(y, dt, j, j_inv, tau, dist):
+    """One classical RK4 step of y = (q, w), a 7-tuple, torque held; returns the new 7-tuple
+    with the quaternion renormalised. j, j_inv, tau, dist as for :func:`body_rate`.
+    """
+    y0, y1, y2, y3, y4, y5, y6 = y
+    h = 0.5 * dt
+    k1 = body_rate(y0, y1, y2, y3, y4, y5, y6, j, j_inv, tau, dist)
+    k2 = body_rate(y0 + h * k1[0], y1 + h * k1[1], y2 + h * k1[2], y3 + h * k1[3],
+                   y4 + h * k1[4], y5 + h * k1[5], y6 + h * k1[6], j, j_inv, tau, dist)
+    k3 = body_rate(y0 + h * k2[0], y1 + h * k2[1], y2 + h * k2[2], y3 + h * k2[3],
+                   y4 + h * k2[4], y5 + h * k2[5], y6 + h * k2[6], j, j_inv, tau, dist)
+    k4 = body_rate(y0 + dt * k3[0], y1 + dt * k3[1], y2 + dt * k3[2], y3 + dt * k3[3],
+                   y4 + dt * k3[4], y5 + dt * k3[5], y6 + dt * k3[6], j, j_inv, tau, dist)
+    c = dt / 6.0
+    o0 = y0 + c * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+    o1 = y1 + c * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+    o2 = y2 + c * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+    o3 = y3 + c * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+    s = 1.0 / math.sqrt(o0 ** 2 + o1 ** 2 + o2 ** 2 + o3 ** 2)
+    return (o0 * s, o1 * s, o2 * s, o3 * s,
+            y4 + c * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
+            y5 + c * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),
+            y6 + c * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]))
+
+
 @nb.njit(cache=True)
 def rk4_step_into(y, dt, inertia, inertia_inv, tau, dist, out):
     """One classical RK4 step of (q, w) = y[0:7] into out[0:7] (torque held over the step).
 
     Only the first seven entries are read and written, and y is read in full before out is
     written, so ``out`` may be ``y`` (an in-place step) or a longer state vector such as the
-    filter's (q, w, phi).
+    filter's (q, w, phi). inertia, inertia_inv (3, 3); see :func:`rk4_state`.
     """
-    y0, y1, y2, y3, y4, y5, y6 = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
-    h = 0.5 * dt
-    k1 = state_rate(y0, y1, y2, y3, y4, y5, y6, inertia, inertia_inv, tau, dist)
-    k2 = state_rate(y0 + h * k1[0], y1 + h * k1[1], y2 + h * k1[2], y3 + h * k1[3],
-                    y4 + h * k1[4], y5 + h * k1[5], y6 + h * k1[6],
-                    inertia, inertia_inv, tau, dist)
-    k3 = state_rate(y0 + h * k2[0], y1 + h * k2[1], y2 + h * k2[2], y3 + h * k2[3],
-                    y4 + h * k2[4], y5 + h * k2[5], y6 + h * k2[6],
-                    inertia, inertia_inv, tau, dist)
-    k4 = state_rate(y0 + dt * k3[0], y1 + dt * k3[1], y2 + dt * k3[2], y3 + dt * k3[3],
-                    y4 + dt * k3[4], y5 + dt * k3[5], y6 + dt * k3[6],
-                    inertia, inertia_inv, tau, dist)
-    c = dt / 6.0
-    ys = (y0, y1, y2, y3, y4, y5, y6)
+    new = rk4_state((y[0], y[1], y[2], y[3], y[4], y[5], y[6]), dt, mat3_entries(inertia),
+                    mat3_entries(inertia_inv), tau, dist)
     for i in range(7):
-        out[i] = ys[i] + c * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    _normalize_quat(out)
+        out[i] = new[i]
+
+
+@nb.njit(cache=True, inline="always")
+def disturbance_entries(d):
+    """The packed disturbance d (DISTURBANCE_SIZE,) as a tuple: values a loop over runs keeps in
+    registers. Every slot is copied, including those only the augmented integrator reads.
+    """
+    return (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], d[8], d[9], d[10], d[11], d[12],
+            d[13], d[14], d[15], d[16], d[17], d[18], d[19], d[20], d[21], d[22], d[23], d[24],
+            d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32], d[33], d[34])
+
+
+# disturbance_entries spells out every slot of the packed vector.
+assert DISTURBANCE_SIZE == 35, "update disturbance_entries to the new DISTURBANCE_SIZE"
+
+
+@nb.njit(cache=True, inline="always")
+def lane_entries9(a, lane):
+    """Column `lane` of a (9, L) lane array as a 9-tuple."""
+    return (a[0, lane], a[1, lane], a[2, lane], a[3, lane], a[4, lane], a[5, lane], a[6, lane],
+            a[7, lane], a[8, lane])
+
+
+@nb.njit(cache=True, inline="always")
+def rk4_lanes(y, j, j_inv, tau, dist, dt, on):
+    """One RK4 step of (q, w) = y[0:7, l] for every lane l with on[l] (the others unchanged).
+
+    Lanes are runs laid out along the last axis: y (>= 7, L), j and j_inv (9, L) row-major
+    inertia (kg·m²) and inverse per lane, tau (3, L) N·m, on (L,) 1.0 / 0.0; dist the packed
+    disturbance shared by all lanes, as a tuple. Each lane computes exactly what
+    :func:`rk4_step_into` computes for it. Inlined into a kernel whose lane arrays are views of
+    one array of constant shape (so the compiler sees they cannot overlap), the loop over
+    lanes runs as SIMD instructions (one lane per vector slot).
+    """
+    for lane in range(y.shape[1]):
+        new = rk4_state((y[0, lane], y[1, lane], y[2, lane], y[3, lane], y[4, lane], y[5, lane],
+                         y[6, lane]), dt, lane_entries9(j, lane), lane_entries9(j_inv, lane),
+                        (tau[0, lane], tau[1, lane], tau[2, lane]), dist)
+        keep = on[lane] == 0.0
+        y[0, lane] = y[0, lane] if keep else new[0]
+        y[1, lane] = y[1, lane] if keep else new[1]
+        y[2, lane] = y[2, lane] if keep else new[2]
+        y[3, lane] = y[3, lane] if keep else new[3]
+        y[4, lane] = y[4, lane] if keep else new[4]
+        y[5, lane] = y[5, lane] if keep else new[5]
+        y[6, lane] = y[6, lane] if keep else new[6]
 
 
 @nb.njit(cache=True)

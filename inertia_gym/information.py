@@ -18,29 +18,23 @@ from inertia_gym.errors import ConfigError
 _UPPER = np.array([(i, j) for i in range(6) for j in range(i, 6)], dtype=np.int64)
 
 
+@nb.njit(cache=True, inline="always")
+def psi_entries(wx, wy, wz, ax, ay, az):
+    """The 18 entries of Psi(w, w_dot), shape (3, 6) row-major, as a tuple; w rad/s, w_dot
+    (ax, ay, az) rad/s².
+    """
+    return (ax, ay - wx * wz, az + wx * wy, -wy * wz, wy * wy - wz * wz, wy * wz,
+            wx * wz, ax + wy * wz, wz * wz - wx * wx, ay, az - wx * wy, -wx * wz,
+            -wx * wy, wx * wx - wy * wy, ax - wy * wz, wx * wy, ay + wx * wz, az)
+
+
 @nb.njit(cache=True)
 def psi_into(w, w_dot, out):
     """Write Psi(w, w_dot), shape (3, 6), into out. w in rad/s, w_dot in rad/s²."""
-    wx, wy, wz = w[0], w[1], w[2]
-    ax, ay, az = w_dot[0], w_dot[1], w_dot[2]
-    out[0, 0] = ax
-    out[0, 1] = ay - wx * wz
-    out[0, 2] = az + wx * wy
-    out[0, 3] = -wy * wz
-    out[0, 4] = wy * wy - wz * wz
-    out[0, 5] = wy * wz
-    out[1, 0] = wx * wz
-    out[1, 1] = ax + wy * wz
-    out[1, 2] = wz * wz - wx * wx
-    out[1, 3] = ay
-    out[1, 4] = az - wx * wy
-    out[1, 5] = -wx * wz
-    out[2, 0] = -wx * wy
-    out[2, 1] = wx * wx - wy * wy
-    out[2, 2] = ax - wy * wz
-    out[2, 3] = wx * wy
-    out[2, 4] = ay + wx * wz
-    out[2, 5] = az
+    p = psi_entries(w[0], w[1], w[2], w_dot[0], w_dot[1], w_dot[2])
+    for i in range(3):
+        for j in range(6):
+            out[i, j] = p[6 * i + j]
 
 
 def psi(w, w_dot) -> np.ndarray:

@@ -17,10 +17,20 @@ import numba as nb
 import numpy as np
 
 from inertia_gym import sensors
-from inertia_gym.dynamics import DISTURBANCE_SIZE, NO_DISTURBANCE, euler_to_quat, inv3, rk4_step_into
+from inertia_gym.dynamics import (
+    DISTURBANCE_SIZE,
+    NO_DISTURBANCE,
+    disturbance_entries,
+    euler_to_quat,
+    inv3,
+    lane_entries9,
+    mat3_entries,
+    rk4_lanes,
+)
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf, ukf
 from inertia_gym.estimation.config import FilterConfig
+from inertia_gym.estimation.ekf import N_STATE
 from inertia_gym.estimation.inertia_param import (
     decouple_scale,
     dtheta_dphi,
@@ -188,7 +198,8 @@ class Trace:
 
 
 #: Arrays of a batch of B runs handed to the compiled loop, grouped by role (leading axis B).
-#: Truth: y (B, 7) true (q, w), inertia (3, 3), dist (20,) packed disturbance on the truth.
+#: Truth: y (B, 7) true (q, w), inertia (3, 3), dist (DISTURBANCE_SIZE,) packed disturbance on
+#: the truth.
 Truth = collections.namedtuple("Truth", "y inertia dist")
 #: Estimator: x (B, 13), P (B, 13, 13), and the prediction in progress: phi_top (B, 7, 13),
 #: sigma (B, 26, 13) (see SimState). The 1-D per-run counters and flags (n_updates,
@@ -205,80 +216,170 @@ Plan = collections.namedtuple("Plan", "n_steps bursts n_bursts xi v tau_max meas
 Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurements w_est nis")
 
 
-@nb.njit(cache=True)
-def _segment_one(truth, est, plan, logs, r, cfg, n_updates, sigma_fresh):
-    """Advance run r of the batch by plan.n_steps[r] from n_updates filter updates so far
-    (sigma_fresh: the UKF has no propagated sigma points yet); returns (status, measurements
-    processed, updates so far). The truth, the estimate and the logs of run r change in place.
+#: Runs advanced in lock-step by one task of the compiled loop: the lanes of its vector
+#: instructions (8 float64 fill one 512-bit register).
+LANES = 8
+#: The filter's model of the body: no disturbance, no wheel (a tuple: a compile-time constant).
+MODEL_DISTURBANCE = tuple(NO_DISTURBANCE.tolist())
+#: Rows of the lane buffer of :func:`_advance_lanes` (one column per lane): true (q, w) (7),
+#: filter mean (13), true inertia and inverse, J_hat and inverse (9 each, row-major), torque
+#: (3), moving and predicting flags (1.0 / 0.0), transition coefficients, transition (7 x 13).
+_Y, _X, _J_TRUE, _J_TRUE_INV, _J_HAT, _J_HAT_INV, _TAU, _MOVING, _PREDICTING, _COEF, _PHI, \
+    _ROWS = np.cumsum([0, 7, N_STATE, 9, 9, 9, 9, 3, 1, 1, ekf.N_COEF, 7 * N_STATE]).tolist()
+
+
+@nb.njit(cache=True, inline="always")
+def _set_lane9(rows, lane, values):
+    """rows[:, lane] = values, a 9-tuple."""
+    for i in range(9):
+        rows[i, lane] = values[i]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, first, lanes):
+    """Advance runs first .. first + lanes - 1 of the batch (those that exist and have not
+    diverged) by plan.n_steps[r] steps each, in lock-step; their truth, estimate, counters
+    (n_updates, sigma_fresh, status: (B,)) and logs change in place. lanes : a literal
+    integer (compiled once per value): LANES, or 1 for a batch of one run, which would
+    otherwise pay for LANES - 1 idle lanes.
+
+    The runs' (q, w), filter means, inertias, torques and transitions are held lane by lane,
+    runs along the last axis of one buffer of constant shape (:data:`_ROWS`, lanes), so that
+    the truth's RK4 and the EKF's prediction of all lanes run as one stream of vector
+    instructions; bursts, measurements and filter updates, at each run's own times, are
+    handled run by run. Each run computes exactly what it computes alone: a lane never reads
+    another lane.
     """
-    y_true, inertia_true, dist = truth.y[r], truth.inertia, truth.dist
-    x, P = est.x[r], est.P[r]
-    bursts = plan.bursts[r, : plan.n_bursts[r]]
-    a, b, v, tau_max = plan.xi[r, 0], plan.xi[r, 1], plan.v[r], plan.tau_max
-    meas_at, z_noise = plan.meas_at[r, : plan.n_meas[r]], plan.z_noise[r]
+    nb.literally(lanes)
+    batch = truth.y.shape[0]
+    count = min(lanes, batch - first)  # lanes past the batch's end mirror run `first`, idle
     dt = cfg.dt
-    inertia_true_inv = inv3(inertia_true)
-    jac_work = np.empty((13, 13))
-    cov_work = np.empty((14, 13))
-    inertia_hat = inertia_from_phi(x[7:13])
-    inertia_hat_inv = inv3(inertia_hat)
     use_ukf = cfg.ukf > 0
     n_sigma = ukf.N_SIGMA if use_ukf else 0
-    sigma = est.sigma[r].copy()
-    sigma_inertia = np.empty((n_sigma, 3, 3))
-    sigma_inertia_inv = np.empty((n_sigma, 3, 3))
-    if use_ukf:
-        if sigma_fresh:
-            if not ukf.draw_sigma_points(x, P, sigma, sigma_inertia, sigma_inertia_inv):
-                return 1, 0, n_updates
-        else:  # carry on with the points propagated in the last segment
-            for k in range(n_sigma):
-                sigma_inertia[k] = inertia_from_phi(sigma[k, 7:13])
-                sigma_inertia_inv[k] = inv3(sigma_inertia[k])
-    phi_top = est.phi_top[r].copy()  # local and contiguous in the hot loop; written back below
-    tau = np.zeros(3)
-    model_dist = np.zeros(DISTURBANCE_SIZE)  # the filter's model: no disturbance, no wheel
-    burst_i = 0
-    meas_i = 0
-    status = 0
+    buf = np.zeros((_ROWS, lanes))
+    y, x, tau = buf[_Y:_X], buf[_X:_J_TRUE], buf[_TAU:_MOVING]
+    j_true, j_true_inv = buf[_J_TRUE:_J_TRUE_INV], buf[_J_TRUE_INV:_J_HAT]
+    j_hat, j_hat_inv = buf[_J_HAT:_J_HAT_INV], buf[_J_HAT_INV:_TAU]
+    moving, predicting = buf[_MOVING], buf[_PREDICTING]
+    coef, phi_top = buf[_COEF:_PHI], buf[_PHI:_ROWS]
+    runs = np.empty(lanes, dtype=np.int64)
+    active = np.zeros(lanes, dtype=np.bool_)  # the lane holds a run that this segment advances
+    burst_i = np.zeros(lanes, dtype=np.int64)
+    meas_i = np.zeros(lanes, dtype=np.int64)
+    sigma_inertia = np.empty((lanes, n_sigma, 3, 3))
+    sigma_inertia_inv = np.empty((lanes, n_sigma, 3, 3))
+    dist = disturbance_entries(truth.dist)
+    n_max = 0
+    for lane in range(lanes):
+        r = first + lane if lane < count else first
+        runs[lane] = r
+        for i in range(7):
+            y[i, lane] = truth.y[r, i]
+        for i in range(N_STATE):
+            x[i, lane] = est.x[r, i]
+        for i in range(7):
+            for k in range(N_STATE):
+                phi_top[N_STATE * i + k, lane] = est.phi_top[r, i, k]
+        _set_lane9(j_true, lane, mat3_entries(truth.inertia))
+        _set_lane9(j_true_inv, lane, mat3_entries(inv3(truth.inertia)))
+        inertia_hat = inertia_from_phi(est.x[r, 7:13])
+        _set_lane9(j_hat, lane, mat3_entries(inertia_hat))
+        _set_lane9(j_hat_inv, lane, mat3_entries(inv3(inertia_hat)))
+        if lane >= count or status[r] != 0:
+            continue
+        if use_ukf:
+            fresh, sigma_fresh[r] = sigma_fresh[r], False
+            if not fresh:  # carry on with the points propagated in the last segment
+                for i in range(n_sigma):
+                    sigma_inertia[lane, i] = inertia_from_phi(est.sigma[r, i, 7:13])
+                    sigma_inertia_inv[lane, i] = inv3(sigma_inertia[lane, i])
+            elif not ukf.draw_sigma_points(est.x[r], est.P[r], est.sigma[r], sigma_inertia[lane],
+                                           sigma_inertia_inv[lane]):
+                status[r] = STATUS_DIVERGED
+                continue
+        active[lane] = True
+        n_max = max(n_max, plan.n_steps[r])
+    cov_work = np.empty((14, N_STATE))
+    x_run = np.empty(N_STATE)
+    y_run = np.empty(7)
+    phi_run = np.empty((7, N_STATE))
     z = np.empty(sensors.measurement_size(cfg))
-    for k in range(plan.n_steps[r]):
-        # Burst law (18): computed from the filter's rate at the burst start, held over the burst.
-        if burst_i < bursts.shape[0] and k == bursts[burst_i, 1]:
-            tau[:] = 0.0
-            burst_i += 1
-        if burst_i < bursts.shape[0] and k == bursts[burst_i, 0]:
-            burst_torque_into(a, b, x[4:7], v, tau_max, tau)
-        if plan.record_steps:
-            _record_step(x, tau, inertia_hat, inertia_hat_inv, logs.w_hat[r, k], logs.w_dot_hat[r, k])
-            logs.tau[r, k] = tau
-        rk4_step_into(y_true, dt, inertia_true, inertia_true_inv, tau, dist, y_true)
-        if status == 0:
-            if use_ukf:
-                ukf.predict_sigma_points(sigma, sigma_inertia, sigma_inertia_inv, tau, dt, model_dist)
-                ukf.sigma_mean(sigma, x)
-            else:
-                ekf.ekf_predict_step(x, tau, dt, inertia_hat, inertia_hat_inv, phi_top, jac_work,
-                                     model_dist)
-        if meas_i < meas_at.shape[0] and meas_at[meas_i] == k + 1:
-            sensors.simulate_measurement(y_true, z_noise[meas_i], cfg, z)
-            if status == 0:
-                status = _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z,
-                                        logs.nis[r], meas_i)
-                n_updates += 1
-                if status == 0:
-                    inertia_hat = inertia_from_phi(x[7:13])
-                    inertia_hat_inv = inv3(inertia_hat)
-                    if use_ukf and not ukf.draw_sigma_points(x, P, sigma, sigma_inertia,
-                                                             sigma_inertia_inv):
-                        status = 1
-            _log_theta(x, P, logs.theta[r, meas_i], logs.var[r, meas_i])
-            _log_measurement(y_true, z, cfg, logs.measurements[r, meas_i])
-            logs.w_est[r, meas_i] = x[4:7]
-            meas_i += 1
-    est.phi_top[r] = phi_top
-    est.sigma[r] = sigma
-    return status, meas_i, n_updates
+    for k in range(n_max):
+        for lane in range(count):
+            r = runs[lane]
+            on = active[lane] and k < plan.n_steps[r]
+            moving[lane] = 1.0 if on else 0.0
+            predicting[lane] = 1.0 if on and status[r] == 0 and not use_ukf else 0.0
+            if not on:
+                continue
+            # Burst law (18): from the filter's rate at the burst start, held over the burst.
+            b = burst_i[lane]
+            if b < plan.n_bursts[r] and k == plan.bursts[r, b, 1]:
+                tau[:, lane] = 0.0
+                b += 1
+            if b < plan.n_bursts[r] and k == plan.bursts[r, b, 0]:
+                burst_torque_into(plan.xi[r, 0], plan.xi[r, 1], (x[4, lane], x[5, lane], x[6, lane]),
+                                  plan.v[r], plan.tau_max, tau[:, lane])
+            burst_i[lane] = b
+            if plan.record_steps:
+                _record_step((x[4, lane], x[5, lane], x[6, lane]),
+                             (tau[0, lane], tau[1, lane], tau[2, lane]),
+                             lane_entries9(j_hat, lane), lane_entries9(j_hat_inv, lane),
+                             logs.w_hat[r, k], logs.w_dot_hat[r, k])
+                for i in range(3):
+                    logs.tau[r, k, i] = tau[i, lane]
+        rk4_lanes(y, j_true, j_true_inv, tau, dist, dt, moving)
+        ekf.ekf_predict_lanes(x, j_hat, j_hat_inv, tau, MODEL_DISTURBANCE, dt, phi_top, coef,
+                              predicting)
+        for lane in range(count):
+            if moving[lane] == 0.0:
+                continue
+            r = runs[lane]
+            if use_ukf and status[r] == 0:
+                ukf.predict_sigma_points(est.sigma[r], sigma_inertia[lane],
+                                         sigma_inertia_inv[lane], tau[:, lane], dt,
+                                         MODEL_DISTURBANCE)
+                ukf.sigma_mean(est.sigma[r], x_run)
+                x[:, lane] = x_run
+            m = meas_i[lane]
+            if m >= plan.n_meas[r] or plan.meas_at[r, m] != k + 1:
+                continue
+            y_run[:] = y[:, lane]
+            x_run[:] = x[:, lane]
+            P = est.P[r]
+            sensors.simulate_measurement(y_run, plan.z_noise[r, m], cfg, z)
+            if status[r] == 0:
+                for i in range(7):
+                    for c in range(N_STATE):
+                        phi_run[i, c] = phi_top[N_STATE * i + c, lane]
+                status[r] = _filter_update(x_run, P, phi_run, cov_work, est.sigma[r],
+                                           n_updates[r], cfg, z, logs.nis[r], m)
+                n_updates[r] += 1
+                x[:, lane] = x_run
+                for i in range(7):
+                    for c in range(N_STATE):
+                        phi_top[N_STATE * i + c, lane] = phi_run[i, c]
+                if status[r] == 0:
+                    inertia_hat = inertia_from_phi(x_run[7:13])
+                    _set_lane9(j_hat, lane, mat3_entries(inertia_hat))
+                    _set_lane9(j_hat_inv, lane, mat3_entries(inv3(inertia_hat)))
+                    if use_ukf and not ukf.draw_sigma_points(x_run, P, est.sigma[r],
+                                                             sigma_inertia[lane],
+                                                             sigma_inertia_inv[lane]):
+                        status[r] = STATUS_DIVERGED
+            _log_theta(x_run, P, logs.theta[r, m], logs.var[r, m])
+            _log_measurement(y_run, z, cfg, logs.measurements[r, m])
+            logs.w_est[r, m] = x_run[4:7]
+            meas_i[lane] = m + 1
+    for lane in range(count):
+        r = runs[lane]
+        for i in range(7):
+            truth.y[r, i] = y[i, lane]
+        for i in range(N_STATE):
+            est.x[r, i] = x[i, lane]
+        for i in range(7):
+            for k in range(N_STATE):
+                est.phi_top[r, i, k] = phi_top[N_STATE * i + k, lane]
 
 
 @nb.njit(cache=True)
@@ -310,19 +411,20 @@ def _log_theta(x, P, theta, var):
 
 
 @nb.njit(cache=True)
-def _record_step(x, tau, inertia_hat, inertia_hat_inv, w_hat, w_dot_hat):
-    """w_hat and w_dot_hat = J_hat^-1 (tau - w_hat x J_hat w_hat) of eq. (12) into the outputs."""
-    wx, wy, wz = x[4], x[5], x[6]
-    hx = inertia_hat[0, 0] * wx + inertia_hat[0, 1] * wy + inertia_hat[0, 2] * wz
-    hy = inertia_hat[1, 0] * wx + inertia_hat[1, 1] * wy + inertia_hat[1, 2] * wz
-    hz = inertia_hat[2, 0] * wx + inertia_hat[2, 1] * wy + inertia_hat[2, 2] * wz
+def _record_step(w, tau, j, j_inv, w_hat, w_dot_hat):
+    """w_hat = w and w_dot_hat = J_hat^-1 (tau - w x J_hat w) of eq. (12) into the outputs (3,);
+    w, tau 3-sequences (rad/s, N·m), j, j_inv row-major 9-sequences (J_hat, kg·m²).
+    """
+    wx, wy, wz = w[0], w[1], w[2]
+    hx = j[0] * wx + j[1] * wy + j[2] * wz
+    hy = j[3] * wx + j[4] * wy + j[5] * wz
+    hz = j[6] * wx + j[7] * wy + j[8] * wz
     rx = tau[0] - (wy * hz - wz * hy)
     ry = tau[1] - (wz * hx - wx * hz)
     rz = tau[2] - (wx * hy - wy * hx)
     for i in range(3):
-        w_hat[i] = x[4 + i]
-        w_dot_hat[i] = inertia_hat_inv[i, 0] * rx + inertia_hat_inv[i, 1] * ry \
-            + inertia_hat_inv[i, 2] * rz
+        w_hat[i] = w[i]
+        w_dot_hat[i] = j_inv[3 * i] * rx + j_inv[3 * i + 1] * ry + j_inv[3 * i + 2] * rz
 
 
 @nb.njit(cache=True)
@@ -348,36 +450,27 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
     return 0 if ekf.state_is_sane(x, P) else 1
 
 
-@nb.njit(cache=True)
-def _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, r):
-    """Advance run r of the batch unless it has diverged; its counters and flags updated.
+@nb.njit(cache=True, parallel=True)
+def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """Advance every run of the batch, LANES runs per task, tasks in parallel.
 
     cfg_array : (1,) array of the filter configuration record (a record is handed to the
     parallel loop inside an array: numba cannot pass a bare record into a parfor).
-    n_updates, sigma_fresh, status, meas_done : (B,) per-run counters and flags.
+    n_updates, sigma_fresh, status : (B,) per-run counters and flags, updated in place.
     """
-    if status[r] != 0:
-        return
-    st, done, nu = _segment_one(truth, est, plan, logs, r, cfg_array[0], n_updates[r],
-                                sigma_fresh[r])
-    status[r] = st
-    meas_done[r] = done
-    n_updates[r] = nu
-    if cfg_array[0].ukf > 0:
-        sigma_fresh[r] = False
-
-
-@nb.njit(cache=True, parallel=True)
-def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
-    """Advance every run of the batch (parallel over runs); arguments as :func:`_advance_run`."""
-    for r in nb.prange(truth.y.shape[0]):
-        _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, r)
+    for task in nb.prange((truth.y.shape[0] + LANES - 1) // LANES):
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       task * LANES, LANES)
 
 
 @nb.njit(cache=True)
-def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done):
-    """A batch of one run, without the threading layer's launch cost (an env step, one seed)."""
-    _advance_run(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, meas_done, 0)
+def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A batch of at most LANES runs: one task, without the threading layer's launch cost."""
+    if truth.y.shape[0] == 1:
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status, 0, 1)
+    else:
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status, 0,
+                       LANES)
 
 
 def run_segment(
@@ -399,7 +492,8 @@ def run_segment(
     segment start (nb may be 0).  xi : (B, 3) (a, b, T_on); T_on only enters through bursts.
     v : (B, 3) unit burst directions.  rngs : one Generator per run (measurement times, noise).
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
-    disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth, or None.
+    disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth,
+    or None.
     Runs that had diverged are left untouched.
     """
     batch = state.batch
@@ -440,13 +534,16 @@ def run_segment(
     n_updates = state.n_updates.copy()
     phi_top, sigma, sigma_fresh = state.phi_top.copy(), state.sigma.copy(), state.sigma_fresh.copy()
     status = state.diverged.astype(np.int64)
-    meas_done = np.zeros(batch, dtype=np.int64)
     dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
-    (_segment_single if batch == 1 else _segment_batch)(
-        Truth(y_true, sc.inertia_true_array, dist), Estimator(x, P, phi_top, sigma),
+    if dist.shape != (DISTURBANCE_SIZE,):
+        raise ConfigError(f"disturbance must be a packed ({DISTURBANCE_SIZE},) vector "
+                          f"(dynamics.Disturbance.pack()), got shape {dist.shape}")
+    (_segment_single if batch <= LANES else _segment_batch)(
+        Truth(y_true, sc.inertia_true_array, dist),
+        Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
-        np.array([cfg]), n_updates, sigma_fresh, status, meas_done,
+        np.array([cfg]), n_updates, sigma_fresh, status,
     )
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from inertia_gym import sensors
-from inertia_gym.dynamics import NO_DISTURBANCE, _state_rate_into, euler_to_quat, quat_to_rotation
+from inertia_gym.dynamics import (
+    NO_DISTURBANCE,
+    Disturbance,
+    _state_rate_into,
+    euler_to_quat,
+    quat_to_rotation,
+)
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ekf
 from inertia_gym.estimation.inertia_param import (
@@ -53,7 +59,7 @@ def _predict(x, tau, n, dt=0.01):
     inertia = inertia_from_phi(x[7:])
     for _ in range(n):
         ekf.ekf_predict_step(x, tau, dt, inertia, np.linalg.inv(inertia), phi_top,
-                             np.empty((13, 13)), NO_DISTURBANCE)
+                             NO_DISTURBANCE)
     return x, phi_top
 
 
@@ -106,13 +112,12 @@ def test_transition_step_is_identity_plus_dt_jacobian_and_accumulates(rng):
         big[:7] += dt * jac
         steps.append((np.r_[y, phi_from_inertia(J)], big))
     phi_top = np.eye(7, 13)
-    work = np.empty((13, 13))
     inertia = inertia_from_phi(phi_from_inertia(J))
     ekf.accumulate_transition(steps[0][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
-                              work, NO_DISTURBANCE)
+                              NO_DISTURBANCE)
     assert np.allclose(phi_top, steps[0][1][:7], rtol=0, atol=1e-9)
     ekf.accumulate_transition(steps[1][0], inertia, np.linalg.inv(inertia), tau, dt, phi_top,
-                              work, NO_DISTURBANCE)
+                              NO_DISTURBANCE)
     assert np.allclose(phi_top, (steps[1][1] @ steps[0][1])[:7], rtol=0, atol=1e-9)
 
 
@@ -259,3 +264,32 @@ def test_vector_sensors_run_and_converge_ratios(paper):
     err = np.linalg.norm(j_hat / np.trace(j_hat) - J / np.trace(J)) / np.linalg.norm(J / np.trace(J))
     assert not state.diverged[0]
     assert err < 0.02
+
+
+def test_ekf_predict_lanes_step_each_lane_as_ekf_predict_step(rng):
+    """Lane l of ekf_predict_lanes (mean and transition) is bit for bit the one-run step;
+    lanes with on[l] = 0 do not move."""
+    lanes = 8
+    xs, phis, taus, inertias = [], [], [], []
+    for _ in range(lanes):
+        q = rng.normal(size=4)
+        inertia = J * rng.uniform(0.5, 2.0)
+        xs.append(np.r_[q / np.linalg.norm(q), rng.normal(0, 5, 3), phi_from_inertia(inertia)])
+        phis.append(np.eye(7, 13) + 0.01 * rng.normal(size=(7, 13)))
+        taus.append(rng.normal(size=3))
+        inertias.append(inertia)
+    on = (np.arange(lanes) % 3 != 1).astype(float)
+    dist = Disturbance(constant_torque=(0.1, -0.2, 0.3), internal_momentum=(0.5, 0.0, 1.0)).pack()
+    x_lanes = np.array(xs).T.copy()
+    phi_lanes = np.array([p.ravel() for p in phis]).T.copy()
+    ekf.ekf_predict_lanes(x_lanes, np.array([m.ravel() for m in inertias]).T.copy(),
+                          np.array([np.linalg.inv(m).ravel() for m in inertias]).T.copy(),
+                          np.array(taus).T.copy(), tuple(dist), 0.01, phi_lanes,
+                          np.empty((ekf.N_COEF, lanes)), on)
+    for lane in range(lanes):
+        x, phi = xs[lane].copy(), phis[lane].copy()
+        if on[lane]:
+            ekf.ekf_predict_step(x, taus[lane], 0.01, inertias[lane], np.linalg.inv(inertias[lane]),
+                                 phi, dist)
+        assert np.array_equal(x_lanes[:, lane], x)
+        assert np.array_equal(phi_lanes[:, lane], phi.ravel())

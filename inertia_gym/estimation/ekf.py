@@ -20,88 +20,175 @@ import math
 import numba as nb
 import numpy as np
 
-from inertia_gym.dynamics import rk4_step_into
+from inertia_gym.dynamics import lane_entries9, mat3_entries, rk4_lanes, rk4_step_into
 from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_norm_sq, theta_into
-from inertia_gym.information import psi_into
+from inertia_gym.information import psi_entries
 from inertia_gym.sensors import align_quaternion_sign, measurement_model, measurement_noise
 
 N_STATE = 13
 
 
+#: Rows of the per-lane transition coefficients (:func:`transition_coefficients_into`):
+#: w / 2 (3), q / 2 (4), A_ww (9) and A_wtheta (18), row-major.
+N_COEF = 34
+
+
+@nb.njit(cache=True, inline="always")
+def _times_inverse(j_inv, c0, c1, c2):
+    """J^-1 c for c = (c0, c1, c2), j_inv row-major (9,); a 3-tuple."""
+    return (j_inv[0] * c0 + j_inv[1] * c1 + j_inv[2] * c2,
+            j_inv[3] * c0 + j_inv[4] * c1 + j_inv[5] * c2,
+            j_inv[6] * c0 + j_inv[7] * c1 + j_inv[8] * c2)
+
+
+@nb.njit(cache=True, inline="always")
+def transition_coefficients_into(x, j, j_inv, tau, dist, coef, lane):
+    """The blocks of the Jacobian A of (q_dot, w_dot) at lane `lane` into coef[:, lane].
+
+    Lane arrays hold runs along their last axis: x (>= 7, L) rows (q, w); j, j_inv (9, L) J(phi)
+    and its inverse, row-major (kg·m²); tau (3, L) N·m; coef (N_COEF, L). dist : the packed
+    disturbance (the model uses h = dist[3:6] and the torque dist[0:3]). Writes w / 2, q / 2,
+    A_ww = J^-1 ([J w + h]x - [w]x J) and A_wtheta = -J^-1 Psi(w, w_dot) (eq. 9
+    differentiated, w_dot the model's acceleration), row-major; A_qq = 1/2 Omega(w) and
+    A_qw = 1/2 Xi(q) are read off w / 2 and q / 2.
+    """
+    qw, qx, qy, qz = x[0, lane], x[1, lane], x[2, lane], x[3, lane]
+    wx, wy, wz = x[4, lane], x[5, lane], x[6, lane]
+    jl, ji = lane_entries9(j, lane), lane_entries9(j_inv, lane)
+    hx = jl[0] * wx + jl[1] * wy + jl[2] * wz + dist[3]
+    hy = jl[3] * wx + jl[4] * wy + jl[5] * wz + dist[4]
+    hz = jl[6] * wx + jl[7] * wy + jl[8] * wz + dist[5]
+    mx = tau[0, lane] + dist[0] - (wy * hz - wz * hy)
+    my = tau[1, lane] + dist[1] - (wz * hx - wx * hz)
+    mz = tau[2, lane] + dist[2] - (wx * hy - wy * hx)
+    ax, ay, az = _times_inverse(ji, mx, my, mz)
+    # Columns of M = [J w + h]x - [w]x J, then of A_ww = J^-1 M.
+    w0 = _times_inverse(ji, -(wy * jl[6] - wz * jl[3]), -(wz * jl[0] - wx * jl[6]) + hz,
+                        -(wx * jl[3] - wy * jl[0]) - hy)
+    w1 = _times_inverse(ji, -(wy * jl[7] - wz * jl[4]) - hz, -(wz * jl[1] - wx * jl[7]),
+                        -(wx * jl[4] - wy * jl[1]) + hx)
+    w2 = _times_inverse(ji, -(wy * jl[8] - wz * jl[5]) + hy, -(wz * jl[2] - wx * jl[8]) - hx,
+                        -(wx * jl[5] - wy * jl[2]))
+    p = psi_entries(wx, wy, wz, ax, ay, az)
+    t0 = _times_inverse(ji, p[0], p[6], p[12])
+    t1 = _times_inverse(ji, p[1], p[7], p[13])
+    t2 = _times_inverse(ji, p[2], p[8], p[14])
+    t3 = _times_inverse(ji, p[3], p[9], p[15])
+    t4 = _times_inverse(ji, p[4], p[10], p[16])
+    t5 = _times_inverse(ji, p[5], p[11], p[17])
+    coef[0, lane], coef[1, lane], coef[2, lane] = 0.5 * wx, 0.5 * wy, 0.5 * wz
+    coef[3, lane], coef[4, lane], coef[5, lane], coef[6, lane] = \
+        0.5 * qw, 0.5 * qx, 0.5 * qy, 0.5 * qz
+    coef[7, lane], coef[8, lane], coef[9, lane] = w0[0], w1[0], w2[0]
+    coef[10, lane], coef[11, lane], coef[12, lane] = w0[1], w1[1], w2[1]
+    coef[13, lane], coef[14, lane], coef[15, lane] = w0[2], w1[2], w2[2]
+    coef[16, lane], coef[17, lane], coef[18, lane] = -t0[0], -t1[0], -t2[0]
+    coef[19, lane], coef[20, lane], coef[21, lane] = -t3[0], -t4[0], -t5[0]
+    coef[22, lane], coef[23, lane], coef[24, lane] = -t0[1], -t1[1], -t2[1]
+    coef[25, lane], coef[26, lane], coef[27, lane] = -t3[1], -t4[1], -t5[1]
+    coef[28, lane], coef[29, lane], coef[30, lane] = -t0[2], -t1[2], -t2[2]
+    coef[31, lane], coef[32, lane], coef[33, lane] = -t3[2], -t4[2], -t5[2]
+
+
+@nb.njit(cache=True, inline="always")
+def _transition_column(phi_top, col, lane, dt, coef, on, rate_rows, theta_column):
+    """Column `col` of lane `lane` of phi_top <- c + dt A c (unless on[lane] == 0).
+
+    phi_top (7 * 13, L): entry (i, col) of a lane's (7, 13) transition in row 13 i + col (a
+    2-D view of one buffer keeps its strides constant). coef from
+    :func:`transition_coefficients_into`. The rate rows have zero attitude columns:
+    rate_rows False (columns 0-3) leaves them; theta_column (columns 7-12) adds A_wtheta.
+    Both are constants at every call, so the branches fold away.
+    """
+    c0, c1, c2 = phi_top[col, lane], phi_top[N_STATE + col, lane], phi_top[2 * N_STATE + col, lane]
+    c3, c4 = phi_top[3 * N_STATE + col, lane], phi_top[4 * N_STATE + col, lane]
+    c5, c6 = phi_top[5 * N_STATE + col, lane], phi_top[6 * N_STATE + col, lane]
+    hwx, hwy, hwz = coef[0, lane], coef[1, lane], coef[2, lane]
+    hqw, hqx, hqy, hqz = coef[3, lane], coef[4, lane], coef[5, lane], coef[6, lane]
+    keep = on[lane] == 0.0
+    n0 = c0 + dt * ((-hwx * c1 - hwy * c2 - hwz * c3) + (-hqx * c4 - hqy * c5 - hqz * c6))
+    n1 = c1 + dt * ((hwx * c0 + hwz * c2 - hwy * c3) + (hqw * c4 - hqz * c5 + hqy * c6))
+    n2 = c2 + dt * ((hwy * c0 - hwz * c1 + hwx * c3) + (hqz * c4 + hqw * c5 - hqx * c6))
+    n3 = c3 + dt * ((hwz * c0 + hwy * c1 - hwx * c2) + (-hqy * c4 + hqx * c5 + hqw * c6))
+    phi_top[col, lane] = c0 if keep else n0
+    phi_top[N_STATE + col, lane] = c1 if keep else n1
+    phi_top[2 * N_STATE + col, lane] = c2 if keep else n2
+    phi_top[3 * N_STATE + col, lane] = c3 if keep else n3
+    if rate_rows:
+        d4 = coef[7, lane] * c4 + coef[8, lane] * c5 + coef[9, lane] * c6
+        d5 = coef[10, lane] * c4 + coef[11, lane] * c5 + coef[12, lane] * c6
+        d6 = coef[13, lane] * c4 + coef[14, lane] * c5 + coef[15, lane] * c6
+        if theta_column:
+            d4 += coef[9 + col, lane]  # A_wtheta[:, col - 7]
+            d5 += coef[15 + col, lane]
+            d6 += coef[21 + col, lane]
+        phi_top[4 * N_STATE + col, lane] = c4 if keep else c4 + dt * d4
+        phi_top[5 * N_STATE + col, lane] = c5 if keep else c5 + dt * d5
+        phi_top[6 * N_STATE + col, lane] = c6 if keep else c6 + dt * d6
+
+
+@nb.njit(cache=True, inline="always")
+def accumulate_transition_lanes(x, j, j_inv, tau, dist, dt, phi_top, coef, on):
+    """phi_top <- (I + dt A) phi_top for every lane l with on[l] != 0 (the others unchanged).
+
+    phi_top (7 * 13, L): per lane the (7, 13) transition (rows (q, w), columns (q, w, theta),
+    theta in theta coordinates), entry (i, k) in row 13 i + k; A the Jacobian of
+    (q_dot, w_dot) at x; x, j, j_inv, tau, coef, dist as for
+    :func:`transition_coefficients_into`; on (L,) 1.0 / 0.0. Inlined into a kernel whose lane
+    arrays are views of one array of constant shape (so the compiler sees they cannot
+    overlap), the loop over lanes runs as SIMD instructions (one lane per vector slot).
+    """
+    for lane in range(x.shape[1]):  # columns written out: this is the (only) vector loop
+        transition_coefficients_into(x, j, j_inv, tau, dist, coef, lane)
+        _transition_column(phi_top, 0, lane, dt, coef, on, False, False)
+        _transition_column(phi_top, 1, lane, dt, coef, on, False, False)
+        _transition_column(phi_top, 2, lane, dt, coef, on, False, False)
+        _transition_column(phi_top, 3, lane, dt, coef, on, False, False)
+        _transition_column(phi_top, 4, lane, dt, coef, on, True, False)
+        _transition_column(phi_top, 5, lane, dt, coef, on, True, False)
+        _transition_column(phi_top, 6, lane, dt, coef, on, True, False)
+        _transition_column(phi_top, 7, lane, dt, coef, on, True, True)
+        _transition_column(phi_top, 8, lane, dt, coef, on, True, True)
+        _transition_column(phi_top, 9, lane, dt, coef, on, True, True)
+        _transition_column(phi_top, 10, lane, dt, coef, on, True, True)
+        _transition_column(phi_top, 11, lane, dt, coef, on, True, True)
+        _transition_column(phi_top, 12, lane, dt, coef, on, True, True)
+
+
+#: Rows of the one-lane buffer of :func:`accumulate_transition`: x (7), j (9), j_inv (9),
+#: tau (3), on (1), coefficients, phi_top (7 x 13).
+_ONE_LANE_ROWS = 7 + 9 + 9 + 3 + 1 + N_COEF + 7 * N_STATE
+
+
 @nb.njit(cache=True)
-def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, work, dist):
+def accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, dist):
     """phi_top <- (I + dt A) phi_top for the (q, w) rows, theta columns in theta coordinates.
 
-    phi_top : (7, 13) rows (q, w), columns (q, w, theta). A is the Jacobian of (q_dot, w_dot)
-    at x: A_qq = 1/2 Omega(w), A_qw = 1/2 Xi(q), A_ww = J^-1 ([J w + h]x - [w]x J),
-    A_wtheta = -J^-1 Psi(w, w_dot) (eq. 9 differentiated). The w rows have zero q columns, which
-    the loops skip. work : (13, 13) scratch; allocation-free. dist : the packed disturbance of
-    dynamics.py, of which the filter's model uses the known internal momentum h = dist[3:6]
-    (N·m·s) and the extra torque dist[0:3] (N·m, e.g. -h_dot); zeros in the simulator.
+    phi_top : (7, 13) rows (q, w), columns (q, w, theta); A the Jacobian of (q_dot, w_dot) at
+    x (13,) (see :func:`transition_coefficients_into`); inertia, inertia_inv (3, 3) kg·m²;
+    tau (3,) N·m. dist : the packed disturbance of dynamics.py, of which the filter's model
+    uses the known internal momentum h = dist[3:6] (N·m·s) and the extra torque dist[0:3]
+    (N·m, e.g. -h_dot); zeros in the simulator. :func:`accumulate_transition_lanes` on one lane.
     """
-    qw, qx, qy, qz = x[0], x[1], x[2], x[3]
-    wx, wy, wz = x[4], x[5], x[6]
-    hx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz + dist[3]
-    hy = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz + dist[4]
-    hz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz + dist[5]
-    mx = tau[0] + dist[0] - (wy * hz - wz * hy)
-    my = tau[1] + dist[1] - (wz * hx - wx * hz)
-    mz = tau[2] + dist[2] - (wx * hy - wy * hx)
-    acc = work[0, 0:3]
+    buf = np.empty((_ONE_LANE_ROWS, 1))
+    entries, inv_entries = mat3_entries(inertia), mat3_entries(inertia_inv)
+    for i in range(7):
+        buf[i, 0] = x[i]
+    for i in range(9):
+        buf[7 + i, 0] = entries[i]
+        buf[16 + i, 0] = inv_entries[i]
     for i in range(3):
-        acc[i] = inertia_inv[i, 0] * mx + inertia_inv[i, 1] * my + inertia_inv[i, 2] * mz
-    # M = [J w]x - [w]x J, then A_ww = J^-1 M
-    m = work[1:4, 0:3]
-    for j in range(3):
-        m[0, j] = -(wy * inertia[2, j] - wz * inertia[1, j])
-        m[1, j] = -(wz * inertia[0, j] - wx * inertia[2, j])
-        m[2, j] = -(wx * inertia[1, j] - wy * inertia[0, j])
-    m[0, 1] -= hz
-    m[0, 2] += hy
-    m[1, 0] += hz
-    m[1, 2] -= hx
-    m[2, 0] -= hy
-    m[2, 1] += hx
-    a_ww = work[4:7, 0:3]
-    psi = work[7:10, 0:6]
-    psi_into(x[4:7], acc, psi)
-    a_wth = work[10:13, 0:6]
-    for i in range(3):
-        for j in range(3):
-            a_ww[i, j] = inertia_inv[i, 0] * m[0, j] + inertia_inv[i, 1] * m[1, j] \
-                + inertia_inv[i, 2] * m[2, j]
-        for j in range(6):
-            a_wth[i, j] = -(inertia_inv[i, 0] * psi[0, j] + inertia_inv[i, 1] * psi[1, j]
-                            + inertia_inv[i, 2] * psi[2, j])
-    # A_qq = 1/2 Omega(w) (zero diagonal), A_qw = 1/2 Xi(q) and A_ww (b), as scalars.
-    hwx, hwy, hwz = 0.5 * wx, 0.5 * wy, 0.5 * wz
-    hqw, hqx, hqy, hqz = 0.5 * qw, 0.5 * qx, 0.5 * qy, 0.5 * qz
-    b00, b01, b02 = a_ww[0, 0], a_ww[0, 1], a_ww[0, 2]
-    b10, b11, b12 = a_ww[1, 0], a_ww[1, 1], a_ww[1, 2]
-    b20, b21, b22 = a_ww[2, 0], a_ww[2, 1], a_ww[2, 2]
-    # Column by column: c <- c + dt A c, the column's old values held in scalars.
-    for j in range(N_STATE):
-        c0, c1, c2, c3 = phi_top[0, j], phi_top[1, j], phi_top[2, j], phi_top[3, j]
-        c4, c5, c6 = phi_top[4, j], phi_top[5, j], phi_top[6, j]
-        phi_top[0, j] = c0 + dt * ((-hwx * c1 - hwy * c2 - hwz * c3)
-                                   + (-hqx * c4 - hqy * c5 - hqz * c6))
-        phi_top[1, j] = c1 + dt * ((hwx * c0 + hwz * c2 - hwy * c3)
-                                   + (hqw * c4 - hqz * c5 + hqy * c6))
-        phi_top[2, j] = c2 + dt * ((hwy * c0 - hwz * c1 + hwx * c3)
-                                   + (hqz * c4 + hqw * c5 - hqx * c6))
-        phi_top[3, j] = c3 + dt * ((hwz * c0 + hwy * c1 - hwx * c2)
-                                   + (-hqy * c4 + hqx * c5 + hqw * c6))
-        if j >= 4:  # the rate rows have zero attitude columns
-            d4 = b00 * c4 + b01 * c5 + b02 * c6
-            d5 = b10 * c4 + b11 * c5 + b12 * c6
-            d6 = b20 * c4 + b21 * c5 + b22 * c6
-            if j >= 7:
-                d4 += a_wth[0, j - 7]
-                d5 += a_wth[1, j - 7]
-                d6 += a_wth[2, j - 7]
-            phi_top[4, j] = c4 + dt * d4
-            phi_top[5, j] = c5 + dt * d5
-            phi_top[6, j] = c6 + dt * d6
+        buf[25 + i, 0] = tau[i]
+    buf[28, 0] = 1.0
+    lane_phi = buf[29 + N_COEF:]
+    for i in range(7):
+        for k in range(N_STATE):
+            lane_phi[N_STATE * i + k, 0] = phi_top[i, k]
+    accumulate_transition_lanes(buf[0:7], buf[7:16], buf[16:25], buf[25:28], dist, dt, lane_phi,
+                                buf[29:29 + N_COEF], buf[28])
+    for i in range(7):
+        for k in range(N_STATE):
+            phi_top[i, k] = lane_phi[N_STATE * i + k, 0]
 
 
 @nb.njit(cache=True)
@@ -385,16 +472,30 @@ def ekf_update(x, P, z, cfg):
 
 
 @nb.njit(cache=True)
-def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, scratch_jac, dist):
+def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, dist):
     """Advance the EKF mean by one dt (RK4) and accumulate the transition; x updated in place.
 
     inertia, inertia_inv : J(phi) and its inverse for the current x (phi is constant between
-    updates, so the caller computes them once per measurement interval).
-    scratch_jac : (13, 13). dist : (20,) packed disturbance; the model uses its internal
-    momentum h and extra torque (see :func:`accumulate_transition`).
+    updates, so the caller computes them once per measurement interval). dist :
+    (DISTURBANCE_SIZE,) packed disturbance; the model uses its internal momentum h and extra
+    torque (see :func:`accumulate_transition`).
     """
-    accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, scratch_jac, dist)
+    accumulate_transition(x, inertia, inertia_inv, tau, dt, phi_top, dist)
     rk4_step_into(x, dt, inertia, inertia_inv, tau, dist, x)
+
+
+@nb.njit(cache=True, inline="always")
+def ekf_predict_lanes(x, j, j_inv, tau, dist, dt, phi_top, coef, on):
+    """:func:`ekf_predict_step` for every lane l with on[l] != 0 (the others unchanged).
+
+    Lanes are runs along the last axis: x (13, L) means, j and j_inv (9, L) row-major J(phi)
+    and inverse, tau (3, L) N·m, phi_top (7 * 13, L) (see :func:`accumulate_transition_lanes`),
+    coef (N_COEF, L) scratch, on (L,) 1.0 /
+    0.0; dist the filter model's packed disturbance, a tuple shared by all lanes. Each lane
+    computes exactly what ekf_predict_step computes for it.
+    """
+    accumulate_transition_lanes(x, j, j_inv, tau, dist, dt, phi_top, coef, on)
+    rk4_lanes(x, j, j_inv, tau, dist, dt, on)
 
 
 @nb.njit(cache=True)

@@ -51,7 +51,6 @@ class InertiaFilter:
         self.n_updates = 0
         self._ukf = config.estimator == "ukf"
         self._phi_top = np.eye(7, 13)
-        self._jac_work = np.empty((13, 13))
         self._cov_work = np.empty((14, 13))
         self._dist = np.zeros(DISTURBANCE_SIZE)
         n_sigma = ukf.N_SIGMA if self._ukf else 0
@@ -110,7 +109,7 @@ class InertiaFilter:
                     ukf.sigma_mean(self._sigma, self.x)
                 else:
                     ekf.ekf_predict_step(self.x, tau, step, self._inertia, self._inertia_inv,
-                                         self._phi_top, self._jac_work, self._dist)
+                                         self._phi_top, self._dist)
         except ZeroDivisionError as exc:  # a degenerate sigma point or quaternion
             raise EstimatorDivergedError(f"the filter's prediction failed: {exc}") from exc
         if not np.all(np.isfinite(self.x)):
