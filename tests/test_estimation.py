@@ -205,8 +205,9 @@ def test_inertia_step_limit_bounds_the_change_of_j(rng):
     innov = rng.normal(size=7)
     for size, limit in ((0.3, 0.05), (2.0, 0.05), (1e-4, 0.05), (0.3, 0.5)):
         gain = size * rng.normal(size=(13, 7))
-        limited = gain.copy()
-        ekf.limit_inertia_step(x, limited, innov, limit)
+        limited_t = gain.T.copy()  # the kernel takes K^T
+        ekf.limit_inertia_step(x, limited_t, innov, limit)
+        limited = limited_t.T
         step = limited[7:] @ innov
         change = np.linalg.norm(inertia_from_phi(x[7:] + step) - J)
         assert change <= limit * np.linalg.norm(J) * (1 + 1e-12)

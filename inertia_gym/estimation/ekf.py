@@ -289,9 +289,10 @@ def propagate_covariance(P, phi_top, x, n_updates, cfg, work):
 
 
 @nb.njit(cache=True)
-def limit_inertia_step(x, gain, innov, limit):
+def limit_inertia_step(x, gain_t, innov, limit):
     """Damp the inertia rows of the gain so one update changes J by at most ``limit`` (relative).
 
+    gain_t : (m, 13) the gain K transposed (K^T), changed in place; innov (m,).
     ||J(phi + d_phi) - J(phi)||_F <= limit ||J(phi)||_F. The Joseph form stays the exact
     covariance of the damped (suboptimal) gain, so the filter remains consistent; far from the
     truth this turns a wild linearised jump into a sequence of short, re-linearised steps.
@@ -305,7 +306,7 @@ def limit_inertia_step(x, gain, innov, limit):
     for i in range(6):
         acc = 0.0
         for j in range(innov.shape[0]):
-            acc += gain[7 + i, j] * innov[j]
+            acc += gain_t[j, 7 + i] * innov[j]
         d_phi[i] = acc
     theta_into(x[7:13], theta_old)
     allowed = limit * math.sqrt(inertia_norm_sq(theta_old))
@@ -319,9 +320,9 @@ def limit_inertia_step(x, gain, innov, limit):
         if change <= allowed:
             return
         scale = max(0.5, 0.9 * allowed / change)
-        for i in range(7, 13):
-            for j in range(gain.shape[1]):
-                gain[i, j] *= scale
+        for j in range(gain_t.shape[0]):
+            for i in range(7, 13):
+                gain_t[j, i] *= scale
         for i in range(6):
             d_phi[i] *= scale
 
@@ -348,6 +349,7 @@ def _cholesky_into(s, low):
 
 @nb.njit(cache=True)
 def _solve_lower(low, b, out):
+    """Solve L out = b (forward substitution)."""
     for i in range(b.shape[0]):
         acc = b[i]
         for k in range(i):
@@ -356,14 +358,33 @@ def _solve_lower(low, b, out):
 
 
 @nb.njit(cache=True)
-def _solve_upper_t(low, b, out):
-    """Solve L^T out = b."""
-    n = b.shape[0]
-    for i in range(n - 1, -1, -1):
-        acc = b[i]
-        for k in range(i + 1, n):
-            acc -= low[k, i] * out[k]
-        out[i] = acc / low[i, i]
+def _gain_transposed(low, pht, gain_t):
+    """K^T = S^-1 (P H^T)^T into gain_t (m, n), from S = L L^T (low) and pht = P H^T (n, m).
+
+    Row i of K solves L y = pht[i] (forward) and L^T k = y (backward), every row with the same
+    operations in the same order as one substitution at a time; the n rows advance together
+    (innermost loop over rows, contiguous in gain_t), so the divisions and multiply-adds of
+    different rows overlap instead of waiting on each other.
+    """
+    m, n = gain_t.shape
+    for k in range(m):
+        for i in range(n):
+            gain_t[k, i] = pht[i, k]
+        for p in range(k):
+            f = low[k, p]
+            for i in range(n):
+                gain_t[k, i] -= f * gain_t[p, i]
+        d = low[k, k]
+        for i in range(n):
+            gain_t[k, i] /= d
+    for k in range(m - 1, -1, -1):
+        for p in range(k + 1, m):
+            f = low[p, k]
+            for i in range(n):
+                gain_t[k, i] -= f * gain_t[p, i]
+        d = low[k, k]
+        for i in range(n):
+            gain_t[k, i] /= d
 
 
 @nb.njit(cache=True)
@@ -440,31 +461,37 @@ def ekf_update(x, P, z, cfg):
             P[i, i] += add_q
         add_w *= 2.0
         add_q *= 2.0
-    # K = P H^T S^-1: solve S k_i = (P H^T)_i for each row i.
-    gain = np.empty((N_STATE, m))
+    # K = P H^T S^-1, transposed: rows of K^T are contiguous for the loops below, whose
+    # innermost index runs over the state (each sum in the order of the plain product).
+    gain_t = np.empty((m, N_STATE))
+    _gain_transposed(low, pht, gain_t)
+    limit_inertia_step(x, gain_t, innov, cfg.inertia_step_limit)
+    step = np.zeros(N_STATE)
+    for j in range(m):
+        for i in range(N_STATE):
+            step[i] += gain_t[j, i] * innov[j]
     for i in range(N_STATE):
-        _solve_lower(low, pht[i], y)
-        _solve_upper_t(low, y, gain[i])
-    limit_inertia_step(x, gain, innov, cfg.inertia_step_limit)
-    for i in range(N_STATE):
-        acc = 0.0
-        for j in range(m):
-            acc += gain[i, j] * innov[j]
-        x[i] += acc
-    ks = np.empty((N_STATE, m))  # K S
-    for i in range(N_STATE):
-        for j in range(m):
-            acc = 0.0
-            for k in range(m):
-                acc += gain[i, k] * s[k, j]
-            ks[i, j] = acc
+        x[i] += step[i]
+    pht_t = np.empty((m, N_STATE))
+    ks_t = np.zeros((m, N_STATE))  # (K S)^T
+    for j in range(m):
+        for i in range(N_STATE):
+            pht_t[j, i] = pht[i, j]
+        for k in range(m):
+            s_kj = s[k, j]
+            for i in range(N_STATE):
+                ks_t[j, i] += gain_t[k, i] * s_kj
+    row = np.empty(N_STATE)
     for i in range(N_STATE):
         for j in range(i, N_STATE):
-            acc = P[i, j]
-            for k in range(m):
-                acc += -gain[i, k] * pht[j, k] - pht[i, k] * gain[j, k] + ks[i, k] * gain[j, k]
-            P[i, j] = acc
-            P[j, i] = acc
+            row[j] = P[i, j]
+        for k in range(m):
+            g_ki, p_ki, ks_ki = gain_t[k, i], pht_t[k, i], ks_t[k, i]
+            for j in range(i, N_STATE):
+                row[j] += -g_ki * pht_t[k, j] - p_ki * gain_t[k, j] + ks_ki * gain_t[k, j]
+        for j in range(i, N_STATE):
+            P[i, j] = row[j]
+            P[j, i] = row[j]
     norm = math.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2 + x[3] ** 2)
     for i in range(4):
         x[i] /= norm
