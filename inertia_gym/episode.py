@@ -23,11 +23,11 @@ from inertia_gym.information import (
     cost as info_cost,
 )
 from inertia_gym.information import (
-    gram_prefix,
+    lambda_min,
+    runs_window_grams,
     soft_min,
     window_length,
     window_starts,
-    windowed_lambda_min,
 )
 from inertia_gym.scenario import Scenario
 from inertia_gym.simulation import SimState, run_segment
@@ -60,18 +60,25 @@ class EpisodeResult:
     diverged: bool
 
 
-def information_cost(sc: Scenario, w_hat, w_dot_hat, bursts, t_on: float) -> tuple[float, float,
-                                                                                  np.ndarray]:
-    """(J, alpha, lambda_min per window) of one episode's per-step estimates.
+def information_costs(sc: Scenario, w_hat, w_dot_hat, n_steps, bursts, t_on) -> list[tuple]:
+    """(J, alpha, lambda_min per window) of each of R episodes' per-step estimates.
 
-    w_hat, w_dot_hat : (n, 3) rad/s, rad/s². bursts : (m, 2) [start, stop) step indices.
+    w_hat, w_dot_hat : (R, n, 3) rad/s, rad/s², run r's first n_steps[r] rows. bursts :
+    (R, m, 2) [start, stop) step indices. t_on : (R,) s. The window Grams of all runs are
+    formed in one compiled call and their eigenvalues in one LAPACK call over the stack.
     """
-    n_window = window_length(t_on, sc.dt)
-    prefix = gram_prefix(np.ascontiguousarray(w_hat), np.ascontiguousarray(w_dot_hat))
-    starts = window_starts(len(w_hat), n_window, bursts if sc.window_set == "burst" else None)
-    lam = windowed_lambda_min(prefix, starts, n_window, sc.epsilon)
-    alpha = soft_min(lam, sc.softmin_beta)
-    return info_cost(alpha, sc.epsilon_lambda), alpha, lam
+    n_window = [window_length(t, sc.dt) for t in t_on]
+    starts = [window_starts(int(n), nw, b if sc.window_set == "burst" else None)
+              for n, nw, b in zip(n_steps, n_window, bursts)]
+    offsets = np.r_[0, np.cumsum([len(s) for s in starts])]
+    grams = runs_window_grams(w_hat, w_dot_hat, np.concatenate(starts), offsets, n_window,
+                              sc.epsilon)
+    lam = lambda_min(grams)
+    out = []
+    for a, b in zip(offsets[:-1], offsets[1:]):
+        alpha = soft_min(lam[a:b], sc.softmin_beta)
+        out.append((info_cost(alpha, sc.epsilon_lambda), alpha, lam[a:b]))
+    return out
 
 
 def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generator], *,
@@ -100,6 +107,10 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
     p_theta_end = new_state.P_theta()
     theta_hat = new_state.theta_hat()
     errors = relative_error(new_state.inertia_hat(), sc.inertia_true_array)
+    healthy = np.flatnonzero(~new_state.diverged)
+    infos = dict(zip(healthy, information_costs(
+        sc, trace.w_hat[healthy], trace.w_dot_hat[healthy], n_steps[healthy], bursts[healthy],
+        xi[healthy, 2]))) if healthy.size else {}
     results = []
     for r in range(batch):
         diverged = bool(new_state.diverged[r])
@@ -107,10 +118,7 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
         if diverged:
             j_info, alpha, lam, post = np.inf, 0.0, np.zeros(0), np.inf
         else:
-            n = n_steps[r]
-            j_info, alpha, lam = information_cost(
-                sc, trace.w_hat[r, :n], trace.w_dot_hat[r, :n], bursts[r], xi[r, 2]
-            )
+            j_info, alpha, lam = infos[r]
             post = float(np.linalg.slogdet(p_theta_end[r])[1]
                          - np.linalg.slogdet(p_theta_start[r])[1])
         results.append(EpisodeResult(

@@ -14,9 +14,6 @@ import numpy as np
 
 from inertia_gym.errors import ConfigError
 
-# Index pairs (i, j), i <= j, of the 21 distinct entries of a symmetric 6x6 matrix.
-_UPPER = np.array([(i, j) for i in range(6) for j in range(i, 6)], dtype=np.int64)
-
 
 @nb.njit(cache=True, inline="always")
 def psi_entries(wx, wy, wz, ax, ay, az):
@@ -73,23 +70,86 @@ def inertia_from_theta(theta) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def gram_prefix(w_hat, w_dot_hat):
-    """Prefix sums of G_k = Psi_k^T Psi_k (eq. 13).
+def window_grams_into(w_hat, w_dot_hat, starts, n_window, epsilon, out):
+    """The regularised window Grams G_bar(s) = sum_{k=s}^{s+N-1} G_k + eps I6 (eq. 14) of
+    G_k = Psi_k^T Psi_k (eq. 13), for each s of the strictly increasing starts, into out
+    (len(starts), 6, 6).
 
-    w_hat, w_dot_hat : (n, 3). Returns C of shape (n+1, 6, 6) with C[s] = sum_{k<s} G_k, so that
-    the window sum over k = s .. s+N-1 is C[s+N] - C[s].
+    w_hat, w_dot_hat : (>= max(starts) + N, 3) rad/s, rad/s²; N = n_window. Each window is the
+    difference C[s + N] - C[s] of the prefix sums C[t] = sum_{k<t} G_k, accumulated in time
+    order; only the prefix values where a window starts are kept, so memory is O(windows).
     """
-    n = w_hat.shape[0]
-    out = np.zeros((n + 1, 6, 6))
+    n_win = starts.shape[0]
+    if n_win == 0:
+        return
+    c = np.zeros((6, 6))  # upper triangle of C[t]
+    low = np.empty((n_win, 6, 6))
     p = np.empty((3, 6))
-    for k in range(n):
-        psi_into(w_hat[k], w_dot_hat[k], p)
-        for i in range(6):
-            for j in range(i, 6):
-                g = p[0, i] * p[0, j] + p[1, i] * p[1, j] + p[2, i] * p[2, j]
-                out[k + 1, i, j] = out[k, i, j] + g
-                out[k + 1, j, i] = out[k + 1, i, j]
+    opened = closed = 0
+    last = starts[n_win - 1] + n_window
+    for t in range(last + 1):
+        if opened < n_win and starts[opened] == t:
+            low[opened] = c
+            opened += 1
+        if closed < n_win and starts[closed] + n_window == t:
+            for i in range(6):
+                for j in range(i, 6):
+                    g = (c[i, j] - low[closed, i, j]) + epsilon * (1.0 if i == j else 0.0)
+                    out[closed, i, j] = g
+                    out[closed, j, i] = g
+            closed += 1
+        if t < last:
+            psi_into(w_hat[t], w_dot_hat[t], p)
+            for i in range(6):
+                for j in range(i, 6):
+                    c[i, j] = c[i, j] + (p[0, i] * p[0, j] + p[1, i] * p[1, j] + p[2, i] * p[2, j])
+
+
+@nb.njit(cache=True)
+def _runs_window_grams(w_hat, w_dot_hat, starts, offsets, n_window, epsilon, out, r):
+    """:func:`window_grams_into` for run r of :func:`runs_window_grams`' arguments."""
+    a, b = offsets[r], offsets[r + 1]
+    window_grams_into(w_hat[r], w_dot_hat[r], starts[a:b], n_window[r], epsilon, out[a:b])
+
+
+@nb.njit(cache=True, parallel=True)
+def _runs_window_grams_parallel(w_hat, w_dot_hat, starts, offsets, n_window, epsilon, out):
+    for r in nb.prange(offsets.shape[0] - 1):
+        _runs_window_grams(w_hat, w_dot_hat, starts, offsets, n_window, epsilon, out, r)
+
+
+def runs_window_grams(w_hat, w_dot_hat, starts, offsets, n_window, epsilon) -> np.ndarray:
+    """The window Grams of R runs at once (in parallel over runs), stacked: (W, 6, 6).
+
+    w_hat, w_dot_hat : (R, n, 3); run r's windows start at starts[offsets[r]:offsets[r + 1]]
+    (strictly increasing) and are n_window[r] samples long; offsets (R + 1,) int. The rows of
+    run r in the result are those of :func:`window_grams` of its own arrays.
+    """
+    out = np.empty((int(offsets[-1]), 6, 6))
+    args = (np.ascontiguousarray(w_hat, dtype=float), np.ascontiguousarray(w_dot_hat, dtype=float),
+            np.asarray(starts, dtype=np.int64), np.asarray(offsets, dtype=np.int64),
+            np.asarray(n_window, dtype=np.int64), float(epsilon), out)
+    if len(offsets) == 2:  # one run: no thread launch
+        _runs_window_grams(*args, 0)
+    else:
+        _runs_window_grams_parallel(*args)
     return out
+
+
+def window_grams(w_hat, w_dot_hat, starts, n_window: int, epsilon: float) -> np.ndarray:
+    """G_bar(s) (len(starts), 6, 6) of eq. (14) for the strictly increasing window starts of
+    one episode's per-step estimates w_hat, w_dot_hat (n, 3) rad/s, rad/s²; see
+    :func:`window_grams_into`.
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    if np.any(np.diff(starts) <= 0):
+        raise ConfigError("window starts must be strictly increasing")
+    w_hat, w_dot_hat = np.asarray(w_hat, dtype=float), np.asarray(w_dot_hat, dtype=float)
+    if starts.size and (starts[0] < 0 or starts[-1] + n_window > len(w_hat)):
+        raise ConfigError(f"windows of {n_window} samples from {starts[0]} to {starts[-1]} do "
+                          f"not fit in {len(w_hat)} samples")
+    return runs_window_grams(w_hat[None], w_dot_hat[None], starts, [0, starts.size], [n_window],
+                             epsilon)
 
 
 def window_length(t_on: float, dt: float) -> int:
@@ -113,13 +173,10 @@ def window_starts(n: int, n_window: int, bursts=None) -> np.ndarray:
     return starts[keep]
 
 
-def windowed_lambda_min(prefix, starts, n_window: int, epsilon: float) -> np.ndarray:
-    """lambda_min of G_bar(s) = sum_{k=s}^{s+N-1} G_k + eps I6 (eq. 14) for each s in starts."""
-    starts = np.asarray(starts, dtype=np.int64)
-    if starts.size == 0:
-        return np.empty(0)
-    g_bar = prefix[starts + n_window] - prefix[starts] + epsilon * np.eye(6)
-    return np.linalg.eigvalsh(g_bar)[:, 0]
+def lambda_min(grams) -> np.ndarray:
+    """Smallest eigenvalue of each symmetric matrix of the stack grams (W, 6, 6): (W,)."""
+    grams = np.asarray(grams, dtype=float)
+    return np.linalg.eigvalsh(grams)[:, 0] if len(grams) else np.empty(0)
 
 
 def soft_min(values, beta: float) -> float:

@@ -34,7 +34,7 @@ from inertia_gym.envs import ENV_ID
 #: Where a step's CPU time is split: (module, function name, part).
 PARTS = ((simulation, "_segment_batch", "compiled_loop"),
          (simulation, "_segment_single", "compiled_loop"),
-         (episode, "information_cost", "information_metric"))
+         (episode, "information_costs", "information_metric"))
 
 
 def timed_rollout(venv, seed: int, actions: list[np.ndarray]) -> tuple[float, float, list]:

@@ -7,14 +7,15 @@ from hypothesis.extra.numpy import arrays
 from inertia_gym.errors import ConfigError
 from inertia_gym.information import (
     cost,
-    gram_prefix,
     inertia_from_theta,
+    lambda_min,
     psi,
+    runs_window_grams,
     soft_min,
     theta_from_inertia,
+    window_grams,
     window_length,
     window_starts,
-    windowed_lambda_min,
 )
 
 vec3 = arrays(np.float64, 3, elements=st.floats(-20, 20))
@@ -43,24 +44,48 @@ def test_theta_inertia_round_trip(rng):
     assert np.allclose(inertia_from_theta(theta_from_inertia(j)), j)
 
 
-def test_gram_prefix_matches_direct_sum(rng):
-    w, w_dot = rng.standard_normal((50, 3)), rng.standard_normal((50, 3))
-    prefix = gram_prefix(w, w_dot)
+def _window_grams_by_definition(w, w_dot, starts, n_window, epsilon):
+    """C[t] = sum_{k<t} Psi_k^T Psi_k accumulated in time order, G_bar(s) = C[s+N] - C[s] + eps I."""
     p = psi(w, w_dot)
-    direct = np.einsum("kij,kil->kjl", p, p)
-    assert np.allclose(prefix[17] - prefix[5], direct[5:17].sum(0))
-    assert np.allclose(prefix[-1], direct.sum(0))
+    g = sum(p[:, r, :, None] * p[:, r, None, :] for r in range(3))
+    prefix = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(g, axis=0)])
+    return prefix[starts + n_window] - prefix[starts] + epsilon * np.eye(6)
 
 
-def test_windowed_lambda_min_is_min_eigenvalue_of_regularised_window(rng):
+def test_window_grams_are_the_prefix_differences_exactly(rng):
+    w, w_dot = rng.standard_normal((60, 3)), rng.standard_normal((60, 3))
+    starts = np.array([0, 3, 4, 30, 53])
+    grams = window_grams(w, w_dot, starts, 7, 1e-3)
+    np.testing.assert_array_equal(grams, _window_grams_by_definition(w, w_dot, starts, 7, 1e-3))
+    p = psi(w, w_dot)
+    direct = sum(p[k].T @ p[k] for k in range(3, 10)) + 1e-3 * np.eye(6)
+    assert np.allclose(grams[1], direct, rtol=1e-12)
+    with pytest.raises(ConfigError, match="increasing"):
+        window_grams(w, w_dot, starts[::-1], 7, 1e-3)
+    with pytest.raises(ConfigError, match="fit"):
+        window_grams(w, w_dot, starts, 8, 1e-3)
+
+
+def test_runs_window_grams_equal_each_run_alone(rng):
+    lengths, n_window = [40, 25, 33], [5, 7, 3]
+    w, w_dot = rng.standard_normal((3, 40, 3)), rng.standard_normal((3, 40, 3))
+    starts = [np.array([0, 1, 20, 35]), np.array([], dtype=int), np.array([2, 30])]
+    offsets = np.r_[0, np.cumsum([len(s) for s in starts])]
+    stacked = runs_window_grams(w, w_dot, np.concatenate(starts), offsets, n_window, 1e-2)
+    for r in range(3):
+        alone = window_grams(w[r, :lengths[r]], w_dot[r, :lengths[r]], starts[r], n_window[r], 1e-2)
+        np.testing.assert_array_equal(stacked[offsets[r]:offsets[r + 1]], alone)
+
+
+def test_lambda_min_is_min_eigenvalue_of_regularised_window(rng):
     w, w_dot = rng.standard_normal((40, 3)), rng.standard_normal((40, 3))
-    prefix = gram_prefix(w, w_dot)
     p = psi(w, w_dot)
     starts = np.array([0, 3, 30])
-    lam = windowed_lambda_min(prefix, starts, 7, 1e-3)
+    lam = lambda_min(window_grams(w, w_dot, starts, 7, 1e-3))
     for s, value in zip(starts, lam):
         g = sum(p[k].T @ p[k] for k in range(s, s + 7)) + 1e-3 * np.eye(6)
         assert value == pytest.approx(np.linalg.eigvalsh(g)[0], rel=1e-9, abs=1e-12)
+    assert lambda_min(np.zeros((0, 6, 6))).shape == (0,)
 
 
 def test_torque_free_windows_carry_no_scale_information(rng):
@@ -68,7 +93,7 @@ def test_torque_free_windows_carry_no_scale_information(rng):
     j = np.array([[100.0, 6, -4], [6, 80, 3], [-4, 3, 70]])
     w = rng.standard_normal((30, 3)) * 5
     w_dot = np.array([np.linalg.solve(j, -np.cross(x, j @ x)) for x in w])
-    lam = windowed_lambda_min(gram_prefix(w, w_dot), np.array([0]), 30, 1e-8)
+    lam = lambda_min(window_grams(w, w_dot, np.array([0]), 30, 1e-8))
     assert lam[0] == pytest.approx(1e-8, abs=1e-9)
 
 
