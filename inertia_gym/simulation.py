@@ -219,6 +219,8 @@ Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurement
 #: Runs advanced in lock-step by one task of the compiled loop: the lanes of its vector
 #: instructions (8 float64 fill one 512-bit register).
 LANES = 8
+#: Runs per task when a batch of at most LANES runs is split over threads (_segment_halves).
+HALF_LANES = LANES // 2
 #: The filter's model of the body: no disturbance, no wheel (a tuple: a compile-time constant).
 MODEL_DISTURBANCE = tuple(NO_DISTURBANCE.tolist())
 #: Rows of the lane buffer of :func:`_advance_lanes` (one column per lane): true (q, w) (7),
@@ -463,6 +465,17 @@ def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, st
                        task * LANES, LANES)
 
 
+@nb.njit(cache=True, parallel=True)
+def _segment_halves(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A batch of at most LANES runs as tasks of HALF_LANES runs, in parallel: with two or more
+    threads the cores share a batch that one task of LANES lanes would leave to one core.
+    Arguments as :func:`_segment_batch`.
+    """
+    for task in nb.prange((truth.y.shape[0] + HALF_LANES - 1) // HALF_LANES):
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       task * HALF_LANES, HALF_LANES)
+
+
 @nb.njit(cache=True)
 def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
     """A batch of at most LANES runs: one task, without the threading layer's launch cost."""
@@ -538,7 +551,13 @@ def run_segment(
     if dist.shape != (DISTURBANCE_SIZE,):
         raise ConfigError(f"disturbance must be a packed ({DISTURBANCE_SIZE},) vector "
                           f"(dynamics.Disturbance.pack()), got shape {dist.shape}")
-    (_segment_single if batch <= LANES else _segment_batch)(
+    if batch > LANES:
+        kernel = _segment_batch
+    elif batch > HALF_LANES and nb.get_num_threads() > 1:
+        kernel = _segment_halves
+    else:
+        kernel = _segment_single
+    kernel(
         Truth(y_true, sc.inertia_true_array, dist),
         Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),

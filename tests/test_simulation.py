@@ -74,14 +74,20 @@ def test_with_rows_replaces_only_those_runs_and_copies():
 
 
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
-def test_a_batch_runs_each_run_exactly_as_alone(estimator):
-    """The compiled loop advances runs in lock-step, LANES per task: every run of a batch
-    (more runs than one task holds, unequal lengths, one of zero steps, one diverged) gives
-    bit for bit what it gives alone."""
-    from inertia_gym.simulation import LANES
+@pytest.mark.parametrize("tasks", ["LANES", "HALF_LANES"])
+def test_a_batch_runs_each_run_exactly_as_alone(estimator, tasks):
+    """The compiled loop advances runs in lock-step, LANES per task (HALF_LANES per task when a
+    batch of at most LANES runs is split over threads): every run of a batch (more runs than
+    one task holds, unequal lengths, one of zero steps, one diverged) gives bit for bit what it
+    gives alone."""
+    import numba
 
+    from inertia_gym.simulation import HALF_LANES, LANES
+
+    if tasks == "HALF_LANES" and numba.get_num_threads() < 2:
+        pytest.skip("a batch of at most LANES runs is split only over two or more threads")
     sc = Scenario(estimator=estimator)
-    batch = LANES + 3
+    batch = LANES + 3 if tasks == "LANES" else HALF_LANES + 3
     rngs = [np.random.default_rng(s) for s in range(batch)]
     state = initial_state(sc, rngs)
     state = state.with_rows([4], dataclasses.replace(state.select(4), diverged=np.array([True])))
