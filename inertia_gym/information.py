@@ -8,6 +8,7 @@ w_y w_x) and row 3, column 1 is -w_x w_y (printed 0).
 from __future__ import annotations
 
 import math
+import threading
 
 import numba as nb
 import numpy as np
@@ -173,10 +174,42 @@ def window_starts(n: int, n_window: int, bursts=None) -> np.ndarray:
     return starts[keep]
 
 
+#: Stacks of at least this many Grams are split between two threads by :func:`lambda_min`
+#: (a thread's start and join cost about as much as 50 eigenvalue problems of 6x6).
+SPLIT_EIGVALSH = 256
+
+
 def lambda_min(grams) -> np.ndarray:
-    """Smallest eigenvalue of each symmetric matrix of the stack grams (W, 6, 6): (W,)."""
+    """Smallest eigenvalue of each symmetric matrix of the stack grams (W, 6, 6): (W,).
+
+    numpy's eigvalsh (LAPACK syevd), one matrix at a time; a stack of SPLIT_EIGVALSH or more is
+    split in two halves solved on two threads (numpy releases the GIL) when numba may use
+    more than one, each matrix giving exactly what it gives alone.
+    """
     grams = np.asarray(grams, dtype=float)
-    return np.linalg.eigvalsh(grams)[:, 0] if len(grams) else np.empty(0)
+    if not len(grams):
+        return np.empty(0)
+    if len(grams) < SPLIT_EIGVALSH or nb.get_num_threads() < 2:
+        return np.linalg.eigvalsh(grams)[:, 0]
+    half = len(grams) // 2
+    out = np.empty(len(grams))
+    errors: list[BaseException] = []
+
+    def first_half() -> None:
+        try:
+            out[:half] = np.linalg.eigvalsh(grams[:half])[:, 0]
+        except BaseException as exc:  # re-raised in the calling thread
+            errors.append(exc)
+
+    helper = threading.Thread(target=first_half, name="lambda_min")
+    helper.start()
+    try:
+        out[half:] = np.linalg.eigvalsh(grams[half:])[:, 0]
+    finally:
+        helper.join()
+    if errors:
+        raise errors[0]
+    return out
 
 
 def soft_min(values, beta: float) -> float:

@@ -88,6 +88,19 @@ def test_lambda_min_is_min_eigenvalue_of_regularised_window(rng):
     assert lambda_min(np.zeros((0, 6, 6))).shape == (0,)
 
 
+def test_lambda_min_of_a_stack_split_over_threads_is_each_matrix_alone(rng, monkeypatch):
+    import inertia_gym.information as information
+
+    x = rng.standard_normal((information.SPLIT_EIGVALSH + 7, 20, 6))
+    grams = np.einsum("wki,wkj->wij", x, x)
+    alone = np.array([np.linalg.eigvalsh(g)[0] for g in grams])
+    monkeypatch.setattr(information.nb, "get_num_threads", lambda: 2)
+    np.testing.assert_array_equal(lambda_min(grams), alone)
+    grams[3, 0, 0] = np.nan  # an error in the helper thread's half reaches the caller
+    with pytest.raises(np.linalg.LinAlgError):
+        lambda_min(grams)
+
+
 def test_torque_free_windows_carry_no_scale_information(rng):
     """With w_dot from eq. (12) and tau = 0, theta_hat is in the Gram's null space."""
     j = np.array([[100.0, 6, -4], [6, 80, 3], [-4, 3, 70]])
