@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.excitation import burst_direction, check_xi, episode_schedule
+from inertia_gym.excitation import burst_directions, check_xi, episode_schedule
 from inertia_gym.information import (
     cost as info_cost,
 )
@@ -101,8 +101,7 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
     n_steps = np.array([s.n_steps for s in schedules])
     bursts = np.stack([s.bursts for s in schedules])
     p_theta_start = state.P_theta()
-    v = np.array([burst_direction(p) if not d else np.array([1.0, 0.0, 0.0])
-                  for p, d in zip(p_theta_start, state.diverged)])
+    v = burst_directions(p_theta_start, state.diverged)
     new_state, trace = run_segment(sc, state, n_steps, bursts, xi, v, rngs)
     p_theta_end = new_state.P_theta()
     theta_hat = new_state.theta_hat()
@@ -111,20 +110,25 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
     infos = dict(zip(healthy, information_costs(
         sc, trace.w_hat[healthy], trace.w_dot_hat[healthy], n_steps[healthy], bursts[healthy],
         xi[healthy, 2]))) if healthy.size else {}
+    # The runs' 6x6 eigen and determinant problems as stacks (each matrix exactly as alone).
+    eig_end = np.full((batch, 6), np.nan)
+    post_all = np.full(batch, np.inf)
+    if healthy.size:
+        eig_end[healthy] = np.linalg.eigvalsh(p_theta_end[healthy])
+        post_all[healthy] = (np.linalg.slogdet(p_theta_end[healthy])[1]
+                             - np.linalg.slogdet(p_theta_start[healthy])[1])
     results = []
     for r in range(batch):
         diverged = bool(new_state.diverged[r])
-        eig_end = np.linalg.eigvalsh(p_theta_end[r]) if not diverged else np.full(6, np.nan)
         if diverged:
             j_info, alpha, lam, post = np.inf, 0.0, np.zeros(0), np.inf
         else:
             j_info, alpha, lam = infos[r]
-            post = float(np.linalg.slogdet(p_theta_end[r])[1]
-                         - np.linalg.slogdet(p_theta_start[r])[1])
+            post = float(post_all[r])
         results.append(EpisodeResult(
             cost=j_info if cost == "info" else post, info_cost=j_info, posterior_cost=post,
             alpha=alpha, lambda_min=lam, duration=n_steps[r] * sc.dt, v=v[r],
-            theta_hat=theta_hat[r], p_theta_eigvals=eig_end, rel_error=float(errors[r]),
+            theta_hat=theta_hat[r], p_theta_eigvals=eig_end[r], rel_error=float(errors[r]),
             diverged=diverged,
         ))
     return new_state, results

@@ -30,6 +30,29 @@ def burst_direction(p_theta) -> np.ndarray:
     return v if v[np.argmax(np.abs(v))] > 0 else -v
 
 
+def burst_directions(p_thetas, skip) -> np.ndarray:
+    """:func:`burst_direction` of each P_theta of the stack p_thetas (B, 6, 6), with the
+    eigenproblems of all runs solved as stacks (each matrix exactly as alone); (B, 3). Rows
+    where skip (B,) bool is set (diverged runs) get (1, 0, 0) and are not checked.
+    """
+    p = np.asarray(p_thetas, dtype=float)
+    skip = np.asarray(skip, dtype=bool)
+    out = np.tile(np.array([1.0, 0.0, 0.0]), (len(p), 1))
+    rows = np.flatnonzero(~skip)
+    if rows.size == 0:
+        return out
+    p = p[rows]
+    if p.shape[1:] != (6, 6) or not np.all(np.isfinite(p)):
+        raise ConfigError(f"P_theta must be finite 6x6 matrices, got shape {p.shape[1:]}")
+    _, vecs = np.linalg.eigh(0.5 * (p + p.transpose(0, 2, 1)))
+    eigval, eigvec = np.linalg.eigh(inertia_from_theta(vecs[:, :, -1]))
+    picked = np.argmax(np.abs(eigval), axis=1)
+    v = eigvec[np.arange(len(rows)), :, picked]
+    flip = v[np.arange(len(rows)), np.argmax(np.abs(v), axis=1)] > 0
+    out[rows] = np.where(flip[:, None], v, -v)
+    return out
+
+
 @nb.njit(cache=True)
 def burst_torque_into(a, b, w_hat, v, tau_max, out):
     """Eq. (18) into out (3,): a (w_hat x v) + b v, scaled down to |tau|_inf <= tau_max keeping

@@ -6,6 +6,7 @@ import pytest
 from inertia_gym.errors import ConfigError
 from inertia_gym.excitation import (
     burst_direction,
+    burst_directions,
     burst_torque,
     check_xi,
     episode_schedule,
@@ -91,6 +92,18 @@ def test_burst_direction_is_least_known_axis():
     d = theta_from_inertia(j)
     p = np.eye(6) + 50 * np.outer(d, d)
     assert np.allclose(np.abs(burst_direction(p)), [1.0, 0.0, 0.0])
+
+
+def test_burst_directions_of_a_stack_are_each_alone(rng):
+    a = rng.standard_normal((30, 6, 6))
+    p = a @ a.transpose(0, 2, 1)
+    skip = np.arange(30) % 7 == 3
+    p[3] = np.nan  # skipped rows are not looked at
+    expected = [burst_direction(m) if not s else [1.0, 0.0, 0.0] for m, s in zip(p, skip)]
+    np.testing.assert_array_equal(burst_directions(p, skip), np.array(expected))
+    assert burst_directions(p[skip], np.ones(4, bool)).tolist() == [[1.0, 0.0, 0.0]] * 4
+    with pytest.raises(ConfigError, match="finite"):
+        burst_directions(p, np.zeros(30, bool))
 
 
 def test_check_xi_rejects_bad_actions(paper):
