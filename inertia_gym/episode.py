@@ -107,9 +107,10 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
     theta_hat = new_state.theta_hat()
     errors = relative_error(new_state.inertia_hat(), sc.inertia_true_array)
     healthy = np.flatnonzero(~new_state.diverged)
+    rows = slice(None) if healthy.size == batch else healthy  # all healthy: the logs, uncopied
     infos = dict(zip(healthy, information_costs(
-        sc, trace.w_hat[healthy], trace.w_dot_hat[healthy], n_steps[healthy], bursts[healthy],
-        xi[healthy, 2]))) if healthy.size else {}
+        sc, trace.w_hat[rows], trace.w_dot_hat[rows], n_steps[rows], bursts[rows],
+        xi[rows, 2]))) if healthy.size else {}
     # The runs' 6x6 eigen and determinant problems as stacks (each matrix exactly as alone).
     eig_end = np.full((batch, 6), np.nan)
     post_all = np.full(batch, np.inf)
