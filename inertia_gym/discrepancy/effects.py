@@ -181,8 +181,8 @@ class EffectModel:
         return np.clip(np.zeros(self.form_size(form, d)), *self.bounds(form, d))
 
     def penalty(self, p, d) -> list[float]:
-        """Constraint rows (relative units) appended to the whitened residual when the inertia's
-        scale is not seen (d.scale_fixed).
+        """Constraint rows (relative units: 0 where the constraint holds) appended to the
+        whitened residual, heavily weighted: what the parameters must obey.
         """
         return []
 
@@ -431,17 +431,12 @@ def _drag_matrix(value) -> np.ndarray:
     return matrix6(np.ravel(v)) if v.size == 6 else v.reshape(3, 3)
 
 
-def _lower(p) -> np.ndarray:
-    """The lower-triangular (3, 3) of (l11, l21, l31, l22, l32, l33)."""
-    return np.array([[p[0], 0.0, 0.0], [p[1], p[3], 0.0], [p[2], p[4], p[5]]])
-
-
 class _Drag(EffectModel):
-    """A drag torque with a symmetric, positive semi-definite coefficient matrix C (3, 3): its
-    eigenvectors are the body's drag axes (a plate's normal, a racquet's handle), which need not
-    be the gyro's, and its eigenvalues the coefficient about each. Drag only takes energy out
-    (the power w . tau = -w^T C w (|w|) <= 0), so C is fitted as L L^T, L lower-triangular
-    (six entries): a fit that needs a C feeding energy in is not drag.
+    """A drag torque with a symmetric coefficient matrix C (3, 3): its eigenvectors are the
+    body's drag axes (a plate's normal, a racquet's handle), which need not be the gyro's, and
+    its eigenvalues the coefficient about each; fitted as C's six entries. Drag only takes
+    energy out (the power w . tau = -w^T C w (times |w|) <= 0): a negative eigenvalue of C is
+    priced by a constraint row, so a fit that needs C feeding energy in is not drag.
     """
 
     params, size, family = ("c",), 6, "drag"
@@ -451,26 +446,19 @@ class _Drag(EffectModel):
 
     @override
     def unpack(self, p):
-        factor = _lower(p)
-        return {"c": factor @ factor.T}
+        return {"c": matrix6(p)}
 
     @override
     def pack(self, params):
-        """The factor L of C = L L^T (C's negative eigenvalues, if any, taken as zero)."""
-        c = _drag_matrix(params["c"])
-        vals, vecs = np.linalg.eigh(0.5 * (c + c.T))
-        root = vecs * np.sqrt(np.clip(vals, 0.0, None))  # root root^T = C
-        factor = np.linalg.qr(root.T, mode="r").T  # lower-triangular, factor factor^T = C
-        return factor[[0, 1, 2, 1, 2, 2], [0, 0, 0, 1, 1, 2]]
+        return inertia6(_drag_matrix(params["c"]))
 
     @override
     def typical(self, form, d):
-        return np.full(6, np.sqrt(self._scale(d)))
+        return np.full(6, self._scale(d))
 
     @override
-    def starts(self, form, d, probe):
-        # C = L L^T is flat at L = 0: start from an isotropic drag of the typical size
-        return [np.sqrt(self._scale(d)) * np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])]
+    def penalty(self, p, d):
+        return [max(0.0, -float(np.linalg.eigvalsh(matrix6(p))[0])) / self._scale(d)]
 
 
 @register
@@ -779,7 +767,8 @@ class InertiaChange(EffectModel):
 
     @override
     def penalty(self, p, d):
-        return [(p[1] + p[4] + p[6]) / d.trace0]  # a redistribution at fixed trace
+        # where the scale is not seen, a redistribution at fixed trace
+        return [(p[1] + p[4] + p[6]) / d.trace0] if d.scale_fixed else []
 
     @override
     def inertia_change(self, params):

@@ -431,8 +431,7 @@ def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
 
 
 def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
-    if not d.scale_fixed:
-        return np.zeros(0)
+    """The effects' constraint rows (EffectModel.penalty), weighted 1e3 sqrt(N)."""
     rows = []
     for model, s in zip(layout.models, layout.slices()):
         rows += model.penalty(np.asarray(x[s], float), d)
