@@ -711,7 +711,9 @@ def hemisphere(count: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
-#: Refinements of an inertia change's time around each scan peak (each a quarter of the last span).
+#: Change times scanned for an inertia change's start, and the refinements around each scan
+#: peak (each at a third of the last spacing).
+CHANGE_SCAN = 20
 REFINE_LEVELS = 3
 
 
@@ -796,14 +798,14 @@ class Probe:
         return out
 
     def change_starts(self, keep: int = 2) -> list[np.ndarray]:
-        """Starts of inertia_change (joint x): over ~30 change times, one Gauss-Newton step from
+        """Starts of inertia_change (joint x): over CHANGE_SCAN change times, one Gauss-Newton step from
         no change in delta_J, the segments' rates held or moved with it (everything else held;
         the rates after a change absorb part of it: moving them finds a large change's time,
         holding them a precise one); for each, the `keep` times whose steps explain most among
         the scan's local maxima, each refined REFINE_LEVELS times around itself.
         """
         d, layout = self.d, self.layout
-        times = d.t_row[np.linspace(2, d.n_rows - 3, min(30, d.n_rows - 4)).astype(int)]
+        times = d.t_row[np.linspace(2, d.n_rows - 3, min(CHANGE_SCAN, d.n_rows - 4)).astype(int)]
         x0 = self.x(np.zeros(7))
         delta = np.arange(layout.n_global)[layout.slices()[-1]][1:]
         n_res = d.n_rows * 3
@@ -832,12 +834,12 @@ class Probe:
             padded = np.r_[-np.inf, gain, -np.inf]
             peaks = np.flatnonzero((gain >= padded[:-2]) & (gain >= padded[2:]))
             for i in peaks[np.argsort(-gain[peaks])][:keep]:
-                best, half = scan[i], (times[-1] - times[0]) / max(times.size - 1, 1)
+                best, span = scan[i], (times[-1] - times[0]) / max(times.size - 1, 1)
                 for _ in range(REFINE_LEVELS):  # ever finer, around the best time so far
-                    grid = np.clip(best[1][delta[0] - 1] + np.linspace(-half, half, 9)[1:-1],
+                    grid = np.clip(best[1][delta[0] - 1] + span * np.array([-2, -1, 1, 2]) / 3,
                                    times[0], times[-1])
                     best = max([best] + [gauss_newton(t, rates) for t in grid], key=lambda gs: gs[0])
-                    half /= 4
+                    span /= 3
                 starts.append(best[1])
         return starts
 
