@@ -118,19 +118,27 @@ def test_killed_sweep_resumes_to_the_uninterrupted_report(sequential, tmp_path, 
 
 
 def test_ctrl_c_says_how_to_resume(tmp_path):
+    """Ctrl-C once a run is saved: exit 130, the saved run kept, and how to resume said. Random
+    agents only (four seeds): the interrupt lands while the second run is under way; the
+    deadline leaves room for a fresh clone compiling its kernels on a loaded machine."""
     out = tmp_path / "interrupted"
-    cmd = [sys.executable, "-m", "inertia_gym.cli", "benchmark", *SMALL, "--workers", "1",
+    small = list(SMALL)
+    small[small.index("--agents") + 1] = "random"
+    small[small.index("--seeds") + 1] = "4"
+    cmd = [sys.executable, "-m", "inertia_gym.cli", "benchmark", *small, "--workers", "1",
            "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 300
-    while len(list((out / "runs").glob("*.json"))) < 2 and proc.poll() is None:
-        assert time.monotonic() < deadline, "the sweep saved no run in 300 s"
+    deadline = time.monotonic() + 900
+    while not list((out / "runs").glob("*.json")) and proc.poll() is None:
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"the sweep saved no run in 900 s: {proc.communicate()[1][-2000:]}")
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130
+    assert proc.returncode == 130, err[-2000:]
     assert "run the same command again to resume" in err
-    assert len(list((out / "runs").glob("*.json"))) >= 2
+    assert 1 <= len(list((out / "runs").glob("*.json"))) < 4
 
 
 def test_rerun_with_other_settings_is_refused_and_loses_nothing(sequential, capsys):
