@@ -127,7 +127,10 @@ def test_ctrl_c_says_how_to_resume(tmp_path):
     small[small.index("--seeds") + 1] = "4"
     cmd = [sys.executable, "-m", "inertia_gym.cli", "benchmark", *small, "--workers", "1",
            "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # the child gets Ctrl-C's default disposition, as from a terminal: a test runner's worker
+    # may ignore SIGINT, and an ignored signal stays ignored across exec
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 900
     while not list((out / "runs").glob("*.json")) and proc.poll() is None:
         if time.monotonic() > deadline:
