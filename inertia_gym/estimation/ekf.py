@@ -328,7 +328,7 @@ def limit_inertia_step(x, gain_t, innov, limit):
 
 
 @nb.njit(cache=True)
-def _cholesky_into(s, low):
+def cholesky_into(s, low):
     """Lower Cholesky factor of the small SPD matrix s into low; False if not positive definite."""
     n = s.shape[0]
     for i in range(n):
@@ -445,7 +445,7 @@ def ekf_update(x, P, z, cfg):
     nis_raw = 0.0
     for attempt in range(40):
         _innovation_covariance(P, big_h, r, pht, s)
-        if not _cholesky_into(s, low):
+        if not cholesky_into(s, low):
             raise ValueError("innovation covariance is not positive definite")
         _solve_lower(low, innov, y)
         nis = 0.0

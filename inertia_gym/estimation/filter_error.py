@@ -59,6 +59,7 @@ from scipy.optimize import minimize
 from scipy.stats import chi2
 
 from inertia_gym.errors import ConfigError
+from inertia_gym.estimation.ekf import cholesky_into
 from inertia_gym.estimation.inertia_param import inertia_from_phi
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 
@@ -100,19 +101,11 @@ def _rate(l_vec, h_vec, jinv, out_w):
 @nb.njit(cache=True, nogil=True)
 def _cholesky_solve(s, e, nz, low, y):
     """Cholesky factor low of s (nz, nz) in place; y = low^-1 e; returns log det s (or nan)."""
+    if not cholesky_into(s[:nz, :nz], low[:nz, :nz]):
+        return math.nan
     logdet = 0.0
     for i in range(nz):
-        for j in range(i + 1):
-            acc = s[i, j]
-            for k in range(j):
-                acc -= low[i, k] * low[j, k]
-            if i == j:
-                if acc <= 0.0:
-                    return math.nan
-                low[i, i] = math.sqrt(acc)
-                logdet += 2.0 * math.log(low[i, i])
-            else:
-                low[i, j] = acc / low[j, j]
+        logdet += 2.0 * math.log(low[i, i])
     for i in range(nz):
         acc = e[i]
         for k in range(i):
