@@ -186,6 +186,12 @@ class EffectModel:
         """
         return []
 
+    def feasible(self, p) -> np.ndarray:
+        """The nearest vector to p that the physics allows (the solver projects every step onto
+        it): p itself by default.
+        """
+        return p
+
     # --- physics (truth and model) ----------------------------------------------------------
     def disturbance(self, params: dict) -> dict:
         """Fields of dynamics.Disturbance that carry this effect in the compiled right-hand side."""
@@ -435,8 +441,10 @@ class _Drag(EffectModel):
     """A drag torque with a symmetric coefficient matrix C (3, 3): its eigenvectors are the
     body's drag axes (a plate's normal, a racquet's handle), which need not be the gyro's, and
     its eigenvalues the coefficient about each; fitted as C's six entries. Drag only takes
-    energy out (the power w . tau = -w^T C w (times |w|) <= 0): a negative eigenvalue of C is
-    priced by a constraint row, so a fit that needs C feeding energy in is not drag.
+    energy out (the power w . tau = -w^T C w (times |w|) <= 0): every solver step is projected
+    onto positive semi-definite C (negative eigenvalues set to zero), so a fit that needs C
+    feeding energy in is not drag. A projection, not a penalty row: drag about one axis is
+    often nil (a racquet's handle), and a penalty's one-sided derivative there froze the fit.
     """
 
     params, size, family = ("c",), 6, "drag"
@@ -457,8 +465,18 @@ class _Drag(EffectModel):
         return np.full(6, self._scale(d))
 
     @override
-    def penalty(self, p, d):
-        return [max(0.0, -float(np.linalg.eigvalsh(matrix6(p))[0])) / self._scale(d)]
+    def starts(self, form, d, probe):
+        # none, and the two best of isotropic and single-axis drag over two decades: from none
+        # alone the fit can stall in a shallow minimum of a tumbling record
+        size = self._scale(d)
+        shapes = [np.eye(3)] + [np.diag(e) for e in np.eye(3)]
+        trials = [inertia6(c * size * m) for c in (0.5, 2.0, 8.0, 32.0) for m in shapes]
+        return [np.zeros(6)] + probe.best_of(trials, keep=2)
+
+    @override
+    def feasible(self, p):
+        values, vectors = np.linalg.eigh(matrix6(p))
+        return inertia6((vectors * np.maximum(values, 0.0)) @ vectors.T)
 
 
 @register

@@ -366,6 +366,15 @@ class Layout:
             out.append((m, params))
         return out
 
+    def feasible(self, x) -> np.ndarray:
+        """The joint vector x with each effect's part projected onto what its physics allows
+        (EffectModel.feasible).
+        """
+        x = np.array(x, float)
+        for m, s in zip(self.models, self.slices()):
+            x[s] = m.feasible(x[s])
+        return x
+
     def w0(self, x) -> np.ndarray:
         """(S, 3) segments' initial rates."""
         return np.asarray(x[self.n_global:], float).reshape(-1, 3)
@@ -534,12 +543,13 @@ def _lm_step(g, js, r, seg_of, n_seg: int, lam: float, seg_free: bool = True):
 
 
 def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
-    """Levenberg-Marquardt over the free entries of x (bounds by projection). Returns (x, cost).
+    """Levenberg-Marquardt over the free entries of x (bounds and each effect's physical limits
+    by projection: Layout.feasible). Returns (x, cost).
 
     Stops when an accepted step gains less than CONVERGED in BIC units (the cost's gain over
     the mean square per residual: N log(mse) moves by that much), or after max_iter iterations.
     """
-    x = np.clip(np.asarray(x0, float), lb, ub)
+    x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub))
     gi = np.flatnonzero(free[:layout.n_global])
     seg_free = bool(free[layout.n_global:].any())
     seg_of = np.full(objective(x[None], layout, d).shape[1], -1)
@@ -558,7 +568,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             xn[gi] += dg
             if seg_free:
                 xn[layout.n_global:] += ds.ravel()
-            xn = np.clip(xn, lb, ub)
+            xn = layout.feasible(np.clip(xn, lb, ub))
             if not np.all(np.isfinite(xn)):
                 lam *= 6
                 continue
@@ -983,6 +993,11 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
         x = best[0]
     if joint and first != FULL_ITER:
         x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
+    if joint:  # a start chosen elsewhere can lead astray: never worse than the effect at neutral
+        neutral = probe.x(new.neutral(form, d, base))
+        cost = probe.costs([x, neutral])
+        if cost[1] < cost[0]:
+            x = solve(neutral, free, layout, d, lb, ub, FULL_ITER)[0]
     return finish(layout, x, d, k)
 
 

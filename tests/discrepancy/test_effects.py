@@ -3,8 +3,6 @@ against an independent integration of each effect's stated equations."""
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -232,13 +230,13 @@ def test_drag_matrix_in_the_closed_loop_hook(drag):
 
 
 @pytest.mark.parametrize("name", ["viscous_damping", "aero_drag"])
-def test_drag_that_feeds_energy_in_is_priced(name):
-    """The constraint row is zero for a positive semi-definite C and grows with its most
-    negative eigenvalue (in units of the drag's typical size)."""
+def test_drag_that_feeds_energy_in_is_projected_out(name):
+    """feasible() is the nearest positive semi-definite C (Frobenius): C's eigenvectors kept,
+    its negative eigenvalues set to zero; a dissipative C is left as it is."""
     model = REGISTRY[name]
-    d = SimpleNamespace(j_ref=2.0, omega_ref=4.0)
-    scale = model.typical("", d)[0]
-    assert model.penalty(model.pack({"c": np.diag([1.0, 2.0, 0.0]) * scale}), d) == [0.0]
-    c = np.array([[2.0, 0.5, 0.0], [0.5, -1.0, 0.0], [0.0, 0.0, 1.0]]) * scale
-    (row,) = model.penalty(model.pack({"c": c}), d)
-    assert row == pytest.approx(-np.linalg.eigvalsh(c)[0] / scale)
+    c_ok = np.array([[2.0, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(model.unpack(model.feasible(model.pack({"c": c_ok})))["c"], c_ok, atol=1e-15)
+    rot = rotvec_matrix(np.array([0.3, -0.7, 0.2]))
+    c_bad = rot @ np.diag([2.0, -1.0, 0.5]) @ rot.T
+    projected = model.unpack(model.feasible(model.pack({"c": c_bad})))["c"]
+    np.testing.assert_allclose(projected, rot @ np.diag([2.0, 0.0, 0.5]) @ rot.T, atol=1e-12)
