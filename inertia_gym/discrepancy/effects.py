@@ -466,8 +466,10 @@ class _Drag(EffectModel):
 
     @override
     def starts(self, form, d, probe):
-        # none, and the two best of isotropic and single-axis drag over two decades: from none
-        # alone the fit can stall in a shallow minimum of a tumbling record
+        # none, and on a record of few long segments (where from none alone the fit can stall
+        # in a shallow minimum) the two best of isotropic and single-axis drag over two decades
+        if not probe.few_segments:
+            return [np.zeros(6)]
         size = self._scale(d)
         shapes = [np.eye(3)] + [np.diag(e) for e in np.eye(3)]
         trials = [inertia6(c * size * m) for c in (0.5, 2.0, 8.0, 32.0) for m in shapes]

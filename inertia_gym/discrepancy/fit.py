@@ -748,6 +748,11 @@ class Probe:
             head[:6] = phi_from_inertia(inertia)
         return np.concatenate([head, p, b.x[b.layout.n_global:]])
 
+    @property
+    def few_segments(self) -> bool:
+        """The record has few segments (each long): the cost is rough, starts matter more."""
+        return self.d.segments < SHORT_SEGMENTS
+
     def costs(self, xs) -> np.ndarray:
         """(len(xs),) least-squares cost of each joint x."""
         r = objective(np.stack(xs), self.layout, self.d)
