@@ -192,6 +192,13 @@ class EffectModel:
         """
         return p
 
+    def face(self, p) -> np.ndarray:
+        """(m, len(p)) rows A: steps dp with A dp = 0 stay on the face of the physical limit
+        where p sits (the solver also tries such a step, so it does not creep along the limit
+        by projections); none by default.
+        """
+        return np.zeros((0, p.size))
+
     # --- physics (truth and model) ----------------------------------------------------------
     def disturbance(self, params: dict) -> dict:
         """Fields of dynamics.Disturbance that carry this effect in the compiled right-hand side."""
@@ -479,6 +486,19 @@ class _Drag(EffectModel):
     def feasible(self, p):
         values, vectors = np.linalg.eigh(matrix6(p))
         return inertia6((vectors * np.maximum(values, 0.0)) @ vectors.T)
+
+    @override
+    def face(self, p):
+        # the tangent of the positive semi-definite matrices of C's rank: n_i^T dC n_j = 0 over
+        # C's null directions (dC may turn C's range, a second-order loss the projection takes);
+        # at C = 0 no face (a projected step leaves the apex, a step on it would not move)
+        values, vectors = np.linalg.eigh(matrix6(p))
+        null = vectors[:, values <= 1e-9 * max(float(np.abs(values).max()), 1e-300)]
+        k = null.shape[1]
+        if k in (0, 3):
+            return np.zeros((0, 6))
+        units = [matrix6(e) for e in np.eye(6)]
+        return np.array([[null[:, i] @ u @ null[:, j] for u in units] for i in range(k) for j in range(i, k)])
 
 
 @register

@@ -375,6 +375,17 @@ class Layout:
             x[s] = m.feasible(x[s])
         return x
 
+    def face(self, x) -> np.ndarray:
+        """(m, n_global) rows of every effect's face (EffectModel.face) at x, in x's columns."""
+        rows = [np.zeros((0, self.n_global))]
+        for m, s in zip(self.models, self.slices()):
+            a = m.face(np.asarray(x[s], float))
+            if a.size:
+                full = np.zeros((a.shape[0], self.n_global))
+                full[:, s] = a
+                rows.append(full)
+        return np.vstack(rows)
+
     def w0(self, x) -> np.ndarray:
         """(S, 3) segments' initial rates."""
         return np.asarray(x[self.n_global:], float).reshape(-1, 3)
@@ -542,6 +553,27 @@ def _lm_step(g, js, r, seg_of, n_seg: int, lam: float, seg_free: bool = True):
     return dg_sc / col, ds
 
 
+def _moved(x, step, gi, layout: Layout, lb, ub) -> tuple[np.ndarray, np.ndarray]:
+    """The point x moved by an LM step (dg over the free globals gi, ds over the segments'
+    rates), in the bounds, and that point projected onto the effects' physical limits.
+    """
+    dg, ds = step
+    xn = x.copy()
+    xn[gi] += dg
+    xn[layout.n_global:] += ds.ravel()
+    xn = np.clip(xn, lb, ub)
+    return xn, layout.feasible(xn)
+
+
+def _face_basis(a) -> np.ndarray | None:
+    """(P, P - rank a) orthonormal basis of the steps with a dg = 0, or None without face rows."""
+    if not a.size:
+        return None
+    _, sv, vt = np.linalg.svd(a)
+    rank = int(np.sum(sv > 1e-10 * sv[0])) if sv.size else 0
+    return vt[rank:].T
+
+
 def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
     """Levenberg-Marquardt over the free entries of x (bounds and each effect's physical limits
     by projection: Layout.feasible). Returns (x, cost).
@@ -561,18 +593,23 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             cost = float(r @ r)
         g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
         js = np.where(np.isfinite(js), js, 0.0)
+        on_face = _face_basis(layout.face(x)[:, gi])
         improved = False
         for _ in range(12):
-            dg, ds = _lm_step(g, js, r, seg_of, layout.segments, lam, seg_free)
-            xn = x.copy()
-            xn[gi] += dg
-            if seg_free:
-                xn[layout.n_global:] += ds.ravel()
-            xn = layout.feasible(np.clip(xn, lb, ub))
-            if not np.all(np.isfinite(xn)):
+            step = _lm_step(g, js, r, seg_of, layout.segments, lam, seg_free)
+            trials = [_moved(x, step, gi, layout, lb, ub)]
+            if on_face is not None and not np.array_equal(*trials[0]):
+                # the step left a physical limit and was projected back: the same step kept on
+                # the limit's face where x sits is tried beside it
+                dz, ds = _lm_step(g @ on_face, js, r, seg_of, layout.segments, lam, seg_free)
+                trials.append(_moved(x, (on_face @ dz, ds), gi, layout, lb, ub))
+            trials = [xn for _, xn in trials if np.all(np.isfinite(xn))]
+            if not trials:
                 lam *= 6
                 continue
-            rn = objective(xn[None], layout, d)[0]
+            rs = objective(np.array(trials), layout, d)
+            best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
+            xn, rn = trials[best], rs[best]
             cn = float(rn @ rn)
             if cn < cost:
                 improved = cost - cn > CONVERGED * cost / r.size

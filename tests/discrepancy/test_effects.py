@@ -229,6 +229,32 @@ def test_drag_matrix_in_the_closed_loop_hook(drag):
     np.testing.assert_allclose(w[-1], w_ref, atol=2e-6)
 
 
+@pytest.mark.parametrize("rank", [1, 2])
+def test_drag_face_is_the_tangent_of_its_rank(rank):
+    """face() at a C of rank r < 3: rows A with A dp = 0 exactly where n_i^T dC n_j = 0 over C's
+    null directions, (3 - r)(4 - r)/2 independent rows; a step along it keeps C positive
+    semi-definite to second order (its lowest eigenvalue falls as eps^2, not eps); none at C = 0
+    or at a full-rank C."""
+    model = REGISTRY["viscous_damping"]
+    rot = rotvec_matrix(np.array([0.4, 0.1, -0.6]))
+    values = np.array([2.0, 1.0, 0.0])[:rank].tolist() + [0.0] * (3 - rank)
+    c = rot @ np.diag(values) @ rot.T
+    a = model.face(model.pack({"c": c}))
+    k = 3 - rank
+    assert a.shape == (k * (k + 1) // 2, 6) and np.linalg.matrix_rank(a) == a.shape[0]
+    null = rot[:, rank:]
+    rng = np.random.default_rng(rank)
+    basis = np.linalg.svd(a)[2][a.shape[0]:]
+    for _ in range(5):
+        dp = basis.T @ rng.normal(size=basis.shape[0])
+        dc = model.unpack(dp)["c"]
+        np.testing.assert_allclose(null.T @ dc @ null, 0.0, atol=1e-12)
+        drops = [-np.linalg.eigvalsh(c + eps * dc)[0] for eps in (1e-2, 1e-3)]
+        assert drops[1] <= 0.02 * max(drops[0], 1e-15) + 1e-15  # eps^2: a tenth of eps -> a hundredth
+    assert model.face(np.zeros(6)).shape == (0, 6)
+    assert model.face(model.pack({"c": np.diag([1.0, 2.0, 3.0])})).shape == (0, 6)
+
+
 @pytest.mark.parametrize("name", ["viscous_damping", "aero_drag"])
 def test_drag_that_feeds_energy_in_is_projected_out(name):
     """feasible() is the nearest positive semi-definite C (Frobenius): C's eigenvectors kept,
