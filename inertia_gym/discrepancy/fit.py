@@ -570,7 +570,7 @@ def _face_basis(a) -> np.ndarray | None:
     if not a.size:
         return None
     _, sv, vt = np.linalg.svd(a)
-    rank = int(np.sum(sv > 1e-10 * sv[0])) if sv.size else 0
+    rank = int(np.sum(sv > 1e-10 * sv[0]))
     return vt[rank:].T
 
 

@@ -23,9 +23,11 @@ from inertia_gym.scenario import Scenario
 RACQUET = np.diag([20.7e-3, 18.8e-3, 1.39e-3])  # kg·m², a tennis racquet (phyphox README)
 
 
-def _toss(w0, sigma=0.005, n=1000, every=10, seed=0, inertia=RACQUET):
-    """A torque-free toss integrated at 1 kHz, sampled every `every` steps, gyro noise sigma."""
-    q, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.asarray(w0, float), inertia, np.zeros((n, 3)), 1e-3)
+def _toss(w0, sigma=0.005, n=1000, every=10, seed=0, inertia=RACQUET, effects=()):
+    """A toss integrated at 1 kHz, sampled every `every` steps, gyro noise sigma; torque-free
+    but for `effects` (catalogue Effects of the truth)."""
+    q, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.asarray(w0, float), inertia, np.zeros((n, 3)), 1e-3,
+                          effects)
     idx = np.arange(0, n + 1, every)
     rng = np.random.default_rng(seed)
     return Recording(idx * 1e-3, w[idx] + rng.normal(0, sigma, (idx.size, 3)), None, None,
@@ -148,13 +150,7 @@ def test_drag_nil_about_one_axis_is_fitted_and_stays_dissipative(seed):
     """
     c_true = np.diag([0.1, 0.1, 0.0]) * np.diag(RACQUET)  # N·m·s: ~10 % spin decay over the toss
     w0 = np.array([0.3, 15.0, 0.4]) + np.random.default_rng(seed).normal(0, 0.3, 3)
-    n, sigma = 1000, 0.005
-    q, w = simulate_truth(np.array([1.0, 0, 0, 0]), w0, RACQUET, np.zeros((n, 3)), 1e-3,
-                          Effect("viscous_damping", {"c": c_true.tolist()}))
-    idx = np.arange(0, n + 1, 10)
-    noise = np.random.default_rng(seed + 10).normal(0, sigma, (idx.size, 3))
-    rec = Recording(idx * 1e-3, w[idx] + noise, None, None, {"gyro_sigma": sigma}, "dragged toss")
-    d = F.prepare(rec)
+    d = F.prepare(_toss(w0, seed=seed + 10, effects=Effect("viscous_damping", {"c": c_true.tolist()})))
     nominal = F.fit_nominal(d)
     fit = F.fit_model(("viscous_damping",), ("",), d, nominal)
     assert nominal.bic - fit.bic > 100
