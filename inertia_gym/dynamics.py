@@ -595,74 +595,87 @@ def _change_inertia(y, j_now, j_new):
 
 
 @nb.njit(cache=True)
-def _model_into(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau, h, dist, out):
-    """One model trajectory over a time grid, restarted at each segment; see propagate_model_batch.
+def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, inertia_after, change_t,
+                   tau, h, dist, out):
+    """One segment of a model trajectory: grid steps a .. b from (q, w) = y0 (7,) and the modal
+    state (eta, etad); writes (q, w) at the samples from index i on (sample_pos[i] == a) into out
+    and returns the modal state at b. last: the segment ends the record (its end is a sample).
 
-    An inertia change inside a grid interval splits its step at change_t, so the trajectory is
-    continuous and differentiable in change_t.
+    J is `inertia` before change_t and `inertia_after` from there on; a change inside a grid
+    interval splits its step at change_t, so the trajectory is continuous and differentiable in
+    change_t. What a segment computes depends on nothing of the segments before it but the
+    modal state it starts from (the change is a time, J w kept across it).
     """
-    n_samples, n_seg = sample_pos.size, seg_pos.size - 1
-    j_now, j_inv = inertia.copy(), inv3(inertia)
+    n_samples = sample_pos.size
+    changed = grid_t[a] >= change_t  # the segment starts after the change
+    j_now = inertia_after.copy() if changed else inertia.copy()
+    j_inv = inv3(j_now)
     jd = np.empty(3)
+    denom = _modal_coupling(j_inv, dist, jd)
     dl = dist.copy()
-    y = np.zeros(9)
     tau_buf = np.empty(3)
-    changed = False
-    i = 0
-    eta, etad = 0.0, 0.0
-    for s in range(n_seg):
-        a, b = seg_pos[s], seg_pos[s + 1]
-        if not changed and grid_t[a] >= change_t:  # the segment starts after the change
+    y = np.zeros(9)
+    for c in range(7):
+        y[c] = y0[c]
+    _normalize_quat(y)
+    y[7], y[8] = eta, etad
+    for k in range(a, b + 1):
+        while i < n_samples and sample_pos[i] == k and (k < b or last):
+            for c in range(7):
+                out[i, c] = y[c]
+            i += 1
+        if k == b:
+            break
+        t0, t1 = grid_t[k], grid_t[k + 1]
+        dt = t1 - t0
+        if not changed and t0 >= change_t:
+            j_inv = _change_inertia(y, j_now, inertia_after)
+            j_now = inertia_after.copy()
+            denom = _modal_coupling(j_inv, dist, jd)
             changed = True
-            j_now, j_inv = inertia_after.copy(), inv3(inertia_after)
-        denom = _modal_coupling(j_inv, dist, jd)
-        for c in range(7):
-            y[c] = y0[s, c]
-        _normalize_quat(y)
-        y[7], y[8] = eta, etad
-        last = s == n_seg - 1
-        for k in range(a, b + 1):
-            while i < n_samples and sample_pos[i] == k and (k < b or last):
-                for c in range(7):
-                    out[i, c] = y[c]
-                i += 1
-            if k == b:
-                break
-            t0, t1 = grid_t[k], grid_t[k + 1]
-            dt = t1 - t0
-            if not changed and t0 >= change_t:
-                j_inv = _change_inertia(y, j_now, inertia_after)
-                j_now = inertia_after.copy()
-                denom = _modal_coupling(j_inv, dist, jd)
-                changed = True
-            # h linear over the step: its rate is the step's slope, subtracted from the torque
-            r0 = (h[k + 1, 0] - h[k, 0]) / dt
-            r1 = (h[k + 1, 1] - h[k, 1]) / dt
-            r2 = (h[k + 1, 2] - h[k, 2]) / dt
-            tx, ty, tz = tau[k, 0] - r0, tau[k, 1] - r1, tau[k, 2] - r2
-            if not changed and t1 > change_t:  # the change falls inside this step: split it
-                f = change_t - t0
-                hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
-                _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                    hc0, hc1, hc2, dist, dl, tau_buf)
-                j_inv = _change_inertia(y, j_now, inertia_after)
-                j_now = inertia_after.copy()
-                denom = _modal_coupling(j_inv, dist, jd)
-                changed = True
-                _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
-                                    h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
-            else:
-                _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                    h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
-        eta, etad = y[7], y[8]
+        # h linear over the step: its rate is the step's slope, subtracted from the torque
+        r0 = (h[k + 1, 0] - h[k, 0]) / dt
+        r1 = (h[k + 1, 1] - h[k, 1]) / dt
+        r2 = (h[k + 1, 2] - h[k, 2]) / dt
+        tx, ty, tz = tau[k, 0] - r0, tau[k, 1] - r1, tau[k, 2] - r2
+        if not changed and t1 > change_t:  # the change falls inside this step: split it
+            f = change_t - t0
+            hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
+            _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
+                                hc0, hc1, hc2, dist, dl, tau_buf)
+            j_inv = _change_inertia(y, j_now, inertia_after)
+            j_now = inertia_after.copy()
+            denom = _modal_coupling(j_inv, dist, jd)
+            changed = True
+            _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+        else:
+            _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+    return y[7], y[8]
 
 
 @nb.njit(cache=True, parallel=True)
-def _model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau, tau_index,
-                 h, h_index, dist, out):
-    for b in nb.prange(y0.shape[0]):
-        _model_into(grid_t, sample_pos, seg_pos, y0[b], inertia[b], inertia_after[b], change_t[b],
-                    tau[tau_index[b]], h[h_index[b]], dist[b], out[b])
+def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_after, change_t, tau,
+                 tau_index, h, h_index, dist, out):
+    """Every (trajectory, segment) pair as one task, in parallel: multiple shooting makes the
+    segments of a trajectory independent, except that a flexible mode's state carries from one
+    segment into the next; a trajectory with a mode runs its segments in order, in one task.
+    seg_sample (S,): index of each segment's first sample.
+    """
+    n_seg = seg_pos.size - 1
+    for task in nb.prange(y0.shape[0] * n_seg):
+        b, s = task // n_seg, task % n_seg
+        coupled = (dist[b, _D_DELTA] != 0.0 or dist[b, _D_DELTA + 1] != 0.0
+                   or dist[b, _D_DELTA + 2] != 0.0)
+        if coupled and s > 0:
+            continue  # the task of segment 0 runs them all
+        eta, etad = 0.0, 0.0
+        for r in range(s, n_seg if coupled else s + 1):
+            eta, etad = _model_segment(grid_t, sample_pos, seg_pos[r], seg_pos[r + 1], seg_sample[r],
+                                       r == n_seg - 1, y0[b, r], eta, etad, inertia[b],
+                                       inertia_after[b], change_t[b], tau[tau_index[b]],
+                                       h[h_index[b]], dist[b], out[b])
 
 
 def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
@@ -701,8 +714,9 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     tau_index = np.zeros(batch, np.int64) if tau_index is None else np.asarray(tau_index, np.int64)
     h_index = np.zeros(batch, np.int64) if h_index is None else np.asarray(h_index, np.int64)
     out = np.empty((batch, sample_pos.size, 7))
-    _model_batch(np.ascontiguousarray(grid_t, dtype=float), np.asarray(sample_pos, np.int64),
-                 np.asarray(seg_pos, np.int64), np.ascontiguousarray(y0, dtype=float),
+    sample_pos, seg_pos = np.asarray(sample_pos, np.int64), np.asarray(seg_pos, np.int64)
+    _model_batch(np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
+                 np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=float),
                  np.ascontiguousarray(inertia, dtype=float), np.ascontiguousarray(inertia_after, dtype=float),
                  np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
                  tau_index, np.ascontiguousarray(h, dtype=float), h_index,

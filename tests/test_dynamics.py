@@ -3,10 +3,12 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from inertia_gym.dynamics import (
+    DISTURBANCE_SIZE,
     Disturbance,
     euler_to_quat,
     propagate,
     propagate_batch,
+    propagate_model_batch,
     quat_multiply,
     quat_to_rotation,
     rk4_lanes,
@@ -166,3 +168,43 @@ def test_rk4_lanes_step_each_lane_as_rk4_step_into_and_leave_the_masked_ones(rng
             rk4_step_into(y[lane], 0.01, inertias[lane], np.linalg.inv(inertias[lane]), tau[lane],
                           dist, expected)
         assert np.array_equal(y_lanes[:, lane], expected)
+
+
+def _segment_alone(grid_t, sample_pos, seg_pos, y0, inertia, after, change_t, tau, h, dist, s):
+    """Segment s of a multiple-shooting record integrated as a record of its own."""
+    a, b = seg_pos[s], seg_pos[s + 1]
+    samples = sample_pos[(sample_pos >= a) & (sample_pos <= b)]
+    return propagate_model_batch(grid_t[a:b + 1], samples - a, np.array([0, b - a]), y0[:, s:s + 1],
+                                 inertia, after, change_t, tau[:, a:b], h[:, a:b + 1], dist)
+
+
+def test_model_segments_are_independent_but_a_flexible_mode_carries_over(rng):
+    """Multiple shooting: without a flexible mode each segment (computed as its own parallel
+    task) is exactly that segment integrated alone, an inertia change before its start included;
+    with a mode, its state runs on from the segment before (alone, a segment starts at rest).
+    """
+    substeps = rng.integers(1, 4, 299)
+    sample_pos = np.r_[0, np.cumsum(substeps)]
+    grid_t = np.interp(np.arange(sample_pos[-1] + 1), sample_pos, np.linspace(0.0, 6.0, 300))
+    seg_pos = np.r_[sample_pos[[0, 80, 190]], sample_pos[-1]]
+    y0 = np.zeros((2, 3, 7))
+    y0[..., 0] = 1.0
+    y0[..., 4:] = rng.normal(0.0, 1.0, (2, 3, 3))
+    inertia = np.tile(np.diag([3.0, 2.0, 1.5]), (2, 1, 1))
+    after = inertia + 0.2 * np.eye(3)
+    change_t = np.full(2, 0.5 * (grid_t[seg_pos[1]] + grid_t[seg_pos[2]]))  # inside segment 1
+    tau = rng.normal(0.0, 0.1, (2, sample_pos[-1], 3))
+    h = rng.normal(0.0, 0.1, (2, sample_pos[-1] + 1, 3))
+    dist = np.zeros((2, DISTURBANCE_SIZE))
+    dist[1] = Disturbance(flex_omega=6.0, flex_zeta=0.05, flex_coupling=(0.3, 0.1, 0.0)).pack()
+    args = (grid_t, sample_pos, seg_pos, y0, inertia, after, change_t, tau, h, dist)
+    whole = propagate_model_batch(*args)
+    first = np.searchsorted(sample_pos, seg_pos)
+    for s in range(3):
+        alone = _segment_alone(*args, s)
+        rows = slice(first[s], first[s + 1] if s < 2 else None)
+        assert np.array_equal(whole[0, rows], alone[0, :(None if s == 2 else -1)])
+        if s == 0:
+            assert np.array_equal(whole[1, rows], alone[1, :-1])
+        else:  # the mode excited in the segments before moves this one's rates
+            assert np.abs(whole[1, rows, 4:] - alone[1, :(None if s == 2 else -1), 4:]).max() > 1e-6

@@ -434,11 +434,15 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
 
 def _row_means(d: Data, values) -> np.ndarray:
     """(..., n, 3) per-sample values -> (..., n_rows, 3) their means over each row's samples."""
-    keep = d.row >= 0
-    idx = np.flatnonzero(keep)
-    starts = np.flatnonzero(np.r_[True, np.diff(d.row[idx]) != 0])
-    sums = np.add.reduceat(values[..., idx, :], starts, axis=-2)
-    return sums / np.bincount(d.row[idx])[:, None]
+    if d.cache.get("rows", (None,))[0] is not d.row:  # (resegmented data share the cache)
+        idx = np.flatnonzero(d.row >= 0)
+        starts = np.flatnonzero(np.r_[True, np.diff(d.row[idx]) != 0])
+        d.cache["rows"] = (d.row, idx, None if starts.size == idx.size else starts,
+                           np.bincount(d.row[idx])[:, None])
+    _, idx, starts, counts = d.cache["rows"]
+    if starts is None:  # a sample a row: the rows are the kept samples
+        return values[..., idx, :]
+    return np.add.reduceat(values[..., idx, :], starts, axis=-2) / counts
 
 
 def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
@@ -478,12 +482,13 @@ def _steps(x, layout: Layout, d: Data) -> np.ndarray:
     return 1e-6 * np.maximum(np.abs(x), np.concatenate(typical))
 
 
-def jacobian(x, free, layout: Layout, d: Data, central: bool = False):
+def jacobian(x, free, layout: Layout, d: Data, central: bool = False, r0=None):
     """Objective r0 (N,), its columns for the free global entries G (N, P) and for the segment
     rates Js (N, 3) (entry i's derivative with respect to the rates of its own segment).
 
     All columns come from one batched integration: one trajectory per free global entry and
     three for the rates of all segments at once (forward differences; central with central=True).
+    r0: the objective at x where already known (it is then not integrated again).
     """
     gi = np.flatnonzero(free[:layout.n_global])
     h = _steps(x, layout, d)
@@ -499,8 +504,11 @@ def jacobian(x, free, layout: Layout, d: Data, central: bool = False):
         xp[layout.n_global + c::3] += seg_h[:, c]
         plus.append(xp)
     minus = [2 * x - xp for xp in plus] if central else []
-    r = objective(np.array(base + plus + minus), layout, d)
-    r0 = r[0]
+    if r0 is None:
+        r = objective(np.array(base + plus + minus), layout, d)
+        r0 = r[0]
+    else:
+        r = np.vstack([r0[None], objective(np.array(plus + minus), layout, d)])
     hp = np.r_[h[gi], seg_h.mean(axis=0)]
     if central:
         cols = (r[1:1 + len(plus)] - r[1 + len(plus):]) / (2 * hp[:, None])
@@ -584,11 +592,12 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
     x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub))
     gi = np.flatnonzero(free[:layout.n_global])
     seg_free = bool(free[layout.n_global:].any())
-    seg_of = np.full(objective(x[None], layout, d).shape[1], -1)
+    r = objective(x[None], layout, d)[0]
+    seg_of = np.full(r.size, -1)
     seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
     cost, lam = np.inf, 1e-3
     for _ in range(max_iter):
-        r, g, js = jacobian(x, free, layout, d)
+        r, g, js = jacobian(x, free, layout, d, r0=r)
         if not np.isfinite(cost):
             cost = float(r @ r)
         g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
@@ -613,7 +622,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             cn = float(rn @ rn)
             if cn < cost:
                 improved = cost - cn > CONVERGED * cost / r.size
-                x, cost, lam = xn, cn, max(lam / 4, 1e-9)
+                x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
                 break
             lam *= 6
         if not improved:
@@ -861,17 +870,20 @@ class Probe:
         x0 = self.x(np.zeros(7))
         delta = np.arange(layout.n_global)[layout.slices()[-1]][1:]
         n_res = d.n_rows * 3
-        seg_of = np.full(objective(x0[None], layout, d).shape[1], -1)
+        seg_of = np.full(n_res + _penalty_rows(x0, layout, d, n_res).size, -1)
         seg_of[:n_res] = np.repeat(d.row_seg, 3)
+        free = np.zeros(x0.size, bool)
+        free[delta] = True
+        linearised = {}  # change time -> (x, r, G, Js): the two scans share their times
 
         def gauss_newton(tc, rates):
-            x = x0.copy()
-            x[delta[0] - 1] = tc
-            free = np.zeros(x.size, bool)
-            free[delta] = True
-            free[layout.n_global:] = rates
-            r, g, js = jacobian(x, free, layout, d)
-            g, js = np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
+            if tc not in linearised:
+                x = x0.copy()
+                x[delta[0] - 1] = tc
+                r, g, js = jacobian(x, free, layout, d)
+                linearised[tc] = x, r, np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
+            x, r, g, js = linearised[tc]
+            x = x.copy()
             dg, ds = _lm_step(g, js, r, seg_of, layout.segments, 1e-9, rates)
             pred = r + g @ dg
             pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])

@@ -13,6 +13,7 @@ the interval's length, exact for a held torque and smooth in a delay.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -115,14 +116,24 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         if applied is not None:
             applied = model.applied(params, applied)
     if applied is None:
-        tau = np.zeros((grid.steps, 3))
+        tau = _zeros(grid.steps)
     elif applied is cumulative and commanded is not None:
         tau = commanded
     else:
         tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
     if h is None:
-        h = np.zeros((grid.t.size, 3))
+        h = _zeros(grid.t.size)
     return Terms(inertia, inertia_after, change_t, tau, h, Disturbance(**fields).pack())
+
+
+@functools.lru_cache(maxsize=8)
+def _zeros(rows: int) -> np.ndarray:
+    """A read-only (rows, 3) array of zeros, one per size: the same object for every model
+    without a torque or a momentum, so simulate() passes it once without comparing its bytes.
+    """
+    out = np.zeros((rows, 3))
+    out.flags.writeable = False
+    return out
 
 
 def gyro_output(effects, w) -> np.ndarray:
