@@ -102,14 +102,14 @@ def short_validation(sc: Scenario) -> dict:
     """A validation whose burst comes after a coast of 20 steps (the scenario's times may span
     8 decades): finite numbers or a project error.
     """
-    quick = sc.replace(validation_coast=(20 * sc.dt, 20 * sc.dt))
-    lo, hi = quick.xi_bounds
-    xi = 0.5 * (lo + hi)
-    xi[2] = quick.t_on[0]
-    duration = (60 + 2 * math.ceil(xi[2] / sc.dt)) * sc.dt
-    with warnings.catch_warnings():
+    with warnings.catch_warnings():  # (replace checks the scenario again: it may warn too)
         warnings.simplefilter("error")
         warnings.simplefilter("ignore", ScenarioWarning)
+        quick = sc.replace(validation_coast=(20 * sc.dt, 20 * sc.dt))
+        lo, hi = quick.xi_bounds
+        xi = 0.5 * (lo + hi)
+        xi[2] = quick.t_on[0]
+        duration = (60 + 2 * math.ceil(xi[2] / sc.dt)) * sc.dt
         return validate(quick, xi, duration, [0]).summary()
 
 
