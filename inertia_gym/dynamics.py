@@ -208,16 +208,26 @@ def body_rate(qw, qx, qy, qz, wx, wy, wz, j, j_inv, tau, dist):
     about 60 ns instead of 300 ns through scratch arrays) and a loop over runs vectorizes
     (simulation.py).
     """
+    return body_rate_with(qw, qx, qy, qz, wx, wy, wz, j, j_inv, tau[0], tau[1], tau[2],
+                          dist[3], dist[4], dist[5], dist)
+
+
+@nb.njit(cache=True, inline="always")
+def body_rate_with(qw, qx, qy, qz, wx, wy, wz, j, j_inv, tx, ty, tz, sx, sy, sz, dist):
+    """:func:`body_rate` with the torque (tx, ty, tz) N·m and the stored momentum (sx, sy, sz)
+    kg·m²/s as scalars, in place of tau and of dist's momentum slots (which it does not read):
+    a caller that varies them per stage passes registers, not a scratch array.
+    """
     dqw = 0.5 * (-qx * wx - qy * wy - qz * wz)
     dqx = 0.5 * (qw * wx + qy * wz - qz * wy)
     dqy = 0.5 * (qw * wy - qx * wz + qz * wx)
     dqz = 0.5 * (qw * wz + qx * wy - qy * wx)
-    hx = j[0] * wx + j[1] * wy + j[2] * wz + dist[3]
-    hy = j[3] * wx + j[4] * wy + j[5] * wz + dist[4]
-    hz = j[6] * wx + j[7] * wy + j[8] * wz + dist[5]
-    mx = tau[0] + dist[0] - (wy * hz - wz * hy)
-    my = tau[1] + dist[1] - (wz * hx - wx * hz)
-    mz = tau[2] + dist[2] - (wx * hy - wy * hx)
+    hx = j[0] * wx + j[1] * wy + j[2] * wz + sx
+    hy = j[3] * wx + j[4] * wy + j[5] * wz + sy
+    hz = j[6] * wx + j[7] * wy + j[8] * wz + sz
+    mx = tx + dist[0] - (wy * hz - wz * hy)
+    my = ty + dist[1] - (wz * hx - wx * hz)
+    mz = tz + dist[2] - (wx * hy - wy * hx)
     if dist[15] != 0.0:
         nw = math.sqrt(wx * wx + wy * wy + wz * wz)
         mx -= nw * (dist[16] * wx + dist[17] * wy + dist[18] * wz)
@@ -507,23 +517,22 @@ def propagate(q0, omega0, inertia, torque, dt, disturbance=None, method="rk4"):
 
 @nb.njit(cache=True, inline="always")
 def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv, jd, denom, tx, ty, tz,
-                    hx, hy, hz, dist, dl, tau_buf):
-    """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): state_rate with the momentum
-    (hx, hy, hz) + delta eta_dot in its hook and the torque (tx, ty, tz) (N·m, known h_dot already
-    subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta eta_ddot
-    = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot in closed
-    form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). dl: scratch copy of dist (its
-    momentum slots are overwritten), tau_buf: scratch (3,). Scalars in and out, like state_rate.
+                    hx, hy, hz, dist):
+    """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): body_rate with the momentum
+    (hx, hy, hz) + delta eta_dot added to its hook's and the torque (tx, ty, tz) (N·m, known h_dot
+    already subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta
+    eta_ddot = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot
+    in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). Scalars in and out.
     """
     cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
-    dl[3] = dist[3] + hx + cx * etad
-    dl[4] = dist[4] + hy + cy * etad
-    dl[5] = dist[5] + hz + cz * etad
+    sx = dist[3] + hx + cx * etad
+    sy = dist[4] + hy + cy * etad
+    sz = dist[5] + hz + cz * etad
     diss = dist[_D_DISS]
     if diss != 0.0:
-        lx = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2 + dl[3]
-        ly = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2 + dl[4]
-        lz = inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2 + dl[5]
+        lx = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2 + sx
+        ly = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2 + sy
+        lz = inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2 + sz
         nl = math.sqrt(lx * lx + ly * ly + lz * lz)
         if nl > 0.0:
             ux, uy, uz = lx / nl, ly / nl, lz / nl
@@ -531,8 +540,8 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
             tx -= diss * (w0 - ux * uw)
             ty -= diss * (w1 - uy * uw)
             tz -= diss * (w2 - uz * uw)
-    tau_buf[0], tau_buf[1], tau_buf[2] = tx, ty, tz
-    r = state_rate(y0, y1, y2, y3, w0, w1, w2, inertia, inertia_inv, tau_buf, dl)
+    r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, mat3_entries(inertia), mat3_entries(inertia_inv),
+                       tx, ty, tz, sx, sy, sz, dist)
     ax, ay, az = r[4], r[5], r[6]
     eta_dd = 0.0
     if cx != 0.0 or cy != 0.0 or cz != 0.0:
@@ -555,7 +564,7 @@ def _modal_coupling(inertia_inv, dist, jd):
 
 @nb.njit(cache=True, inline="always")
 def _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, ha0, ha1, ha2, hb0, hb1, hb2,
-                        dist, dl, tau_buf):
+                        dist):
     """One RK4 step of y (9,) in place over dt, the known momentum linear from (ha) to (hb) and
     the torque (tx, ty, tz) (its rate already subtracted) held.
     """
@@ -563,19 +572,19 @@ def _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, ha0, ha1, ha
     hm0, hm1, hm2 = 0.5 * (ha0 + hb0), 0.5 * (ha1 + hb1), 0.5 * (ha2 + hb2)
     y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_ = y[0], y[1], y[2], y[3], y[4], y[5], y[6], y[7], y[8]
     k1 = _augmented_rate(y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_, j_now, j_inv, jd, denom,
-                         tx, ty, tz, ha0, ha1, ha2, dist, dl, tau_buf)
+                         tx, ty, tz, ha0, ha1, ha2, dist)
     k2 = _augmented_rate(y0_ + hdt * k1[0], y1_ + hdt * k1[1], y2_ + hdt * k1[2], y3_ + hdt * k1[3],
                          y4_ + hdt * k1[4], y5_ + hdt * k1[5], y6_ + hdt * k1[6], y7_ + hdt * k1[7],
                          y8_ + hdt * k1[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
-                         dist, dl, tau_buf)
+                         dist)
     k3 = _augmented_rate(y0_ + hdt * k2[0], y1_ + hdt * k2[1], y2_ + hdt * k2[2], y3_ + hdt * k2[3],
                          y4_ + hdt * k2[4], y5_ + hdt * k2[5], y6_ + hdt * k2[6], y7_ + hdt * k2[7],
                          y8_ + hdt * k2[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
-                         dist, dl, tau_buf)
+                         dist)
     k4 = _augmented_rate(y0_ + dt * k3[0], y1_ + dt * k3[1], y2_ + dt * k3[2], y3_ + dt * k3[3],
                          y4_ + dt * k3[4], y5_ + dt * k3[5], y6_ + dt * k3[6], y7_ + dt * k3[7],
                          y8_ + dt * k3[8], j_now, j_inv, jd, denom, tx, ty, tz, hb0, hb1, hb2,
-                         dist, dl, tau_buf)
+                         dist)
     c6 = dt / 6.0
     for c in range(9):
         y[c] += c6 * (k1[c] + 2.0 * k2[c] + 2.0 * k3[c] + k4[c])
@@ -612,8 +621,6 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     j_inv = inv3(j_now)
     jd = np.empty(3)
     denom = _modal_coupling(j_inv, dist, jd)
-    dl = dist.copy()
-    tau_buf = np.empty(3)
     y = np.zeros(9)
     for c in range(7):
         y[c] = y0[c]
@@ -642,16 +649,16 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
             f = change_t - t0
             hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
             _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                hc0, hc1, hc2, dist, dl, tau_buf)
+                                hc0, hc1, hc2, dist)
             j_inv = _change_inertia(y, j_now, inertia_after)
             j_now = inertia_after.copy()
             denom = _modal_coupling(j_inv, dist, jd)
             changed = True
             _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist)
         else:
             _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist, dl, tau_buf)
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist)
     return y[7], y[8]
 
 
