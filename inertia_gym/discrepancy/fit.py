@@ -523,42 +523,72 @@ def jacobian(x, free, layout: Layout, d: Data, central: bool = False, r0=None):
     return r0, cols[:len(gi)].T, js
 
 
-def _lm_step(g, js, r, seg_of, n_seg: int, lam: float, seg_free: bool = True):
-    """Damped Gauss-Newton step (dg (P,), ds (S, 3)) of the arrow system: segment blocks
-    eliminated (Schur complement), Marquardt damping lam on every diagonal; with seg_free False
-    the segments' rates are held (ds = 0). A system that is not finite gives a zero step.
+@dataclasses.dataclass(frozen=True)
+class NormalBlocks:
+    """The damping-free blocks of the arrow system's normal equations, formed once per Jacobian
+    and reused for every damping tried.
+
+    n_seg: the segments S; col (P,): the global columns' norms (the columns are scaled to unit
+    norm); a (P, P) and rhs (P,): the scaled global block and its right side; with the segments
+    free, dmat (S, 3, 3)
+    and bvec (S, 3): each segment's rate block and right side, bmat (S, P, 3): the coupling of
+    the globals with each segment's rates; None with the segments' rates held.
     """
-    p = g.shape[1]
-    col = np.linalg.norm(g, axis=0) + 1e-300
-    gsc = g / col
-    a = gsc.T @ gsc
-    a = a + lam * np.diag(np.maximum(np.diag(a), 1e-12))
-    rhs = -(gsc.T @ r)
-    ds = np.zeros((n_seg, 3))
-    if seg_free:
+
+    n_seg: int
+    col: np.ndarray
+    a: np.ndarray
+    rhs: np.ndarray
+    dmat: np.ndarray | None
+    bmat: np.ndarray | None
+    bvec: np.ndarray | None
+
+    @staticmethod
+    def of(g, js, r, seg_of, n_seg: int, seg_free: bool = True) -> NormalBlocks:
+        """The blocks of global columns g (N, P), rate columns js (N, 3) (each entry's derivative
+        with respect to its own segment's rates; seg_of (N,) that segment, -1 for none),
+        residual r (N,), over n_seg segments.
+        """
+        col = np.linalg.norm(g, axis=0) + 1e-300
+        gsc = g / col
+        a, rhs = gsc.T @ gsc, -(gsc.T @ r)
+        if not seg_free:
+            return NormalBlocks(n_seg, col, a, rhs, None, None, None)
         has = seg_of >= 0
         gs, jss, rs, so = gsc[has], js[has], r[has], seg_of[has]
         starts = np.flatnonzero(np.r_[True, np.diff(so) != 0])
         ids = so[starts]
         dmat = np.zeros((n_seg, 3, 3))
         dmat[ids] = np.add.reduceat(jss[:, :, None] * jss[:, None, :], starts, axis=0)
-        bmat = np.zeros((n_seg, p, 3))
-        if p:
+        bmat = np.zeros((n_seg, g.shape[1], 3))
+        if g.shape[1]:
             bmat[ids] = np.add.reduceat(gs[:, :, None] * jss[:, None, :], starts, axis=0)
         bvec = np.zeros((n_seg, 3))
         bvec[ids] = np.add.reduceat(jss * rs[:, None], starts, axis=0)
-        diag = np.einsum("sii->si", dmat)
-        floor = 1e-12 * max(float(diag.max()), 1e-300)
-        dinv = np.linalg.inv(dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), np.eye(3))
-                             + floor * np.eye(3))
-        a = a - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
-        rhs = rhs + np.einsum("spi,sij,sj->p", bmat, dinv, bvec)
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
-        return np.zeros(p), ds
-    dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
-    if seg_free:
-        ds = -np.einsum("sij,sj->si", dinv, bvec + np.einsum("spi,p->si", bmat, dg_sc))
-    return dg_sc / col, ds
+        return NormalBlocks(n_seg, col, a, rhs, dmat, bmat, bvec)
+
+    def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """Damped Gauss-Newton step (dg (P,), ds (S, 3)): segment blocks eliminated (Schur
+        complement), Marquardt damping lam on every diagonal; ds = 0 with the segments' rates
+        held. A system that is not finite gives a zero step.
+        """
+        p = self.a.shape[0]
+        a = self.a + lam * np.diag(np.maximum(np.diag(self.a), 1e-12))
+        rhs = self.rhs
+        if self.dmat is not None:
+            diag = np.einsum("sii->si", self.dmat)
+            floor = 1e-12 * max(float(diag.max()), 1e-300)
+            dinv = np.linalg.inv(self.dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), np.eye(3))
+                                 + floor * np.eye(3))
+            a = a - np.einsum("spi,sij,sqj->pq", self.bmat, dinv, self.bmat)
+            rhs = rhs + np.einsum("spi,sij,sj->p", self.bmat, dinv, self.bvec)
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
+            return np.zeros(p), np.zeros((self.n_seg, 3))
+        dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
+        ds = np.zeros((self.n_seg, 3))
+        if self.dmat is not None:
+            ds = -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
+        return dg_sc / self.col, ds
 
 
 def _moved(x, step, gi, layout: Layout, lb, ub) -> tuple[np.ndarray, np.ndarray]:
@@ -603,14 +633,17 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
         g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
         js = np.where(np.isfinite(js), js, 0.0)
         on_face = _face_basis(layout.face(x)[:, gi])
+        blocks = NormalBlocks.of(g, js, r, seg_of, layout.segments, seg_free)
+        face_blocks = None
         improved = False
         for _ in range(12):
-            step = _lm_step(g, js, r, seg_of, layout.segments, lam, seg_free)
-            trials = [_moved(x, step, gi, layout, lb, ub)]
+            trials = [_moved(x, blocks.step(lam), gi, layout, lb, ub)]
             if on_face is not None and not np.array_equal(*trials[0]):
                 # the step left a physical limit and was projected back: the same step kept on
                 # the limit's face where x sits is tried beside it
-                dz, ds = _lm_step(g @ on_face, js, r, seg_of, layout.segments, lam, seg_free)
+                if face_blocks is None:
+                    face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
+                dz, ds = face_blocks.step(lam)
                 trials.append(_moved(x, (on_face @ dz, ds), gi, layout, lb, ub))
             trials = [xn for _, xn in trials if np.all(np.isfinite(xn))]
             if not trials:
@@ -884,7 +917,7 @@ class Probe:
                 linearised[tc] = x, r, np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
             x, r, g, js = linearised[tc]
             x = x.copy()
-            dg, ds = _lm_step(g, js, r, seg_of, layout.segments, 1e-9, rates)
+            dg, ds = NormalBlocks.of(g, js, r, seg_of, layout.segments, rates).step(1e-9)
             pred = r + g @ dg
             pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])
             x[delta] += dg

@@ -85,7 +85,7 @@ def test_jacobian_columns_equal_brute_force_differences():
             np.testing.assert_allclose(mine, brute[:seg_of.size], rtol=1e-6, atol=1e-6 * np.abs(brute).max())
 
 
-def test_lm_step_equals_the_dense_damped_least_squares():
+def test_normal_blocks_step_equals_the_dense_damped_least_squares():
     rng = np.random.default_rng(0)
     n_seg, rows, p = 4, 30, 5
     seg_of = np.repeat(np.arange(n_seg), rows)
@@ -93,7 +93,9 @@ def test_lm_step_equals_the_dense_damped_least_squares():
     js = rng.normal(size=(n_seg * rows, 3))
     r = rng.normal(size=n_seg * rows)
     lam = 0.3
-    dg, ds = F._lm_step(g, js, r, seg_of, n_seg, lam)
+    blocks = F.NormalBlocks.of(g, js, r, seg_of, n_seg)
+    blocks.step(10.0)  # the blocks are formed once and serve every damping
+    dg, ds = blocks.step(lam)
     dense = np.zeros((n_seg * rows, p + 3 * n_seg))
     dense[:, :p] = g
     for s in range(n_seg):
@@ -104,6 +106,12 @@ def test_lm_step_equals_the_dense_damped_least_squares():
     ref = np.linalg.solve(a, -dense.T @ r)
     np.testing.assert_allclose(dg, ref[:p], rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(ds.ravel(), ref[p:], rtol=1e-8, atol=1e-10)
+    # the segments' rates held: the damped least squares over the globals alone
+    dg, ds = F.NormalBlocks.of(g, js, r, seg_of, n_seg, seg_free=False).step(lam)
+    a = g.T @ g
+    ref = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g.T @ r)
+    np.testing.assert_allclose(dg, ref, rtol=1e-8, atol=1e-10)
+    assert ds.shape == (n_seg, 3) and not ds.any()
 
 
 @pytest.mark.parametrize("w0", [(0.3, 15.0, 0.4), (0.5, 0.5, 25.0)])
