@@ -32,6 +32,9 @@ from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, ph
 
 #: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
 FLEX_BAND = (0.05, 0.25)
+#: The largest modal mass fraction delta^T J^-1 delta a fitted flexible_mode may take (1 makes
+#: the body and mode's joint mass matrix singular; drawn modes take up to about 0.1).
+MODE_MASS_LIMIT = 0.9
 
 #: A function t (k,) s -> (k, 3): the running integral of a torque (N·m·s) from the recording's
 #: start; the applied torque over an interval is its increment over the interval's length.
@@ -186,9 +189,9 @@ class EffectModel:
         """
         return []
 
-    def feasible(self, p) -> np.ndarray:
-        """The nearest vector to p that the physics allows (the solver projects every step onto
-        it): p itself by default.
+    def feasible(self, p, inertia) -> np.ndarray:
+        """The nearest vector to p that the physics allows with the model's inertia (3, 3)
+        kg·m² (the solver projects every step onto it): p itself by default.
         """
         return p
 
@@ -483,7 +486,7 @@ class _Drag(EffectModel):
         return [np.zeros(6)] + probe.best_of(trials, keep=2)
 
     @override
-    def feasible(self, p):
+    def feasible(self, p, inertia):
         values, vectors = np.linalg.eigh(matrix6(p))
         return inertia6((vectors * np.maximum(values, 0.0)) @ vectors.T)
 
@@ -756,6 +759,17 @@ class FlexibleMode(EffectModel):
     @override
     def starts(self, form, d, probe):
         return probe.mode_starts()
+
+    @override
+    def feasible(self, p, inertia):
+        # the body and mode's joint mass matrix [[J, delta], [delta^T, 1]] is positive definite
+        # only while delta^T J^-1 delta < 1 (the modal mass fraction): the coupling is scaled
+        # back to MODE_MASS_LIMIT, beyond which the model is singular or indefinite
+        c = p[2:5]
+        fraction = float(c @ np.linalg.solve(inertia, c))
+        if not fraction > MODE_MASS_LIMIT:
+            return p
+        return np.r_[p[:2], c * np.sqrt(MODE_MASS_LIMIT / fraction)]
 
     @override
     def disturbance(self, params):

@@ -366,13 +366,14 @@ class Layout:
             out.append((m, params))
         return out
 
-    def feasible(self, x) -> np.ndarray:
+    def feasible(self, x, d: Data) -> np.ndarray:
         """The joint vector x with each effect's part projected onto what its physics allows
-        (EffectModel.feasible).
+        with the model's inertia at x (EffectModel.feasible).
         """
         x = np.array(x, float)
+        inertia = model_inertia(self, x, d)
         for m, s in zip(self.models, self.slices()):
-            x[s] = m.feasible(x[s])
+            x[s] = m.feasible(x[s], inertia)
         return x
 
     def face(self, x) -> np.ndarray:
@@ -591,7 +592,7 @@ class NormalBlocks:
         return dg_sc / self.col, ds
 
 
-def _moved(x, step, gi, layout: Layout, lb, ub) -> tuple[np.ndarray, np.ndarray]:
+def _moved(x, step, gi, layout: Layout, d: Data, lb, ub) -> tuple[np.ndarray, np.ndarray]:
     """The point x moved by an LM step (dg over the free globals gi, ds over the segments'
     rates), in the bounds, and that point projected onto the effects' physical limits.
     """
@@ -600,7 +601,7 @@ def _moved(x, step, gi, layout: Layout, lb, ub) -> tuple[np.ndarray, np.ndarray]
     xn[gi] += dg
     xn[layout.n_global:] += ds.ravel()
     xn = np.clip(xn, lb, ub)
-    return xn, layout.feasible(xn)
+    return xn, layout.feasible(xn, d)
 
 
 def _face_basis(a) -> np.ndarray | None:
@@ -619,7 +620,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
     Stops when an accepted step gains less than CONVERGED in BIC units (the cost's gain over
     the mean square per residual: N log(mse) moves by that much), or after max_iter iterations.
     """
-    x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub))
+    x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub), d)
     gi = np.flatnonzero(free[:layout.n_global])
     seg_free = bool(free[layout.n_global:].any())
     r = objective(x[None], layout, d)[0]
@@ -637,14 +638,14 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
         face_blocks = None
         improved = False
         for _ in range(12):
-            trials = [_moved(x, blocks.step(lam), gi, layout, lb, ub)]
+            trials = [_moved(x, blocks.step(lam), gi, layout, d, lb, ub)]
             if on_face is not None and not np.array_equal(*trials[0]):
                 # the step left a physical limit and was projected back: the same step kept on
                 # the limit's face where x sits is tried beside it
                 if face_blocks is None:
                     face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
                 dz, ds = face_blocks.step(lam)
-                trials.append(_moved(x, (on_face @ dz, ds), gi, layout, lb, ub))
+                trials.append(_moved(x, (on_face @ dz, ds), gi, layout, d, lb, ub))
             trials = [xn for _, xn in trials if np.all(np.isfinite(xn))]
             if not trials:
                 lam *= 6

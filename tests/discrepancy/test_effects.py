@@ -261,8 +261,30 @@ def test_drag_that_feeds_energy_in_is_projected_out(name):
     its negative eigenvalues set to zero; a dissipative C is left as it is."""
     model = REGISTRY[name]
     c_ok = np.array([[2.0, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 0.0]])
-    np.testing.assert_allclose(model.unpack(model.feasible(model.pack({"c": c_ok})))["c"], c_ok, atol=1e-15)
+    np.testing.assert_allclose(model.unpack(model.feasible(model.pack({"c": c_ok}), np.eye(3)))["c"],
+                               c_ok, atol=1e-15)
     rot = rotvec_matrix(np.array([0.3, -0.7, 0.2]))
     c_bad = rot @ np.diag([2.0, -1.0, 0.5]) @ rot.T
-    projected = model.unpack(model.feasible(model.pack({"c": c_bad})))["c"]
+    projected = model.unpack(model.feasible(model.pack({"c": c_bad}), np.eye(3)))["c"]
     np.testing.assert_allclose(projected, rot @ np.diag([2.0, 0.0, 0.5]) @ rot.T, atol=1e-12)
+
+
+def test_a_flexible_mode_heavier_than_the_body_allows_is_scaled_back():
+    """feasible() keeps the modal mass fraction delta^T J^-1 delta of a flexible mode below
+    MODE_MASS_LIMIT (at 1 the body and mode's joint mass matrix [[J, delta], [delta^T, 1]] is
+    singular): a light mode is left as it is, a heavy one keeps its direction, its frequency and
+    damping, and lands on the limit, where the joint mass matrix is positive definite."""
+    from inertia_gym.discrepancy.effects import MODE_MASS_LIMIT
+
+    model = REGISTRY["flexible_mode"]
+    inertia = np.array([[0.1, 0.01, 0.0], [0.01, 0.12, 0.0], [0.0, 0.0, 0.05]])  # kg·m²
+    light = model.pack({"omega_n": 3.0, "zeta": 0.02, "coupling": np.array([0.05, 0.02, 0.03])})
+    np.testing.assert_array_equal(model.feasible(light, inertia), light)
+    heavy = model.pack({"omega_n": 3.0, "zeta": 0.02, "coupling": np.array([0.3, -0.1, 0.2])})
+    fixed = model.feasible(heavy, inertia)
+    c = fixed[2:5]
+    assert c @ np.linalg.solve(inertia, c) == pytest.approx(MODE_MASS_LIMIT, rel=1e-12)
+    np.testing.assert_allclose(c / np.linalg.norm(c), heavy[2:5] / np.linalg.norm(heavy[2:5]), rtol=1e-12)
+    np.testing.assert_array_equal(fixed[:2], heavy[:2])
+    joint = np.block([[inertia, c[:, None]], [c[None, :], np.ones((1, 1))]])
+    assert np.linalg.eigvalsh(joint)[0] > 0
