@@ -531,9 +531,9 @@ class NormalBlocks:
 
     n_seg: the segments S; col (P,): the global columns' norms (the columns are scaled to unit
     norm); a (P, P) and rhs (P,): the scaled global block and its right side; with the segments
-    free, dmat (S, 3, 3)
-    and bvec (S, 3): each segment's rate block and right side, bmat (S, P, 3): the coupling of
-    the globals with each segment's rates; None with the segments' rates held.
+    free, dmat (S, 3, 3) and bvec (S, 3): each segment's rate block and right side, bmat
+    (S, P, 3): the coupling of the globals with each segment's rates; None with the segments'
+    rates held.
     """
 
     n_seg: int
@@ -586,9 +586,9 @@ class NormalBlocks:
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
             return np.zeros(p), np.zeros((self.n_seg, 3))
         dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
-        ds = np.zeros((self.n_seg, 3))
-        if self.dmat is not None:
-            ds = -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
+        if self.dmat is None:
+            return dg_sc / self.col, np.zeros((self.n_seg, 3))
+        ds = -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
         return dg_sc / self.col, ds
 
 
