@@ -41,6 +41,10 @@ MOMENTUM = ("h_x", "h_y", "h_z")
 COLUMN_NAMES = ("t",) + GYRO + QUAT + TORQUE + MOMENTUM
 PHYPHOX_COLUMNS = ("Time (s)", "Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")
 MAX_PLAUSIBLE_RATE = 200.0  # rad/s; larger gyro values almost surely are deg/s or mdps
+#: rad the body may turn over a whole recording (about 160 000 revolutions: 0.1 rad/s for 115
+#: days): the models integrate in steps of a tenth of a radian, so beyond this one trajectory
+#: takes over 1e7 steps. Checked whatever the stated units.
+MAX_TOTAL_TURN = 1e6
 MIN_SAMPLES = 10
 #: Largest magnitude accepted in any column: squares and products of such values stay finite.
 MAX_MAGNITUDE = 1e100
@@ -170,6 +174,7 @@ def _check_arrays(path, t, w, q, tau, labels, first_row=2, h=None, *, time_unit=
                         first_row + r, labels["qw"])
         q = q / norm[:, None]
     check_units(path, t, w, q, time_unit=time_unit, rate_unit=rate_unit)
+    check_total_turn(path, t, w)
 
 
 def check_units(path, t, w, q=None, *, time_unit=None, rate_unit=None) -> None:
@@ -218,6 +223,20 @@ def check_units(path, t, w, q=None, *, time_unit=None, rate_unit=None) -> None:
         raise _fail(path, f"at its median rate {typical:.3g} rad/s the body would turn {turn:.3g} rad "
                           f"between samples (median step {np.median(np.diff(t)):.3g} s), yet its rates "
                           f"change by only {change:.2g} of themselves per sample: {guess}{keep}")
+
+
+def check_total_turn(path, t, w) -> None:
+    """Refuse a recording over which the body turns more than MAX_TOTAL_TURN rad (the gyro's
+    rate magnitude integrated over t, rad/s and s): no model can follow it in reasonable time,
+    and with units stated (so check_units trusts them) it is the sign of a wrong time unit.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        speed = np.linalg.norm(w, axis=1)
+        total = float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t)))
+    if total > MAX_TOTAL_TURN:
+        raise _fail(path, f"over its {t[-1] - t[0]:.3g} s the body would turn {total:.3g} rad at the "
+                          f"gyro's rates (more than {MAX_TOTAL_TURN:.0e} rad): check the units of t and "
+                          "of the gyro, or cut the recording into shorter ones")
 
 
 def _gyro_over_attitude(t, w, q) -> float | None:
