@@ -244,10 +244,11 @@ def model_error_covariance(prob: ml.Problem, p, ev: ml.Evaluation) -> tuple[floa
     trace_k = float(np.einsum("mrs,mst,mrt->", out_state, walk, out_state))
     trace_pk = float(np.trace(a_inv @ b))
     excess = float(ev.r @ ev.r) - (ev.r.size - int(free.sum()))
-    q = max(0.0, excess / max(trace_k - trace_pk, 1e-300))
     cov = np.zeros((n, n))
-    cov[np.ix_(free, free)] = q * (a_inv @ b @ a_inv)
-    return q, 0.5 * (cov + cov.T)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refine checks
+        q = max(0.0, excess / max(trace_k - trace_pk, 1e-300))
+        cov[np.ix_(free, free)] = q * (a_inv @ b @ a_inv)
+        return q, 0.5 * (cov + cov.T)
 
 
 # ------------------------------------------------------------------------------------------
@@ -320,6 +321,11 @@ def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
         # is all there is: the Bartlett/Newey-West sandwich.
         used = prob.window(m) if m < prob.meas_idx.size else prob
         q_dist, cov_model = model_error_covariance(used, fit.p, ev)
+        if not (np.isfinite(q_dist) and np.all(np.isfinite(cov_model))):
+            raise EstimatorDivergedError(
+                f"the fitted model leaves residuals {rms_ratio:.3g} times the noise and its error "
+                "bars overflow: the rigid-body model does not explain this recording (check its "
+                "units and columns, or run diagnose on it)")
         if q_dist > 0:
             cov = fisher_cov + cov_model
         else:

@@ -178,12 +178,14 @@ def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     (1e3, 1.0, ["--time-unit", "ms"], None),
     (1.0, 180.0 / np.pi, ["--rate-unit", "deg/s"], None),
     (1e8, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "cut the recording"),
+    (1.0, 10.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
 ])
 def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
                                                                   rate_factor, stated, expected):
     """The reported cases: t in µs (was a traceback), rates in °/s (was an indefinite inertia);
     and time stated in s but 1e8 times too long (found by the fuzz test: identify integrated
-    ~1e7 rad between samples for minutes)."""
+    ~1e7 rad between samples for minutes), or rates stated in rad/s but 10 times too large
+    (found by the fuzz test: the model-error covariance overflowed, an internal error)."""
     columns, side = base
     data = np.stack([columns[name] * (time_factor if name == "t" else rate_factor if name[0] == "w" else 1.0)
                      for name in COLUMN_NAMES], axis=1)
