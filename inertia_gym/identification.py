@@ -61,6 +61,9 @@ FIRST_HORIZON_PHASE = 0.5
 MIN_SAMPLES = 20
 #: Least total rotation angle (rad) over a record: rigid-body dynamics need the body to turn.
 MIN_ROTATION = 0.1
+#: Largest standard deviation of a log-Cholesky shape parameter (phi[1:6]) a model-error
+#: covariance may give: e^1000 in a moment ratio says nothing, and the delta method overflows.
+MAX_SHAPE_SIGMA = 1e3
 TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 
 
@@ -294,6 +297,21 @@ def first_horizon(prob: ml.Problem, rel_error: float) -> int:
     return max(20, int(np.searchsorted(t, t[0] + span)))
 
 
+def _check_error_bars(q_dist: float, cov: np.ndarray, rms_ratio: float) -> None:
+    """Raise EstimatorDivergedError where a model-error covariance cov (n, n) in phi
+    coordinates, or its intensity q_dist, is not finite, or gives a shape parameter (log-Cholesky
+    entries 1..5) a standard deviation over MAX_SHAPE_SIGMA: error bars that say nothing and
+    overflow on their way to the inertia's. rms_ratio: the residuals' rms over the noise.
+    """
+    shape_sigma = np.sqrt(np.abs(np.diag(cov)[1:6])) if np.all(np.isfinite(cov)) else np.inf
+    if np.isfinite(q_dist) and np.max(shape_sigma) <= MAX_SHAPE_SIGMA:
+        return
+    raise EstimatorDivergedError(
+        f"the fitted model leaves residuals {rms_ratio:.3g} times the noise and its error bars "
+        "overflow: the rigid-body model does not explain this recording (check its units and "
+        "columns, or run diagnose on it)")
+
+
 def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
            trace_ref: float | None, sigma_source: str) -> Refinement:
     """Fit the problem from a start, decide white or coloured noise, and build the statistics.
@@ -321,16 +339,13 @@ def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
         # is all there is: the Bartlett/Newey-West sandwich.
         used = prob.window(m) if m < prob.meas_idx.size else prob
         q_dist, cov_model = model_error_covariance(used, fit.p, ev)
-        if not (np.isfinite(q_dist) and np.all(np.isfinite(cov_model))):
-            raise EstimatorDivergedError(
-                f"the fitted model leaves residuals {rms_ratio:.3g} times the noise and its error "
-                "bars overflow: the rigid-body model does not explain this recording (check its "
-                "units and columns, or run diagnose on it)")
+        _check_error_bars(q_dist, cov_model, rms_ratio)
         if q_dist > 0:
             cov = fisher_cov + cov_model
         else:
             cov = np.zeros_like(fisher_cov)
             cov[np.ix_(free, free)] = sandwich_covariance(ev.jac[:, free], ev.r, m, lags)
+        _check_error_bars(q_dist, cov, rms_ratio)
         ratio = np.sqrt(np.clip(np.diag(cov)[:6][free[:6]], 0, None)
                         / np.clip(np.diag(fisher_cov)[:6][free[:6]], 1e-300, None))
         noise = NoiseModel("coloured", prob.sigma_w, sigma_source, lags, float(np.median(ratio)),

@@ -171,24 +171,29 @@ def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else 'diagnose'}")
 
 
-@pytest.mark.parametrize("time_factor, rate_factor, stated, expected", [
-    (1e6, 1.0, [], "time in us"),
-    (1e3, 1.0, [], "time in ms"),
-    (1.0, 180.0 / np.pi, [], "deg/s"),
-    (1e3, 1.0, ["--time-unit", "ms"], None),
-    (1.0, 180.0 / np.pi, ["--rate-unit", "deg/s"], None),
-    (1e8, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "cut the recording"),
-    (1.0, 10.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
+@pytest.mark.parametrize("time_factor, rate_factor, momentum_factor, stated, expected", [
+    (1e6, 1.0, 1.0, [], "time in us"),
+    (1e3, 1.0, 1.0, [], "time in ms"),
+    (1.0, 180.0 / np.pi, 1.0, [], "deg/s"),
+    (1e3, 1.0, 1.0, ["--time-unit", "ms"], None),
+    (1.0, 180.0 / np.pi, 1.0, ["--rate-unit", "deg/s"], None),
+    (1e8, 1.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "cut the recording"),
+    (1.0, 10.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
+    (1e3, 1.0, 100.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
 ])
 def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
-                                                                  rate_factor, stated, expected):
+                                                                  rate_factor, momentum_factor, stated,
+                                                                  expected):
     """The reported cases: t in µs (was a traceback), rates in °/s (was an indefinite inertia);
-    and time stated in s but 1e8 times too long (found by the fuzz test: identify integrated
-    ~1e7 rad between samples for minutes), or rates stated in rad/s but 10 times too large
-    (found by the fuzz test: the model-error covariance overflowed, an internal error)."""
+    and, found by the fuzz test: time stated in s but 1e8 times too long (identify integrated
+    ~1e7 rad between samples for minutes), rates stated in rad/s but 10 times too large (the
+    model-error covariance overflowed, an internal error), time 1000 and the rotor's momentum
+    100 times too large (a finite model-error covariance of 1e306 whose error bars overflowed
+    into NaN in identify.json, an internal error)."""
     columns, side = base
-    data = np.stack([columns[name] * (time_factor if name == "t" else rate_factor if name[0] == "w" else 1.0)
-                     for name in COLUMN_NAMES], axis=1)
+    factors = {"t": time_factor, "wx": rate_factor, "wy": rate_factor, "wz": rate_factor,
+               "h_x": momentum_factor, "h_y": momentum_factor, "h_z": momentum_factor}
+    data = np.stack([columns[name] * factors.get(name, 1.0) for name in COLUMN_NAMES], axis=1)
     path = tmp_path / "rec.csv"
     np.savetxt(path, data, delimiter=",", header=",".join(COLUMN_NAMES), comments="", fmt="%.10g")
     (tmp_path / "rec.json").write_text(json.dumps(side))
