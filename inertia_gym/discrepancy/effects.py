@@ -138,6 +138,10 @@ class EffectModel:
         value = np.ravel(np.asarray(params[self.params[0]], float))
         return np.broadcast_to(value, (self.size,)).copy() if value.size == 1 else value
 
+    def confounded(self, form: str) -> tuple[tuple[str, str], ...]:
+        """The known ambiguities of the effect fitted in that form: ``ambiguities`` by default."""
+        return self.ambiguities
+
     # --- fit set-up -------------------------------------------------------------------------
     def forms(self, d) -> tuple[str, ...]:
         """The forms this effect is fitted in on d (a constant and a time-varying one, say)."""
@@ -352,6 +356,16 @@ class InternalMomentum(EffectModel):
     @override
     def forms(self, d):
         return ("constant", "varying") if self.knots(d) else ("constant",)
+
+    @override
+    def confounded(self, form):
+        if form != "varying":
+            return self.ambiguities
+        return self.ambiguities + (("external torque", (
+            "a momentum changing along one body axis acts on the rates as a torque about that axis; "
+            "without the rotor's momentum logged (h columns), an external torque about a fixed body "
+            "axis with a free time course (say, air on a thrown body's far end) fits the same way: "
+            "on a body with no rotor, read it as such a torque")),)
 
     @override
     def form_size(self, form, d):

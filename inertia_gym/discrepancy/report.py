@@ -177,7 +177,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                 ambiguous.append({"effects": [top["name"], e["name"]],
                                   "reason": f"delta BIC differs by {top['delta_bic'] - e['delta_bic']:.1f}"
                                             f" < {AMBIGUOUS_DELTA_BIC}"})
-        for other, reason in REGISTRY[top["name"]].ambiguities:
+        for other, reason in REGISTRY[top["name"]].confounded(top["form"] or ""):
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     t_row = d.t_row
@@ -225,13 +225,14 @@ def _explanation(chosen, d: Data) -> list[dict]:
     out = []
     for name, added in chosen.added:
         model = REGISTRY[name]
-        entry = {"name": name, "form": fit.forms[fit.names.index(name)] or None,
+        form = fit.forms[fit.names.index(name)]
+        entry = {"name": name, "form": form or None,
                  "family": model.family, "params": jsonable(named[name]),
                  "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
                           for k, v in ci[name].items()},
                  "delta_bic": added,
                  "confounded_with": [{"with": other, "reason": why}
-                                     for other, why in model.ambiguities]}
+                                     for other, why in model.confounded(form)]}
         if name == "inertia_offset":
             entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
                                                              d.excited)
@@ -327,6 +328,25 @@ def _fmt(values) -> str:
     return "no valid fit" if values is None else str(np.round(values, 2).tolist())
 
 
+#: Parameters with more numbers than this are told by their count and range (a momentum
+#: profile's knots), not number by number.
+LISTED_NUMBERS = 6
+
+
+def _param_words(name: str, value, ci: dict) -> str:
+    """One fitted parameter in words: its value and 95 % interval ci ({"lo", "hi"}); a value the
+    fit held (lo = hi: knot times, a chart's centre) without an interval, and one of more than
+    LISTED_NUMBERS numbers by its count, range and widest interval.
+    """
+    value, lo, hi = (np.asarray(a, float) for a in (value, ci["lo"], ci["hi"]))
+    held = bool(np.all(lo == hi))
+    if value.size > LISTED_NUMBERS:
+        text = f"{name}: {value.size} values from {value.min():.4g} to {value.max():.4g}"
+        return text + ("" if held else f" (95 % half-widths up to {np.max(hi - lo) / 2:.4g})")
+    text = f"{name} = {np.round(value, 4).tolist()}"
+    return text + ("" if held else f" [{np.round(lo, 4).tolist()}, {np.round(hi, 4).tolist()}]")
+
+
 def _explanation_words(report: dict) -> str:
     """The compound explanation and what was left out, in sentences."""
     expl = report["explanation"]
@@ -335,10 +355,7 @@ def _explanation_words(report: dict) -> str:
     else:
         parts = []
         for e in expl:
-            params = ", ".join(f"{k} = {np.round(v, 4).tolist()} "
-                               f"[{np.round(e['ci95'][k]['lo'], 4).tolist()}, "
-                               f"{np.round(e['ci95'][k]['hi'], 4).tolist()}]"
-                               for k, v in e["params"].items())
+            params = ", ".join(_param_words(k, v, e["ci95"][k]) for k, v in e["params"].items())
             parts.append(f"{e['name']} (adds delta BIC {e['delta_bic']:.1f}; {params})")
         text = ("**Explanation:** the nominal model leaves out " + "; then ".join(parts)
                 + ". Brackets are 95 % intervals.")
@@ -393,8 +410,10 @@ def markdown(report: dict, plots: list[str]) -> str:
         delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
         lines.append(f"| {e['name']} | {delta} | {e['significant']} | {params} |")
     lines += ["", _explanation_words(report)]
+    told = {(e["name"], c["with"]) for e in report["explanation"] for c in e["confounded_with"]}
     for a in report["ambiguous"]:
-        lines.append(f"\n- cannot be told apart: {a['effects']}: {a['reason']}")
+        if tuple(a["effects"]) not in told:  # the explanation's words already say it
+            lines.append(f"\n- cannot be told apart: {a['effects']}: {a['reason']}")
     for name, why in report["skipped_effects"].items():
         lines.append(f"- not tested: {name}: {why}")
     lines.append(f"\nLocated windows: {report['locations'] or 'none'}")

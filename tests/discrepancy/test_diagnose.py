@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.effects import random_params
+from inertia_gym.discrepancy.effects import REGISTRY, random_params
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
     SIGNIFICANT_DELTA_BIC,
@@ -171,6 +171,37 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
     assert "trace was set to 1 kg·m²" in text and "(true trace) / 1" in text
     report["scale_identified"] = True
     assert "trace" not in _explanation_words(report)
+
+
+def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
+    """A time-varying momentum in words: held knot times without an interval, a 20-knot profile
+    by its count and range, and (varying form only) its confounding with an external torque said
+    once, not again among the ambiguities."""
+    model = REGISTRY["internal_momentum"]
+    assert model.confounded("constant") == model.ambiguities
+    confounded = [{"with": other, "reason": why} for other, why in model.confounded("varying")]
+    assert [c["with"] for c in confounded] == ["external torque"]
+    knots, profile = np.linspace(0.0, 1.0, 20), np.linspace(-0.2, 0.3, 20)
+    entry = {"name": "internal_momentum", "form": "varying", "delta_bic": 50.0,
+             "params": {"h": [0.1, 0.0, 0.0], "profile_t": knots.tolist(), "profile": profile.tolist()},
+             "ci95": {"h": {"lo": [0.0, -0.1, -0.1], "hi": [0.2, 0.1, 0.1]},
+                      "profile_t": {"lo": knots.tolist(), "hi": knots.tolist()},
+                      "profile": {"lo": (profile - 0.05).tolist(), "hi": (profile + 0.07).tolist()}},
+             "confounded_with": confounded}
+    report = {"explanation": [entry], "left_out": {}, "scale_identified": True,
+              "ambiguous": [{"effects": ["internal_momentum", "external torque"], "reason": "same"},
+                            {"effects": ["internal_momentum", "aero_drag"], "reason": "close BIC"}]}
+    text = _explanation_words(report)
+    assert "h = [0.1, 0.0, 0.0] [[0.0, -0.1, -0.1], [0.2, 0.1, 0.1]]" in text
+    assert "profile_t: 20 values from 0 to 1," in text
+    assert "profile: 20 values from -0.2 to 0.3 (95 % half-widths up to 0.06)" in text
+    assert "internal_momentum is confounded with external torque" in text
+    page = markdown({"recording": "r", "samples": 1, "duration_s": 1.0, "gyro_sigma": [0.1] * 3,
+                     "gyro_sigma_source": "given", "mismatch_detected": True,
+                     "best_effect": "internal_momentum", "fit_before": {"rms_over_noise": [1.0] * 3},
+                     "fit_after": {"rms_over_noise": [1.0] * 3}, "effects": [], "skipped_effects": {},
+                     "locations": [], "invariants": {}, "sparse_terms": [], **report}, [])
+    assert page.count("cannot be told apart") == 1 and "'aero_drag']: close BIC" in page
 
 
 def test_inertia_comparison_against_its_definition():
