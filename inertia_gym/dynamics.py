@@ -42,7 +42,8 @@ _D_NADIR = slice(26, 29)  # nadir direction in the inertial frame (unit)
 _D_DISS = 29  # internal dissipation d: torque -d (w - u (u . w)), u along the total momentum, N·m·s
 _D_OMEGA, _D_ZETA, _D_DELTA = 30, 31, 32  # flexible mode: omega_n rad/s, zeta, coupling (3,) sqrt(kg)·m
 _D_FLEX = slice(_D_OMEGA, _D_DELTA + 3)
-DISTURBANCE_SIZE = 35
+_D_ETA0, _D_ETAD0 = 35, 36  # the mode's state at the first segment's start: eta, eta_dot
+DISTURBANCE_SIZE = 37
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +66,8 @@ class Disturbance:
     flex_omega, flex_zeta, flex_coupling : one flexible mode (rad/s, damping ratio, coupling
         delta (3,) sqrt(kg)·m): J w_dot + delta eta_ddot + w x (J w + h + delta eta_dot) = tau,
         eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot. Augmented integrator only.
+    flex_eta0, flex_eta_dot0 : the mode's state (sqrt(kg)·m, sqrt(kg)·m/s) where the recording
+        starts: a panel or a propellant already moving (zero: at rest).
 
     """
 
@@ -78,6 +81,8 @@ class Disturbance:
     flex_omega: float = 0.0
     flex_zeta: float = 0.0
     flex_coupling: tuple = (0.0, 0.0, 0.0)
+    flex_eta0: float = 0.0
+    flex_eta_dot0: float = 0.0
 
     def pack(self) -> np.ndarray:
         """Flat float64 vector of length DISTURBANCE_SIZE read by the compiled kernels."""
@@ -102,6 +107,8 @@ class Disturbance:
         v[_D_FLEX] = np.r_[float(_checked(self.flex_omega, (), "flex_omega")),
                            float(_checked(self.flex_zeta, (), "flex_zeta")),
                            _checked(self.flex_coupling, (3,), "flex_coupling")]
+        v[_D_ETA0] = float(_checked(self.flex_eta0, (), "flex_eta0"))
+        v[_D_ETAD0] = float(_checked(self.flex_eta_dot0, (), "flex_eta_dot0"))
         return v
 
 
@@ -393,11 +400,11 @@ def disturbance_entries(d):
     """
     return (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], d[8], d[9], d[10], d[11], d[12],
             d[13], d[14], d[15], d[16], d[17], d[18], d[19], d[20], d[21], d[22], d[23], d[24],
-            d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32], d[33], d[34])
+            d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32], d[33], d[34], d[35], d[36])
 
 
 # disturbance_entries spells out every slot of the packed vector.
-assert DISTURBANCE_SIZE == 35, "update disturbance_entries to the new DISTURBANCE_SIZE"
+assert DISTURBANCE_SIZE == 37, "update disturbance_entries to the new DISTURBANCE_SIZE"
 
 
 @nb.njit(cache=True, inline="always")
@@ -677,7 +684,7 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
                    or dist[b, _D_DELTA + 2] != 0.0)
         if coupled and s > 0:
             continue  # the task of segment 0 runs them all
-        eta, etad = 0.0, 0.0
+        eta, etad = (dist[b, _D_ETA0], dist[b, _D_ETAD0]) if coupled else (0.0, 0.0)
         for r in range(s, n_seg if coupled else s + 1):
             eta, etad = _model_segment(grid_t, sample_pos, seg_pos[r], seg_pos[r + 1], seg_sample[r],
                                        r == n_seg - 1, y0[b, r], eta, etad, inertia[b],
@@ -702,7 +709,8 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     grid_t : (m+1,) s, increasing: the sample times and any sub-steps between them.
     sample_pos : (n,) int, increasing grid indices of the samples to return.
     seg_pos : (S+1,) int, grid indices where segments start (multiple shooting: each restarts
-        from its own y0; the modal state eta, eta_dot carries over, zero at the first); the last
+        from its own y0; the modal state eta, eta_dot carries over, dist's flex_eta0 and
+        flex_eta_dot0 at the first); the last
         entry is m. Every segment start must be a sample position.
     y0 : (B, S, 7) (q (4), w (3) rad/s) at each segment start.
     inertia, inertia_after : (B, 3, 3) kg·m².  change_t : (B,) s (inf: no change).

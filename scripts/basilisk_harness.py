@@ -265,11 +265,12 @@ def run_case(case: SpacecraftCase, folder: Path) -> dict:
 
 def markdown(rows: list[dict], totals: dict) -> str:
     """The table: one row per case, then the totals."""
-    lines = ["| case | concealed | nominal off by | named by diagnose | mismatch detected | correct |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| case | concealed | nominal off by | named by diagnose | rms / noise after (worst axis) "
+             "| mismatch detected | correct |", "|---|---|---|---|---|---|---|"]
     for r in rows:
+        worst = max(r["rms_over_noise_after"] or [float("nan")])
         lines.append(f"| {r['case']} | {', '.join(r['components']) or '— (control)'} | "
-                     f"{100 * r['nominal_error']:.1f} % | {', '.join(r['named']) or '—'} | "
+                     f"{100 * r['nominal_error']:.1f} % | {', '.join(r['named']) or '—'} | {worst:.2f} | "
                      f"{'yes' if r['mismatch_detected'] else 'no'} | {'yes' if r['correct'] else 'no'} |")
     lines += ["", f"Concealed-effect cases correct: {totals['cases_correct']}/{totals['cases']}; "
               f"controls clean: {totals['controls_clean']}/{totals['controls']}; "

@@ -111,7 +111,10 @@ class EffectModel:
     "inertia", reason) pairs that the data may not separate), ``sets_inertia`` (the effect's
     parameters are the inertia itself: the base inertia is then not fitted), ``family`` (the
     physical cause, shared by effects that model it at different fidelity, e.g. linear and
-    quadratic drag).
+    quadratic drag), ``restarts_on_base`` (the forward selection also tries the effect's own
+    starts found on top of the fit it is added to: a mode's frequency screen, which a larger
+    effect beside it leads astray when run on the nominal fit alone), ``optional`` (parameters a
+    truth Effect may leave out, with the value they then take).
     """
 
     name: ClassVar[str]
@@ -123,6 +126,8 @@ class EffectModel:
     needs_momentum: ClassVar[bool] = False
     ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     sets_inertia: ClassVar[bool] = False
+    restarts_on_base: ClassVar[bool] = False
+    optional: ClassVar[dict] = {}
 
     # --- parameters -------------------------------------------------------------------------
     def draw(self, rng: np.random.Generator, body: Body) -> dict:
@@ -740,35 +745,46 @@ class GravityGradient(EffectModel):
 
 @register
 class FlexibleMode(EffectModel):
-    """One lightly damped mode (omega_n rad/s, zeta, coupling d (3,) sqrt(kg)·m) coupled to w_dot."""
+    """One lightly damped mode (omega_n rad/s, zeta, coupling d (3,) sqrt(kg)·m) coupled to w_dot,
+    with its state where the recording starts (eta0 sqrt(kg)·m, eta_dot0 sqrt(kg)·m/s): a
+    panel or a propellant already swinging when the log begins, as on any real record.
+    """
 
-    name, params, size, family = "flexible_mode", ("omega_n", "zeta", "coupling"), 5, "internal motion"
+    name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0"),
+                                  7, "internal motion")
+    restarts_on_base = True
+    optional = {"eta0": 0.0, "eta_dot0": 0.0}
 
     @override
-    def draw(self, rng, body):
+    def draw(self, rng, body):  # the mode at rest at the start: the bursts excite it
         return {"omega_n": 2 * np.pi * rng.uniform(0.5, 2.0), "zeta": rng.uniform(0.01, 0.05),
-                "coupling": _unit(rng) * np.sqrt(rng.uniform(0.02, 0.06) * body.j)}
+                "coupling": _unit(rng) * np.sqrt(rng.uniform(0.02, 0.06) * body.j),
+                "eta0": 0.0, "eta_dot0": 0.0}
 
     @override
-    def unpack(self, p):  # the model depends on delta delta^T: report delta's sign canonically
-        c = p[2:5] * (1.0 if p[2 + int(np.argmax(np.abs(p[2:5])))] >= 0 else -1.0)
-        return {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": np.array(c)}
+    def unpack(self, p):  # the model depends on delta delta^T and delta eta: report delta's sign
+        sign = 1.0 if p[2 + int(np.argmax(np.abs(p[2:5])))] >= 0 else -1.0  # canonically
+        return {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": np.array(p[2:5] * sign),
+                "eta0": float(p[5] * sign), "eta_dot0": float(p[6] * sign)}
 
     @override
     def pack(self, params):
+        params = {**self.optional, **params}
         return np.r_[float(params["omega_n"]), float(params["zeta"]),
-                     np.asarray(params["coupling"], float)]
+                     np.asarray(params["coupling"], float), float(params["eta0"]), float(params["eta_dot0"])]
 
     @override
     def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, 1]
-        lb, ub = np.full(5, -np.inf), np.full(5, np.inf)
+        lb, ub = np.full(7, -np.inf), np.full(7, np.inf)
         lb[:2] = 2 * np.pi * 0.5 * FLEX_BAND[0], 0.0
         ub[:2] = 2 * np.pi * FLEX_BAND[1] / d.dt, 1.0
         return lb, ub
 
     @override
     def typical(self, form, d):
-        return np.r_[1.0, 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref))]
+        lb, ub = self.bounds(form, d)
+        eta = 0.01 * np.sqrt(d.j_ref)
+        return np.r_[1.0, 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0])]
 
     @override
     def starts(self, form, d, probe):
@@ -778,17 +794,21 @@ class FlexibleMode(EffectModel):
     def feasible(self, p, inertia):
         # the body and mode's joint mass matrix [[J, delta], [delta^T, 1]] is positive definite
         # only while delta^T J^-1 delta < 1 (the modal mass fraction): the coupling is scaled
-        # back to MODE_MASS_LIMIT, beyond which the model is singular or indefinite
+        # back to MODE_MASS_LIMIT, beyond which the model is singular or indefinite; the modal
+        # state scaled up alike keeps delta eta (what the rates see of it)
         c = p[2:5]
         fraction = float(c @ np.linalg.solve(inertia, c))
         if not fraction > MODE_MASS_LIMIT:
             return p
-        return np.r_[p[:2], c * np.sqrt(MODE_MASS_LIMIT / fraction)]
+        shrink = np.sqrt(MODE_MASS_LIMIT / fraction)
+        return np.r_[p[:2], c * shrink, p[5:7] / shrink]
 
     @override
     def disturbance(self, params):
         return {"flex_omega": float(params["omega_n"]), "flex_zeta": float(params["zeta"]),
-                "flex_coupling": tuple(np.asarray(params["coupling"], float))}
+                "flex_coupling": tuple(np.asarray(params["coupling"], float)),
+                "flex_eta0": float(params.get("eta0", self.optional["eta0"])),
+                "flex_eta_dot0": float(params.get("eta_dot0", self.optional["eta_dot0"]))}
 
 
 @register
@@ -929,7 +949,7 @@ class Effect:
     def __post_init__(self) -> None:
         model = effect_model(self.name)
         unknown = set(self.params) - set(model.params) - {"axis", "profile_t", "profile"}
-        if unknown or not set(model.params) <= set(self.params):
+        if unknown or not set(model.params) - set(model.optional) <= set(self.params):
             raise ConfigError(f"effect {self.name}: parameters {sorted(self.params)}; expected "
                               f"{model.params}")
 

@@ -850,11 +850,15 @@ class Probe:
         """Starts of flexible_mode from a linear screen over the modal frequency.
 
         To first order the mode's effect on the predicted rates is linear in M = delta delta^T
-        (a symmetric 3x3): six integrations with small couplings along e_i and e_i + e_j give
-        its six columns (polarization), and one least-squares solve the M that explains most at
-        that frequency. Over a geometric grid of frequencies (MODE_GRID apart) in the band, then
-        finer around the best, the `keep` best frequencies give delta = sqrt(lambda) v from M's
-        leading eigenpair (size within the room J leaves: J - delta delta^T stays positive).
+        (a symmetric 3x3; what the body's motion excites) and in a = delta eta0, b = delta
+        eta_dot0 / omega (what the mode's state at the start sets swinging): integrations with
+        small couplings along e_i and e_i + e_j give M's six columns (polarization), three more
+        with a unit modal displacement and three with a unit modal velocity a's and b's, and one
+        least-squares solve the twelve that explain most at that frequency. Over a geometric
+        grid of frequencies (MODE_GRID apart) in the band, then finer around the best, the `keep`
+        best frequencies give delta = sqrt(lambda) v from M's leading eigenpair (size within the
+        room J leaves: J - delta delta^T stays positive) or, where M has none, along a and b's
+        leading direction at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
         """
         d, base = self.d, self.base
         lam_min = float(np.linalg.eigvalsh(base.inertia)[0])
@@ -864,14 +868,18 @@ class Probe:
         eps = np.sqrt(1e-4 * lam_min)
         directions = [np.eye(3)[i] for i in range(3)] + [np.eye(3)[i] + np.eye(3)[j]
                                                          for i, j in ((0, 1), (0, 2), (1, 2))]
-        r0 = objective(self.x(np.zeros(5))[None], self.layout, self.d)[0]
+        r0 = objective(self.x(np.zeros(7))[None], self.layout, self.d)[0]
 
         def screen(omega):
             layout = dataclasses.replace(self.layout, omega_max=omega)
-            xs = [self.x(np.r_[omega, zeta, eps * v]) for v in directions]
-            resp = (objective(np.stack(xs), layout, d) - r0) / eps ** 2
-            cols = np.stack([resp[0], resp[1], resp[2], resp[3] - resp[0] - resp[1],
-                             resp[4] - resp[0] - resp[2], resp[5] - resp[1] - resp[2]], 1)
+            xs = [self.x(np.r_[omega, zeta, eps * v, 0.0, 0.0]) for v in directions]
+            xs += [self.x(np.r_[omega, zeta, eps * e, 1.0, 0.0]) for e in np.eye(3)]
+            xs += [self.x(np.r_[omega, zeta, eps * e, 0.0, omega]) for e in np.eye(3)]
+            resp = objective(np.stack(xs), layout, d) - r0
+            excite = resp[:6] / eps ** 2
+            cols = np.stack([excite[0], excite[1], excite[2], excite[3] - excite[0] - excite[1],
+                             excite[4] - excite[0] - excite[2], excite[5] - excite[1] - excite[2]]
+                            + [(resp[6 + i] - eps ** 2 * excite[i % 3]) / eps for i in range(6)], 1)
             m = np.linalg.lstsq(cols, -r0, rcond=None)[0]
             gain = float(r0 @ r0 - np.sum((r0 + cols @ m) ** 2))
             return gain, omega, m
@@ -882,12 +890,20 @@ class Probe:
         for _, om, _ in list(best):
             scan += [screen(om * f) for f in MODE_GRID ** np.linspace(-1, 1, 5)[[1, 3]]]
         out = []
+        room = 0.7 * np.sqrt(lam_min)
         for gain, om, m in sorted(scan, key=lambda g: -g[0]):
-            vals, vecs = np.linalg.eigh(matrix6(m))
-            if gain <= 0 or vals[-1] <= 0 or any(abs(om - o) < 0.02 * om for o in [x[0] for x in out]):
+            if gain <= 0 or any(abs(om - o) < 0.02 * om for o in [x[0] for x in out]):
                 continue
-            size = min(np.sqrt(vals[-1]), 0.7 * np.sqrt(lam_min))
-            out.append(np.r_[om, zeta, size * vecs[:, -1]])
+            vals, vecs = np.linalg.eigh(matrix6(m[:6]))
+            state = np.stack([m[6:9], m[9:12]], 1)  # (3, 2): a, b
+            if vals[-1] > 0:
+                delta = min(np.sqrt(vals[-1]), room) * vecs[:, -1]
+            elif np.any(state):
+                delta = 0.2 * room * np.linalg.svd(state)[0][:, 0]
+            else:
+                continue
+            a, b = state.T @ delta / (delta @ delta)
+            out.append(np.r_[om, zeta, delta, a, b * om])
             if len(out) == keep:
                 break
         return out
@@ -1204,8 +1220,11 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Expl
     Step 1 takes the best single-effect fit if it beats the nominal by SIGNIFICANT_DELTA_BIC.
     Each further step fits every remaining candidate's own parameters on top of the current
     fit (everything else held: a screen, started from the candidate's single-effect fit or
-    from its neutral parameters, whichever fits better),
-    refits the REFIT_SCREENED best jointly with the inertia and the effects already chosen,
+    from its neutral parameters, whichever fits better, and for an effect that
+    restarts_on_base also, where the current fit's residual is not white (effective_share < 1),
+    from each of its own starts found on top of the current fit, the best screen kept),
+    refits the REFIT_SCREENED best (and any that restarts_on_base) jointly with the inertia and
+    the effects already chosen,
     and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
     testable effect is screened at every step, also those that explain nothing alone: a large
     effect can hide a second one. The backward check then refits without each chosen effect and
@@ -1222,6 +1241,7 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Expl
     chain = [current]
     pool = [f.name for f in singles if np.isfinite(f.bic)]
     while len(current.names) < max_effects:
+        structured = effective_share(d, current) < 1.0  # the residual left is not white
         # each candidate screened in the form of its single-effect fit, from that fit's
         # parameters or from where it changes nothing, whichever fits better
         trials = []
@@ -1233,16 +1253,25 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Expl
             layout = Layout.of((*current.names, n), (*current.forms, form), d,
                                max(current.layout.omega_max, single.layout.omega_max))
             probe = Probe(layout, d, current)
-            start = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
-                                  probe.x(REGISTRY[n].neutral(form, d, current))])[0]
-            trials.append(fit_model(layout.names, layout.forms, d, current, joint=False,
-                                    start=start, omega_max=layout.omega_max))
+            model = REGISTRY[n]
+            starts = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
+                                   probe.x(model.neutral(form, d, current))])
+            if model.restarts_on_base and structured:  # its own starts, on top of the current fit
+                starts += [s if s.size == layout.size else probe.x(s) for s in model.starts(form, d, probe)]
+            screened = [fit_model(layout.names, layout.forms, d, current, joint=False, start=start,
+                                  omega_max=layout.omega_max) for start in starts]
+            trials.append(min(screened, key=lambda f: f.bic if np.isfinite(f.bic) else np.inf))
         trials = [t for t in trials if np.isfinite(t.bic)]
         if not trials:
             break
-        # a screen holds everything else and stops early: the leading few are refitted jointly
+        # a screen holds everything else and stops early: the leading few are refitted jointly,
+        # and, where structure is left, every effect that restarts_on_base (a mode: its screen,
+        # with the rates held that it trades with, says little of what it explains jointly)
+        leading = sorted(trials, key=lambda t: t.bic)
+        leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:]
+                                              if structured and REGISTRY[t.names[-1]].restarts_on_base]
         refits = [fit_model(t.names, t.forms, d, current, start=t.x, omega_max=t.layout.omega_max)
-                  for t in sorted(trials, key=lambda t: t.bic)[:REFIT_SCREENED]]
+                  for t in leading]
         best = min(refits, key=lambda f: f.bic)
         if not current.bic - best.bic > SIGNIFICANT_DELTA_BIC:
             break

@@ -35,8 +35,8 @@ def test_draw_pack_unpack_round_trip(name):
     back = model.unpack(p)
     for key in model.params:
         a, b = np.ravel(params[key]), np.ravel(back[key])
-        if name == "flexible_mode" and key == "coupling":  # only delta delta^T is observable
-            a, b = np.abs(a), np.abs(b)
+        if name == "flexible_mode" and key in ("coupling", "eta0", "eta_dot0"):  # delta's sign is
+            a, b = np.abs(a), np.abs(b)  # not observable (delta delta^T, delta eta)
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
     np.testing.assert_array_equal(random_params(name, np.random.default_rng(3), BODY.inertia, 10.0,
                                                 50.0, 0.03, 60.0)[model.params[0]],
@@ -60,9 +60,11 @@ def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)
                inertia=INERTIA, flex=None, breaks=(), w0=W0):
     """w(t_end) and q(t_end) of J w_dot + h_dot + d eta_ddot + w x (J w + h + d eta_dot) = tau + extra,
     eta_ddot + 2 z W eta_dot + W^2 eta = -d . w_dot, q_dot = q (x) (0, w) / 2, integrated by
-    solve_ivp piece by piece between `breaks` (where the torque or h_dot jumps).
+    solve_ivp piece by piece between `breaks` (where the torque or h_dot jumps). flex: (d, W, z)
+    with the mode at rest at the start, or (d, W, z, eta0, eta_dot0).
     """
-    delta, om, ze = flex if flex is not None else (np.zeros(3), 0.0, 0.0)
+    delta, om, ze, eta0, eta_dot0 = (*flex, 0.0, 0.0)[:5] if flex is not None else (np.zeros(3), 0.0, 0.0,
+                                                                                    0.0, 0.0)
 
     def rhs(t, y):
         q, w, eta, eta_d = y[:4], y[4:7], y[7], y[8]
@@ -78,7 +80,7 @@ def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)
                                 qw * w[1] - qx * w[2] + qz * w[0], qw * w[2] + qx * w[1] - qy * w[0]])
         return np.concatenate([q_dot, acc[:3], [eta_d, acc[3]]])
 
-    y = np.r_[Q0, w0, 0.0, 0.0]
+    y = np.r_[Q0, w0, eta0, eta_dot0]
     edges = [0.0, *[b for b in breaks if 0 < b < t_end], t_end]
     for a, b in zip(edges[:-1], edges[1:]):
         y = solve_ivp(rhs, (a, b), y, rtol=1e-11, atol=1e-12, method="DOP853").y[:, -1]
@@ -165,6 +167,17 @@ def test_flexible_mode_matches_the_mass_matrix_form():
     delta = np.array([2.0, -1.0, 1.5])
     w_ref, q_ref = _reference(T_END, lambda t: TORQUE, flex=(delta, 6.0, 0.02))
     _check(Effect("flexible_mode", {"omega_n": 6.0, "zeta": 0.02, "coupling": delta}), w_ref, q_ref)
+
+
+def test_flexible_mode_swinging_at_the_start_matches_the_mass_matrix_form():
+    """A panel already swinging where the recording starts (eta0, eta_dot0): the same equations
+    from that state, and not the mode started at rest."""
+    delta = np.array([2.0, -1.0, 1.5])
+    params = {"omega_n": 6.0, "zeta": 0.02, "coupling": delta, "eta0": 0.4, "eta_dot0": -1.5}
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, flex=(delta, 6.0, 0.02, 0.4, -1.5))
+    _check(Effect("flexible_mode", params), w_ref, q_ref)
+    w_rest, _ = _truth(Effect("flexible_mode", {**params, "eta0": 0.0, "eta_dot0": 0.0}))
+    assert np.abs(w_rest - w_ref).max() > 1e-3
 
 
 def test_inertia_change_keeps_the_momentum():
