@@ -48,13 +48,15 @@ ACCEPTED = {
 }
 
 #: Hub classes: mass kg and size m; the hub inertia is mass * size^2 * SHAPE.
-BODIES = {"cubesat": (4.0, 0.15), "smallsat": (150.0, 1.0), "bus": (1500.0, 2.0)}
+#: From a thrown device (largest moment 1e-4 kg·m²) to an upper stage (1e4 kg·m²).
+BODIES = {"device": (0.05, 0.1), "cubesat": (4.0, 0.15), "smallsat": (150.0, 1.0), "bus": (1500.0, 2.0),
+          "stage": (3000.0, 4.0)}
 SHAPE = np.array([[0.21, 0.004, -0.003], [0.004, 0.17, 0.002], [-0.003, 0.002, 0.12]])
 RATE = 0.3  # rad/s, the initial tumble rate
 ACCEL = 0.01  # rad/s^2: burst torque = ACCEL * largest hub moment
 #: The subset `make test` runs (tests/discrepancy/test_basilisk.py), with 30-s recordings.
 SMOKE = ("control_smallsat_bursts", "control_bus_free", "slosh_smallsat_bursts", "panel_smallsat_free",
-         "wheels_smallsat_free", "torque_smallsat_free")
+         "wheels_smallsat_free", "torque_smallsat_free", "control_stage_bursts", "slosh_device_bursts")
 
 
 def hub(body: str) -> tuple[float, np.ndarray]:
@@ -135,7 +137,7 @@ def torque(body: str, accel: float, seed: int) -> tuple:
 
 
 def cases(duration: float) -> list[SpacecraftCase]:
-    """The harness's cases: 12 controls, 24 single concealed components, 8 pairs."""
+    """The harness's cases: 16 controls, 36 single concealed components, 8 pairs."""
     d = dict(duration=duration)
     c = [
         base("control_cubesat_free", "cubesat", 1, False, **d),
@@ -206,6 +208,20 @@ def cases(duration: float) -> list[SpacecraftCase]:
         base("pair_torque_slosh", "cubesat", 88, False, hidden_torque=torque("cubesat", 1e-4, 88),
              slosh=(slosh("cubesat", 0.1, 0.4, 0.1, 88),), **d),
     ]
+    for body, seed in (("stage", 900), ("device", 950)):  # the extremes of scale, one case of each kind
+        c += [
+            base(f"control_{body}_free", body, seed + 1, False, **d),
+            base(f"control_{body}_bursts", body, seed + 2, True, **d),
+            base(f"slosh_{body}_bursts", body, seed + 3, True,
+                 slosh=(slosh(body, 0.1, 0.3, 0.05, seed + 3),), **d),
+            base(f"panel_{body}_bursts", body, seed + 4, True, panels=(panel(body, 0.04, 0.5, 0.02),), **d),
+            base(f"wheels_{body}_free", body, seed + 5, False,
+                 wheels=wheels(body, 0.05, False, seed + 5), **d),
+            base(f"torque_{body}_free", body, seed + 6, False,
+                 hidden_torque=torque(body, 1e-4, seed + 6), **d),
+            base(f"bias_{body}_bursts", body, seed + 7, True, gyro_bias=(1e-3, -6e-4, 4e-4), **d),
+            base(f"scale_{body}_bursts", body, seed + 8, True, gyro_scale=(0.01, -0.005, 0.008), **d),
+        ]
     return c
 
 
