@@ -298,10 +298,11 @@ def first_horizon(prob: ml.Problem, rel_error: float) -> int:
 
 
 def _check_error_bars(q_dist: float, cov: np.ndarray, rms_ratio: float) -> None:
-    """Raise EstimatorDivergedError where a model-error covariance cov (n, n) in phi
-    coordinates, or its intensity q_dist, is not finite, or gives a shape parameter (log-Cholesky
-    entries 1..5) a standard deviation over MAX_SHAPE_SIGMA: error bars that say nothing and
-    overflow on their way to the inertia's. rms_ratio: the residuals' rms over the noise.
+    """Raise EstimatorDivergedError where the parameters' covariance cov (n, n) in phi
+    coordinates (Fisher plus model error, or the sandwich), or the model error's intensity
+    q_dist, is not finite, or gives a shape parameter (log-Cholesky entries 1..5) a standard
+    deviation over MAX_SHAPE_SIGMA: error bars that say nothing and overflow on their way to the
+    inertia's. rms_ratio: the residuals' rms over the noise.
     """
     shape_sigma = np.sqrt(np.abs(np.diag(cov)[1:6])) if np.all(np.isfinite(cov)) else np.inf
     if np.isfinite(q_dist) and np.max(shape_sigma) <= MAX_SHAPE_SIGMA:
@@ -339,7 +340,6 @@ def refine(prob: ml.Problem, p_start, q_start, start_info, rel_error: float,
         # is all there is: the Bartlett/Newey-West sandwich.
         used = prob.window(m) if m < prob.meas_idx.size else prob
         q_dist, cov_model = model_error_covariance(used, fit.p, ev)
-        _check_error_bars(q_dist, cov_model, rms_ratio)
         if q_dist > 0:
             cov = fisher_cov + cov_model
         else:

@@ -805,10 +805,10 @@ class FlexibleMode(EffectModel):
 
     @override
     def disturbance(self, params):
+        params = {**self.optional, **params}
         return {"flex_omega": float(params["omega_n"]), "flex_zeta": float(params["zeta"]),
                 "flex_coupling": tuple(np.asarray(params["coupling"], float)),
-                "flex_eta0": float(params.get("eta0", self.optional["eta0"])),
-                "flex_eta_dot0": float(params.get("eta_dot0", self.optional["eta_dot0"]))}
+                "flex_eta0": float(params["eta0"]), "flex_eta_dot0": float(params["eta_dot0"])}
 
 
 @register

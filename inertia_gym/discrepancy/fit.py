@@ -828,6 +828,11 @@ class Probe:
             head[:6] = phi_from_inertia(inertia)
         return np.concatenate([head, p, b.x[b.layout.n_global:]])
 
+    def own_starts(self) -> list[np.ndarray]:
+        """The new effect's own starts (EffectModel.starts) as joint vectors x."""
+        model, form = self.layout.models[-1], self.layout.forms[-1]
+        return [s if s.size == self.layout.size else self.x(s) for s in model.starts(form, self.d, self)]
+
     @property
     def few_segments(self) -> bool:
         """The record has few segments (each long): the cost is rough, starts matter more."""
@@ -1069,8 +1074,7 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
     layout = Layout.of(names, forms, d, base.layout.omega_max if omega_max is None else omega_max)
     new, form = layout.models[-1], layout.forms[-1]
     probe = Probe(layout, d, base)
-    starts = [start] if start is not None else [s if s.size == layout.size else probe.x(s)
-                                                for s in new.starts(form, d, probe)]
+    starts = [start] if start is not None else probe.own_starts()
     if new.name == "flexible_mode" and starts:  # integrate finely enough for the fastest start
         i = layout.slices()[-1].start
         fastest = max(abs(x0[i]) for x0 in starts)
@@ -1257,7 +1261,7 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Expl
             starts = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
                                    probe.x(model.neutral(form, d, current))])
             if model.restarts_on_base and structured:  # its own starts, on top of the current fit
-                starts += [s if s.size == layout.size else probe.x(s) for s in model.starts(form, d, probe)]
+                starts += probe.own_starts()
             screened = [fit_model(layout.names, layout.forms, d, current, joint=False, start=start,
                                   omega_max=layout.omega_max) for start in starts]
             trials.append(min(screened, key=lambda f: f.bic if np.isfinite(f.bic) else np.inf))
