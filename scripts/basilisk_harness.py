@@ -54,6 +54,7 @@ BODIES = {"device": (0.05, 0.1), "cubesat": (4.0, 0.15), "smallsat": (150.0, 1.0
 SHAPE = np.array([[0.21, 0.004, -0.003], [0.004, 0.17, 0.002], [-0.003, 0.002, 0.12]])
 RATE = 0.3  # rad/s, the initial tumble rate
 ACCEL = 0.01  # rad/s^2: burst torque = ACCEL * largest hub moment
+WHEEL_SPIN_SHARE = 1e-4  # a wheel's spin inertia / the largest hub moment
 #: The subset `make test` runs (tests/discrepancy/test_basilisk.py), with 30-s recordings.
 SMOKE = ("control_smallsat_bursts", "control_bus_free", "slosh_smallsat_bursts", "panel_smallsat_free",
          "wheels_smallsat_free", "torque_smallsat_free", "control_stage_bursts", "slosh_device_bursts")
@@ -119,11 +120,12 @@ def panel(body: str, mass_share: float, frequency_hz: float, damping_ratio: floa
 
 
 def wheels(body: str, momentum_share: float, logged: bool, seed: int, motor: float = 0.0) -> Wheels:
-    """Three orthogonal wheels; their momentum is momentum_share x the hub's |J w0| (spin inertia
-    1e-4 x the largest hub moment, speeds set to match).
+    """Three orthogonal wheels; their momentum is momentum_share x the hub's |J w0| at RATE (spin
+    inertia WHEEL_SPIN_SHARE x the largest hub moment, speeds set to match); motor: each wheel's
+    motor torque in units of its spin inertia (rad/s², see Wheels.motor_torque).
     """
     _, inertia = hub(body)
-    js = 1e-4 * float(np.linalg.eigvalsh(inertia).max())
+    js = WHEEL_SPIN_SHARE * float(np.linalg.eigvalsh(inertia).max())
     h = momentum_share * RATE * float(np.linalg.eigvalsh(inertia).max()) * np.asarray(_direction(seed + 300))
     return Wheels(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), (js, js, js), tuple((h / js).tolist()),
                   logged, motor * js)
