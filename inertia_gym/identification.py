@@ -38,7 +38,7 @@ import time
 
 import numpy as np
 
-from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
@@ -422,6 +422,7 @@ class Identification:
 
 
 def _check_recording(rec: Recording) -> None:
+    check_input_gaps(rec)
     if rec.t.size < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: only {rec.t.size} samples; identify needs at least "
                              f"{MIN_SAMPLES}")
@@ -509,6 +510,12 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
                      + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
     if not converged:
         notes.append("the fit stopped at its iteration limit before converging")
+    split = rec.meta.get("split_at_gaps")
+    if split:
+        notes.append(f"piece {split['piece']} of {split['pieces']} (rows {split['rows'][0]}-"
+                     f"{split['rows'][1]}) of a recording split at gaps of "
+                     f"{', '.join(f'{g:.3g}' for g in split['gaps_s'])} s in its logged torque or "
+                     "momentum; each piece is identified on its own")
     if rms_over_noise > 3.0:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

@@ -21,6 +21,12 @@ readers never write to the input. Columns named otherwise are mapped with ``colu
 source, e.g. {"t": "time", "wx": "gx"}); units that are evidently not s and rad/s are refused
 (check_units; the rule is in README.md, "Recording format") unless stated with ``time_unit`` /
 ``rate_unit``, which also converts them.
+
+Gaps: where a commanded torque or a changing internal momentum is logged, a row interval over
+GAP_FACTOR times the median one is a dropout, across which what the inputs did is unknown (the
+format would hold the torque and interpolate h). read_recordings splits such a recording at its
+gaps (split_at_gaps): each piece is a recording of its own; identify and diagnose refuse an
+unsplit one (check_input_gaps). A torque-free gap is kept: the motion across it is determined.
 """
 
 from __future__ import annotations
@@ -46,6 +52,8 @@ MAX_PLAUSIBLE_RATE = 200.0  # rad/s; larger gyro values almost surely are deg/s 
 #: takes over 1e7 steps. Checked whatever the stated units.
 MAX_TOTAL_TURN = 1e6
 MIN_SAMPLES = 10
+#: A row interval longer than this many times the median one is a gap (a dropout).
+GAP_FACTOR = 5.0
 #: Largest magnitude accepted in any column: squares and products of such values stay finite.
 MAX_MAGNITUDE = 1e100
 #: Seconds per unit of the time column, and rad/s per unit of the gyro columns.
@@ -116,6 +124,61 @@ class Recording:
         """(3, 3) kg·m² from the sidecar, or None."""
         value = self.meta.get("inertia_nominal")
         return None if value is None else np.asarray(value, dtype=float)
+
+
+def input_gaps(rec: Recording) -> np.ndarray:
+    """Row indices i (k,) after which a gap begins (t[i+1] - t[i] > GAP_FACTOR x the median
+    interval) while a commanded torque or a changing internal momentum is logged; () otherwise.
+    """
+    if rec.t.size < 3 or not (rec.has_torque or rec.has_momentum):
+        return np.zeros(0, dtype=int)
+    dt = np.diff(rec.t)
+    return np.flatnonzero(dt > GAP_FACTOR * float(np.median(dt)))
+
+
+def _inputs(rec: Recording) -> str:
+    return " and ".join(name for name, present in (("commanded torque", rec.has_torque),
+                                                   ("internal momentum", rec.has_momentum)) if present)
+
+
+def check_input_gaps(rec: Recording) -> None:
+    """Refuse (RecordingError) a recording whose logged inputs have a gap (input_gaps)."""
+    gaps = input_gaps(rec)
+    if gaps.size:
+        i = int(gaps[0])
+        raise RecordingError(
+            f"{rec.name}: rows {i + 1} and {i + 2} are {rec.t[i + 1] - rec.t[i]:.4g} s apart (median "
+            f"interval {float(np.median(np.diff(rec.t))):.4g} s; {gaps.size} such gap(s)) while a "
+            f"{_inputs(rec)} is logged: what it did in between is unknown; split the recording at "
+            "its gaps (recordings.split_at_gaps; read_recordings and the commands do)")
+
+
+def split_at_gaps(rec: Recording) -> list[Recording]:
+    """The pieces of rec between its input gaps (input_gaps), each a Recording named
+    "NAME rows A-B" (A, B: 1-based data rows, inclusive) with the sidecar plus
+    meta["split_at_gaps"] = {piece, pieces, rows: [A, B], gaps_s (the gaps' lengths), dropped_rows};
+    a piece of fewer than MIN_SAMPLES rows is dropped (counted in dropped_rows). [rec] without gaps.
+    """
+    gaps = input_gaps(rec)
+    if not gaps.size:
+        return [rec]
+    bounds = np.concatenate([[0], gaps + 1, [rec.t.size]])
+    spans = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= MIN_SAMPLES]
+    dropped = rec.t.size - sum(b - a for a, b in spans)
+    if not spans:
+        raise RecordingError(f"{rec.name}: {gaps.size} gap(s) in the logged {_inputs(rec)} leave no "
+                             f"piece of at least {MIN_SAMPLES} rows")
+    lengths = np.round(rec.t[gaps + 1] - rec.t[gaps], 6).tolist()
+
+    def cut(arr, a, b):
+        return None if arr is None else arr[a:b]
+
+    return [dataclasses.replace(
+        rec, t=rec.t[a:b], w=rec.w[a:b], q=cut(rec.q, a, b), tau=cut(rec.tau, a, b), h=cut(rec.h, a, b),
+        name=f"{rec.name} rows {a + 1}-{b}",
+        meta={**rec.meta, "split_at_gaps": {"piece": k + 1, "pieces": len(spans), "rows": [a + 1, b],
+                                            "gaps_s": lengths, "dropped_rows": int(dropped)}})
+        for k, (a, b) in enumerate(spans)]
 
 
 def _fail(path, message, row=None, column=None) -> RecordingError:
@@ -474,7 +537,12 @@ def read_recordings(path: str | Path, columns: dict | None = None, time_unit: st
         as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
     time_unit: "s", "ms" or "us"; rate_unit: "rad/s" or "deg/s". None (default): seconds and
         rad/s, refused when evidently otherwise (check_units). Stated: converted and trusted.
+    A recording whose logged torque or momentum has gaps comes as its pieces (split_at_gaps).
     """
+    return [piece for rec in _read_any(path, columns, time_unit, rate_unit) for piece in split_at_gaps(rec)]
+
+
+def _read_any(path, columns, time_unit, rate_unit) -> list[Recording]:
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file or folder")

@@ -28,7 +28,7 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
-from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
 from inertia_gym.errors import RecordingError
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
@@ -158,6 +158,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)
     and the arrays its plots need.
     """
+    check_input_gaps(rec)
     d, nominal, fits, skipped, chosen = _fits(rec)
     ranked = []
     for f in fits:
@@ -202,6 +203,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
                   "independent_row_share": d.effective_share},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
+        "split_at_gaps": rec.meta.get("split_at_gaps"),
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
         "scale_identified": d.excited,
