@@ -237,6 +237,8 @@ def _check_arrays(path, t, w, q, tau, labels, first_row=2, h=None, *, time_unit=
                         first_row + r, labels["qw"])
         q = q / norm[:, None]
     check_units(path, t, w, q, time_unit=time_unit, rate_unit=rate_unit)
+    if q is not None:
+        check_attitude_frame(path, t, w, q)
     check_total_turn(path, t, w)
 
 
@@ -302,25 +304,97 @@ def check_total_turn(path, t, w) -> None:
                           "of the gyro, or cut the recording into shorter ones")
 
 
-def _gyro_over_attitude(t, w, q) -> float | None:
-    """Median gyro-integrated rotation over median attitude rotation across the same spans of
-    `lag` samples, lag the first power of two at which the attitude turns 0.2 rad (median);
-    None when the attitude never turns that far (too slow or too short to compare) or already
-    turns more than 1.5 rad per sample (too coarse to compare).
+def _attitude_lag(q) -> tuple[int, float] | None:
+    """(lag, median rotation rad of the attitude over spans of lag samples), lag the first power
+    of two at which it reaches 0.2 rad; None when the attitude never turns that far (too slow or
+    too short to compare) or already turns more than 1.5 rad per such span (too coarse).
     """
     lag = 1
-    while lag <= t.size // 4:
+    while lag <= q.shape[0] // 4:
         dot = np.abs(np.sum(q[:-lag] * q[lag:], axis=1))
         attitude = float(np.median(2.0 * np.arccos(np.clip(dot, 0.0, 1.0))))
         if attitude >= 0.2:
-            if attitude > 1.5:
-                return None
-            with np.errstate(over="ignore", invalid="ignore"):
-                steps = np.vstack([np.zeros(3), np.cumsum(w[:-1] * np.diff(t)[:, None], axis=0)])
-                gyro = float(np.median(np.linalg.norm(steps[lag:] - steps[:-lag], axis=1)))
-            return gyro / attitude if np.isfinite(gyro) else np.inf
+            return None if attitude > 1.5 else (lag, attitude)
         lag *= 2
     return None
+
+
+def _gyro_turns(t, w, lag: int) -> np.ndarray:
+    """(n - lag, 3) rad: the gyro integrated over each span of lag samples (rectangle rule)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.vstack([np.zeros(3), np.cumsum(w[:-1] * np.diff(t)[:, None], axis=0)])
+        return steps[lag:] - steps[:-lag]
+
+
+def _gyro_over_attitude(t, w, q) -> float | None:
+    """Median gyro-integrated rotation over median attitude rotation across the same spans
+    (_attitude_lag); None when the attitude cannot be compared.
+    """
+    found = _attitude_lag(q)
+    if found is None:
+        return None
+    lag, attitude = found
+    gyro = float(np.median(np.linalg.norm(_gyro_turns(t, w, lag), axis=1)))
+    return gyro / attitude if np.isfinite(gyro) else np.inf
+
+
+#: How the attitude columns may have been written, as (name, fix, reading of the columns as the
+#: format's (qw, qx, qy, qz) body-to-inertial quaternion).
+ATTITUDE_READINGS = (
+    ("as the format says (qw, qx, qy, qz; body to inertial)", "", lambda q: q),
+    ("inertial to body", "negate qx, qy, qz (the format wants body to inertial)",
+     lambda q: q * np.array([1.0, -1.0, -1.0, -1.0])),
+    ("scalar last (qx, qy, qz, qw)", "move the scalar part first (qw, qx, qy, qz)",
+     lambda q: np.roll(q, 1, axis=1)),
+    ("scalar last and inertial to body", "move the scalar part first and negate qx, qy, qz",
+     lambda q: np.roll(q, 1, axis=1) * np.array([1.0, -1.0, -1.0, -1.0])),
+)
+#: Median cosine between the attitude's body-frame rotation and the gyro's over the same spans:
+#: (refused below, refused below if another reading reaches, agreeing). A wrong direction can
+#: agree in part by chance (a body spinning about an axis the attitude maps near its opposite),
+#: so a reading that agrees closely is preferred to the given one that agrees only roughly.
+ATTITUDE_AGREEMENT = (0.8, 0.95, 0.99)
+
+
+def _attitude_agreement(t, w, q, lag: int) -> float:
+    """Median cosine between the body-frame rotation vector of q_k* q_(k+lag) (q body to
+    inertial, scalar first) and the gyro integrated over the same span.
+    """
+    a, b = q[:-lag], q[lag:]
+    aw, av, bw, bv = a[:, 0], -a[:, 1:], b[:, 0], b[:, 1:]
+    s = aw * bw - np.sum(av * bv, axis=1)
+    v = aw[:, None] * bv + bw[:, None] * av + np.cross(av, bv)
+    v = v * np.where(s < 0.0, -1.0, 1.0)[:, None]
+    gyro = _gyro_turns(t, w, lag)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.sum(v * gyro, axis=1) / (np.linalg.norm(v, axis=1) * np.linalg.norm(gyro, axis=1))
+    cos = cos[np.isfinite(cos)]
+    return float(np.median(cos)) if cos.size else 1.0
+
+
+def check_attitude_frame(path, t, w, q) -> None:
+    """Refuse (RecordingError) attitude quaternions that turn the body about other axes than its
+    gyro does, by the median cosine of the two rotations over spans in which the attitude turns
+    0.2-1.5 rad (ATTITUDE_AGREEMENT: under its first value, or under its second while another
+    reading of the columns, ATTITUDE_READINGS, reaches its third), naming the reading that agrees
+    where one does: scalar last, inertial to body, or both. Quiet when the attitude turns too
+    little or too coarsely to compare.
+    """
+    found = _attitude_lag(q)
+    if found is None:
+        return
+    agreement = [(_attitude_agreement(t, w, read(q), found[0]), name, fix)
+                 for name, fix, read in ATTITUDE_READINGS]
+    given = agreement[0][0]
+    best, name, fix = max(agreement[1:])
+    refuse, doubt, agree = ATTITUDE_AGREEMENT
+    if given >= doubt or (given >= refuse and best < agree):
+        return
+    guess = (f"read {name} they agree ({best:.3f}): {fix}" if best >= agree else
+             "no reading of the columns (scalar first or last, either direction) agrees either: "
+             "is q the attitude of the gyro's body frame?")
+    raise _fail(path, f"the attitude quaternions turn the body about other axes than the gyro does "
+                      f"(median cosine {given:.3f} between their rotations over the same spans); {guess}")
 
 
 def _apply_column_map(path, header: list[str], columns: dict | None) -> tuple[list[str], dict]:
@@ -582,5 +656,6 @@ def write_recording(path: str | Path, rec: Recording, sidecar: dict | None = Non
         cols.append(rec.h)
         names += MOMENTUM
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    fmt = ["%.17g"] + ["%.10g"] * (len(names) - 1)  # time in full: a clock of 1.7e9 s keeps its ms
+    np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
     side.write_text(json.dumps(sidecar if sidecar is not None else rec.meta, indent=2) + "\n")

@@ -417,3 +417,30 @@ def test_identify_and_diagnose_commands_write_one_folder_per_piece(dropout_recor
     report = json.loads((tmp_path / "diagnose" / "gap_bursts_rows_1-150" / "report.json").read_text())
     assert report["split_at_gaps"]["pieces"] == 2 and not report["mismatch_detected"]
     assert "gap_bursts rows 151-451" in capsys.readouterr().out
+
+
+CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
+
+
+@pytest.mark.parametrize("reading, convert", [
+    ("inertial to body", lambda q: q * CONJUGATE),
+    ("scalar last \\(qx, qy, qz, qw\\)", lambda q: np.roll(q, -1, axis=1)),
+    ("scalar last and inertial to body", lambda q: np.roll(q * CONJUGATE, -1, axis=1)),
+])
+def test_attitude_in_another_convention_is_refused_naming_it(tmp_path, reading, convert):
+    """Quaternions written scalar last or inertial to body turn the body about other axes than
+    its gyro: refused, the message naming the reading that agrees. Sign flips (q and -q are one
+    attitude) and a clock counting from 1.7e9 s pass, and identify then fits to the noise."""
+    from inertia_gym import identify
+    from inertia_gym.discrepancy.synthetic import simulate_recording
+    from inertia_gym.scenario import Scenario
+
+    rec, side = simulate_recording(Scenario(), 60.0, seed=2, sample_dt=0.1)
+    write_recording(tmp_path / "wrong.csv", dataclasses.replace(rec, q=convert(rec.q)), side)
+    with pytest.raises(RecordingError, match=f"other axes than the gyro .* read {reading} they agree"):
+        read_recordings(tmp_path / "wrong.csv")
+    signs = np.where(np.arange(rec.t.size) % 3 == 0, -1.0, 1.0)[:, None]
+    write_recording(tmp_path / "fine.csv", dataclasses.replace(rec, q=rec.q * signs, t=rec.t + 1.7e9), side)
+    (fine,) = read_recordings(tmp_path / "fine.csv")
+    np.testing.assert_allclose(fine.t - fine.t[0], rec.t - rec.t[0], atol=1e-6)
+    assert 0.9 < identify(fine).rms_over_noise < 1.1
