@@ -52,6 +52,8 @@ from inertia_gym.sensors import estimate_white_noise
 METHODS = ("ml", "ekf", "ukf")
 #: The scale counts as identified when its relative standard deviation is at most this.
 SCALE_SIGMA_IDENTIFIED = 0.05
+#: An identified scale this many times off the nominal's (either way) gets a note on units.
+NOMINAL_SCALE_FACTOR = 3.0
 #: Relative prior width (log units) on the equation-error start in the early horizon stages.
 START_PRIOR_SIGMA = 0.1
 #: Relative error assumed of the equation-error start when planning the first horizon.
@@ -503,6 +505,12 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
             est = dataclasses.replace(est, scale_identified=False)
             notes.append(f"the scale is poorly determined (relative sigma of the trace "
                          f"{sigma_s:.2g}): trust the ratios, not the absolute values")
+        if trace_ref is not None and est.scale_identified:
+            factor = float(TRACE_WEIGHTS @ est.theta) / trace_ref
+            if not 1.0 / NOMINAL_SCALE_FACTOR <= factor <= NOMINAL_SCALE_FACTOR:
+                notes.append(f"the identified inertia is {factor:.3g} times the nominal's (trace): "
+                             "check the units of the torque (N·m) and the momentum (kg·m²/s) "
+                             "columns, or the nominal; a torque in mN·m makes the inertia 1000x")
     else:
         notes.append("neither a torque nor a changing internal momentum acts: the inertia is "
                      "identified up to scale; it is reported normalised to trace "

@@ -277,3 +277,11 @@ def test_package_level_api(paper_recording):
     result = inertia_gym.identify(paper_recording)
     assert result.summary()["scale_identified"] is True
     assert callable(inertia_gym.read_recordings)
+
+
+def test_a_scale_far_from_the_nominal_gets_a_note_on_units(paper_recording):
+    """A torque column in mN·m (x1000) makes the identified inertia 1000x the sidecar's nominal:
+    the notes say so and name the units to check; the recording in N·m gets no such note."""
+    wrong = identify(dataclasses.replace(paper_recording, tau=paper_recording.tau * 1e3))
+    assert any("1e+03 times the nominal's" in n and "mN·m" in n for n in wrong.notes), wrong.notes
+    assert not any("times the nominal's" in n for n in identify(paper_recording).notes)
