@@ -3,11 +3,12 @@
 Each case is a spacecraft simulated by Basilisk (inertia_gym/discrepancy/basilisk.py) in one of
 five body classes from a 1e-4 kg·m² device to a 1e4 kg·m² upper stage, each with its own
 tumble rate, gyro noise, sampling and length (PROFILES: the classes are not copies of one body
-scaled), and one of six kinds of experiment (KINDS): commanded torque bursts with attitude,
-the same gyro-only, logged reaction wheels driven by their motors, a free tumble (the scale is
-not observable: ratios only), and bursts on a vehicle whose slosh particle or hinged panel the
-model leaves out. The sidecar's nominal is the hub inertia deliberately wrong (a user's guess:
-the diagonal off by +69 %, -19 %, +21 %); it only starts the fit.
+scaled), and one of seven kinds of experiment (KINDS): commanded torque bursts with attitude,
+the same gyro-only, the same with a gyro bias of about 1 % of the rate, logged reaction wheels
+driven by their motors, a free tumble (the scale is not observable: ratios only), and bursts on
+a vehicle whose slosh particle or hinged panel the model leaves out. The sidecar's nominal is
+the hub inertia deliberately wrong (a user's guess: the diagonal off by +69 %, -19 %, +21 %);
+it only starts the fit.
 
 Per case: the relative Frobenius error of the identified inertia against Basilisk's
 rigid-equivalent inertia (slosh and panels at rest), the z-score of each of the 6 inertia
@@ -44,7 +45,9 @@ PROFILES = {
     "bus": dict(rate=0.05, gyro_sigma=5e-5, sample_dt=0.2, duration=600.0, accel=0.001),
     "stage": dict(rate=0.02, gyro_sigma=2e-5, sample_dt=0.5, duration=1200.0, accel=2e-4),
 }
-KINDS = ("bursts", "bursts_gyro_only", "wheels", "free", "slosh", "panel")
+KINDS = ("bursts", "bursts_gyro_only", "gyro_bias_gyro_only", "wheels", "free", "slosh", "panel")
+#: The gyro bias of the kind gyro_bias_gyro_only, in units of the tumble rate.
+BIAS_SHARE = np.array([0.01, -0.006, 0.004])
 #: The user's nominal: the hub inertia with each row and column scaled by these factors.
 NOMINAL_FACTORS = np.array([1.3, 0.9, 1.1])
 PARAMS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -53,13 +56,15 @@ PARAMS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 def make_case(kind: str, body: str, seed: int) -> SpacecraftCase:
     """One Basilisk case of a kind (KINDS) for a body class (PROFILES)."""
     prof = PROFILES[body]
-    bursts = kind in ("bursts", "bursts_gyro_only", "slosh", "panel")
+    bursts = kind in ("bursts", "bursts_gyro_only", "gyro_bias_gyro_only", "slosh", "panel")
     case = harness.base(f"{kind}_{body}_{seed}", body, seed, bursts)
     _, inertia = harness.hub(body)
     speed = prof["rate"] / harness.RATE
     extra = {}
     if kind == "bursts_gyro_only":
         extra["quat_sigma"] = None
+    elif kind == "gyro_bias_gyro_only":
+        extra.update(quat_sigma=None, gyro_bias=tuple((BIAS_SHARE * prof["rate"]).tolist()))
     elif kind == "wheels":
         # wheel momentum 0.3 x the body's, motors accelerating the body at 0.2 x the bursts' rate
         extra["wheels"] = harness.wheels(body, 0.3 * speed, True, seed,
