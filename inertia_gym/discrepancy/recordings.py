@@ -14,7 +14,8 @@ angular momentum (README.md, "Recording format"; docs/contracts.md). Columns (on
 The body then obeys J w_dot + h_dot + w x (J w + h) = tau: a known, changing h fixes the
 inertia's scale just as a known torque does. An optional group given in part (h_x, h_y without
 h_z) is refused. The JSON sidecar REC.json next to REC.csv holds metadata (inertia_nominal,
-gyro_sigma, quat_sigma, simulation truth ...); keys it does not know (provenance) are kept.
+gyro_sigma, quat_sigma, gyro_scale_sigma, simulation truth ...); keys it does not know
+(provenance) are kept.
 
 Every reader validates its input and raises RecordingError naming the file, row and column;
 readers never write to the input. Columns named otherwise are mapped with ``columns`` (target ->
@@ -485,6 +486,10 @@ def read_sidecar(csv_path: Path) -> dict:
     for key in ("gyro_sigma", "quat_sigma"):
         if key in meta and not (isinstance(meta[key], (int, float)) and meta[key] > 0):
             raise _fail(side, f"{key} must be a positive number, got {meta[key]!r}", column=key)
+    scale = meta.get("gyro_scale_sigma")
+    if scale is not None and not (isinstance(scale, (int, float)) and 0 <= scale < 1):
+        raise _fail(side, f"gyro_scale_sigma (the gyro scale factor's relative 1-sigma uncertainty) must "
+                          f"be a number in [0, 1), got {scale!r}", column="gyro_scale_sigma")
     return meta
 
 
