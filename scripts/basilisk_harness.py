@@ -15,6 +15,7 @@ Writes OUT/basilisk_harness.json and OUT/basilisk_harness.md; prints the table a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -139,7 +140,7 @@ def torque(body: str, accel: float, seed: int) -> tuple:
 
 
 def cases(duration: float) -> list[SpacecraftCase]:
-    """The harness's cases: 16 controls, 36 single concealed components, 8 pairs."""
+    """The harness's cases: 16 controls, 37 single concealed components, 8 pairs."""
     d = dict(duration=duration)
     c = [
         base("control_cubesat_free", "cubesat", 1, False, **d),
@@ -210,6 +211,13 @@ def cases(duration: float) -> list[SpacecraftCase]:
         base("pair_torque_slosh", "cubesat", 88, False, hidden_torque=torque("cubesat", 1e-4, 88),
              slosh=(slosh("cubesat", 0.1, 0.4, 0.1, 88),), **d),
     ]
+    # a slow upper stage logged for 20 min at 2 Hz, its propellant sloshing at 0.02 Hz (a
+    # period of 50 s: under a fixed 0.05-Hz screening floor, out of reach)
+    slow = base("slosh_stage_slow_bursts", "stage", 960, True, slosh=(slosh("stage", 0.1, 0.02, 0.05, 960),),
+                **d)
+    c.append(dataclasses.replace(slow, omega0=tuple((np.asarray(slow.omega0) * 0.02 / RATE).tolist()),
+                                 burst_torque=slow.burst_torque * 0.02, sample_dt=0.5,
+                                 duration=20 * duration, gyro_sigma=2e-5))
     for body, seed in (("stage", 900), ("device", 950)):  # the extremes of scale, one case of each kind
         c += [
             base(f"control_{body}_free", body, seed + 1, False, **d),

@@ -30,8 +30,22 @@ from typing_extensions import override
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
 
-#: Modal frequencies (Hz) screened for flexible_mode: lowest, and highest as a share of Nyquist.
+#: Modal frequencies (Hz) screened for flexible_mode: lowest (lower on a long record of a slow
+#: body: flex_floor_hz), and highest as a share of Nyquist.
 FLEX_BAND = (0.05, 0.25)
+#: Cycles a mode must complete within the record for flex_floor_hz to screen it.
+MODE_MIN_CYCLES = 2.0
+
+
+def flex_floor_hz(d) -> float:
+    """The lowest modal frequency (Hz) screened for flexible_mode on the data d: FLEX_BAND[0],
+    or lower where the record is long and the body slow, down to whichever is higher of two
+    cycles in the record's length and the body's own rotation rate (a slower mode follows the
+    rotation quasi-statically, as an inertia would). A 1e4 kg·m² stage tumbling at 0.02 rad/s
+    for 20 min with its propellant sloshing at 0.02 Hz had the slosh out of reach of a fixed
+    0.05 Hz floor (left 6x the noise); a body turning faster than 0.3 rad/s is screened as before.
+    """
+    return min(FLEX_BAND[0], max(MODE_MIN_CYCLES / max(d.duration, 1e-9), d.omega_ref / (2 * np.pi)))
 #: The largest modal mass fraction delta^T J^-1 delta a fitted flexible_mode may take (1 makes
 #: the body and mode's joint mass matrix singular; drawn modes take up to about 0.1).
 MODE_MASS_LIMIT = 0.9
@@ -776,7 +790,7 @@ class FlexibleMode(EffectModel):
     @override
     def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, 1]
         lb, ub = np.full(7, -np.inf), np.full(7, np.inf)
-        lb[:2] = 2 * np.pi * 0.5 * FLEX_BAND[0], 0.0
+        lb[:2] = 2 * np.pi * 0.5 * flex_floor_hz(d), 0.0
         ub[:2] = 2 * np.pi * FLEX_BAND[1] / d.dt, 1.0
         return lb, ub
 

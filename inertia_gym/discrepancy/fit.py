@@ -30,7 +30,7 @@ import dataclasses
 import numpy as np
 from scipy import signal, stats
 
-from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, matrix6, skew
+from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6, skew
 from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import RecordingError
@@ -869,7 +869,7 @@ class Probe:
         lam_min = float(np.linalg.eigvalsh(base.inertia)[0])
         if not lam_min > 0 or d.n_rows < 16:
             return []
-        lo, hi = 2 * np.pi * FLEX_BAND[0], 2 * np.pi * FLEX_BAND[1] / d.dt
+        lo, hi = 2 * np.pi * flex_floor_hz(d), 2 * np.pi * FLEX_BAND[1] / d.dt
         eps = np.sqrt(1e-4 * lam_min)
         directions = [np.eye(3)[i] for i in range(3)] + [np.eye(3)[i] + np.eye(3)[j]
                                                          for i, j in ((0, 1), (0, 2), (1, 2))]

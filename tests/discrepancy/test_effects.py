@@ -301,3 +301,19 @@ def test_a_flexible_mode_heavier_than_the_body_allows_is_scaled_back():
     np.testing.assert_array_equal(fixed[:2], heavy[:2])
     joint = np.block([[inertia, c[:, None]], [c[None, :], np.ones((1, 1))]])
     assert np.linalg.eigvalsh(joint)[0] > 0
+
+
+def test_the_modal_screen_reaches_down_to_what_a_long_record_of_a_slow_body_shows():
+    """The lowest screened mode: 0.05 Hz, or lower on a long record of a slow body (two cycles
+    in the record, no slower than the rotation), never higher than 0.05 Hz."""
+    from types import SimpleNamespace
+
+    from inertia_gym.discrepancy.effects import flex_floor_hz
+
+    def floor(duration, rate):
+        return flex_floor_hz(SimpleNamespace(duration=duration, omega_ref=rate))
+
+    assert floor(40.0, 10.0) == 0.05 and floor(1.0, 20.0) == 0.05  # the harness, a toss
+    assert floor(1200.0, 0.02) == pytest.approx(0.02 / (2 * np.pi))  # a slow stage: its rotation
+    assert floor(1200.0, 1e-3) == pytest.approx(2.0 / 1200.0)  # nearly still: two cycles in 20 min
+    assert floor(60.0, 0.3) == pytest.approx(0.3 / (2 * np.pi))
