@@ -929,22 +929,26 @@ class Probe:
         seg_of[:n_res] = np.repeat(d.row_seg, 3)
         free = np.zeros(x0.size, bool)
         free[delta] = True
-        linearised = {}  # change time -> (x, r, G, Js): the two scans share their times
+        # (change time, rates moved) -> (gain, x): the two scans share their times, so one
+        # linearisation serves both and only its two steps are kept (a long record's Jacobians,
+        # kept for every time scanned, took 1.5 GB at 60 000 rows)
+        steps = {}
 
         def gauss_newton(tc, rates):
-            if tc not in linearised:
+            if (tc, rates) not in steps:
                 x = x0.copy()
                 x[delta[0] - 1] = tc
                 r, g, js = jacobian(x, free, layout, d)
-                linearised[tc] = x, r, np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
-            x, r, g, js = linearised[tc]
-            x = x.copy()
-            dg, ds = NormalBlocks.of(g, js, r, seg_of, layout.segments, rates).step(1e-9)
-            pred = r + g @ dg
-            pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])
-            x[delta] += dg
-            x[layout.n_global:] += ds.ravel()
-            return float(r @ r - pred @ pred), x
+                g, js = np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
+                for moved in (True, False):
+                    dg, ds = NormalBlocks.of(g, js, r, seg_of, layout.segments, moved).step(1e-9)
+                    pred = r + g @ dg
+                    pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])
+                    xn = x.copy()
+                    xn[delta] += dg
+                    xn[layout.n_global:] += ds.ravel()
+                    steps[(tc, moved)] = float(r @ r - pred @ pred), xn
+            return steps[(tc, rates)]
 
         starts = []
         for rates in (True, False):
