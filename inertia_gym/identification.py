@@ -38,7 +38,6 @@ import time
 
 import numpy as np
 
-from inertia_gym.discrepancy.fit import fit_nominal, impulses, prepare
 from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import filter_error, ml
@@ -484,7 +483,6 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
         raise RecordingError(f"method must be one of {METHODS}, got {method!r}")
     t0 = time.perf_counter()
     _check_recording(rec)
-    rec, trim_note = trim_impulses(rec)
     if "gyro_sigma" in rec.meta:
         sigma_w, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar gyro_sigma"
     else:
@@ -513,8 +511,6 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     else:
         out = _identify_filter(rec, prob, phi0, method, trace_ref)
     est, crlb, noise, e_w, bias, converged, notes = out
-    if trim_note:
-        notes.insert(0, trim_note)
     if est.scale_identified and rec.q is None:
         est = _with_gyro_scale(est, rec.meta.get("gyro_scale_sigma"), notes)
     rms = np.sqrt(np.nanmean(e_w ** 2, axis=0))
@@ -554,32 +550,6 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
         rms_over_noise=rms_over_noise, noise=noise, bias=bias, t=rec.t, w_meas=rec.w,
         w_fit=rec.w - e_w, converged=converged, wall_s=time.perf_counter() - t0,
         notes=tuple(notes))
-
-
-def trim_impulses(rec: Recording) -> tuple[Recording, str]:
-    """The recording without an impulse at either end (a throw's release, a catch, a knock: the rates
-    jump from row to row far more than anywhere else), located as `diagnose` locates it
-    (discrepancy.fit.impulses on the rigid model's fit), and a note saying what was left out
-    ("" when nothing was, or the record is too short for that fit). A 20-ms catch left on a
-    real rotor throw took identify's error from 0.5 % to 82 %; trimmed, 0.5 %.
-    """
-    try:
-        d = prepare(rec)
-        nominal = fit_nominal(d)
-    except RecordingError:
-        return rec, ""
-    if not np.isfinite(nominal.bic):
-        return rec, ""
-    start, end = impulses(d, nominal)
-    if not (start or end) or rec.t.size - start - end < MIN_SAMPLES:
-        return rec, ""
-    stop = rec.t.size - end
-    kept = dataclasses.replace(rec, **{k: None if getattr(rec, k) is None else getattr(rec, k)[start:stop]
-                                       for k in ("t", "w", "q", "tau", "h")})
-    parts = ([f"the first {start} rows (to t = {rec.t[start]:.6g} s)"] if start else []) + \
-            ([f"the last {end} rows (from t = {rec.t[stop - 1]:.6g} s)"] if end else [])
-    return kept, (f"{' and '.join(parts)} were left out as an impulse (a release, catch or knock: "
-                  "the rates jump there far more than anywhere else)")
 
 
 def _with_gyro_scale(est: InertiaEstimate, scale_sigma, notes: list) -> InertiaEstimate:
