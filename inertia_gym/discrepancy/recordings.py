@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.errors import ConfigError, RecordingError
+from inertia_gym.estimation.ml import attitude_error
 
 GYRO = ("wx", "wy", "wz")
 QUAT = ("qw", "qx", "qy", "qz")
@@ -339,16 +340,16 @@ def _gyro_over_attitude(t, w, q) -> float | None:
     return gyro / attitude if np.isfinite(gyro) else np.inf
 
 
+_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 #: How the attitude columns may have been written, as (name, fix, reading of the columns as the
 #: format's (qw, qx, qy, qz) body-to-inertial quaternion).
 ATTITUDE_READINGS = (
     ("as the format says (qw, qx, qy, qz; body to inertial)", "", lambda q: q),
-    ("inertial to body", "negate qx, qy, qz (the format wants body to inertial)",
-     lambda q: q * np.array([1.0, -1.0, -1.0, -1.0])),
+    ("inertial to body", "negate qx, qy, qz (the format wants body to inertial)", lambda q: q * _CONJUGATE),
     ("scalar last (qx, qy, qz, qw)", "move the scalar part first (qw, qx, qy, qz)",
      lambda q: np.roll(q, 1, axis=1)),
     ("scalar last and inertial to body", "move the scalar part first and negate qx, qy, qz",
-     lambda q: np.roll(q, 1, axis=1) * np.array([1.0, -1.0, -1.0, -1.0])),
+     lambda q: np.roll(q, 1, axis=1) * _CONJUGATE),
 )
 #: Median cosine between the attitude's body-frame rotation and the gyro's over the same spans:
 #: (refused below, refused below if another reading reaches, agreeing). A wrong direction can
@@ -358,14 +359,10 @@ ATTITUDE_AGREEMENT = (0.8, 0.95, 0.99)
 
 
 def _attitude_agreement(t, w, q, lag: int) -> float:
-    """Median cosine between the body-frame rotation vector of q_k* q_(k+lag) (q body to
-    inertial, scalar first) and the gyro integrated over the same span.
+    """Median cosine between the body-frame rotation of q_k* q_(k+lag) (q body to inertial,
+    scalar first; ml.attitude_error) and the gyro integrated over the same span.
     """
-    a, b = q[:-lag], q[lag:]
-    aw, av, bw, bv = a[:, 0], -a[:, 1:], b[:, 0], b[:, 1:]
-    s = aw * bw - np.sum(av * bv, axis=1)
-    v = aw[:, None] * bv + bw[:, None] * av + np.cross(av, bv)
-    v = v * np.where(s < 0.0, -1.0, 1.0)[:, None]
+    v = attitude_error(q[:-lag], q[lag:])
     gyro = _gyro_turns(t, w, lag)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos = np.sum(v * gyro, axis=1) / (np.linalg.norm(v, axis=1) * np.linalg.norm(gyro, axis=1))
