@@ -4,6 +4,7 @@ and on the real development recordings (skipped when ../shared/data is absent)."
 import dataclasses
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -329,3 +330,48 @@ def test_a_bad_gyro_scale_sigma_is_refused_in_one_line(tmp_path, value):
     write_recording(tmp_path / "r.csv", rec, {**side, "gyro_scale_sigma": value})
     with pytest.raises(RecordingError, match=r"gyro_scale_sigma .* must be a number in \[0, 1\)"):
         read_recordings(tmp_path / "r.csv")
+
+
+def _with_jolt(rec: Recording, rows: int, at_start: bool, seed: int = 0) -> Recording:
+    """rec with `rows` rows of a catch (the rates fading to zero with a 2-rad/s jolt) appended,
+    or, at_start, of a hand letting go (the same mirrored, ending at the first row) prepended."""
+    dt = float(np.median(np.diff(rec.t)))
+    fade = np.linspace(1.0, 0.0, rows)[:, None]
+    edge = rec.w[0] if at_start else rec.w[-1]
+    jolt = edge * fade + np.random.default_rng(seed).normal(0.0, 2.0, (rows, 3)) * fade
+    steps = dt * np.arange(1, rows + 1)
+    if at_start:
+        return dataclasses.replace(rec, t=np.r_[rec.t[0] - steps[::-1], rec.t], w=np.r_[jolt[::-1], rec.w],
+                                   h=np.r_[np.repeat(rec.h[:1], rows, axis=0), rec.h])
+    return dataclasses.replace(rec, t=np.r_[rec.t, rec.t[-1] + steps], w=np.r_[rec.w, jolt],
+                               h=np.r_[rec.h, np.repeat(rec.h[-1:], rows, axis=0)])
+
+
+@pytest.mark.parametrize("at_start", [False, True], ids=["catch", "release"])
+def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start):
+    """20 ms of a catch, or of the hand letting go, on a simulated throw: without the trim the
+    estimate was 97 % off at 1031x the noise. Located on the fit's residual, left out, said, and
+    the estimate is the clean record's; a clean record loses nothing and gets no such note.
+    (A record that cannot be fitted whole stays refused: test_fuzz_recordings' units cases.)"""
+    rec, sc = _throw(3)
+    rows = int(round(0.02 / float(np.median(np.diff(rec.t)))))
+    clean, jolted = identify(rec), identify(_with_jolt(rec, rows, at_start))
+    assert not any("impulse" in note for note in clean.notes)
+    left_out = re.match(r"rows (\d+)-(\d+) \(.*: left out", jolted.notes[0])
+    assert left_out, jolted.notes
+    expected = (1, rows) if at_start else (rec.t.size + 1, rec.t.size + rows)
+    assert np.abs(np.array(left_out.groups(), int) - expected).max() <= 1  # within a row
+    assert abs(jolted.t.size - rec.t.size) <= 1
+    assert _rel(jolted.estimate.inertia, clean.estimate.inertia) < 1e-3
+    assert jolted.rms_over_noise < 1.2
+
+
+@pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
+def test_a_catch_on_a_real_throw_is_left_out_even_where_the_rest_still_fits():
+    """Empty_LOG00179 with a 20-row catch appended: the fit through it was 84 % off while the
+    other rows fitted only 1.3x worse (its residual located the catch); trimmed, the estimate is
+    the clean record's."""
+    rec = read_recordings(ROTOR / "Empty_LOG00179.csv")[0]
+    clean, caught = identify(rec), identify(_with_jolt(rec, 20, at_start=False, seed=20))
+    assert "left out" in caught.notes[0], caught.notes
+    assert _rel(caught.estimate.inertia, clean.estimate.inertia) < 1e-3

@@ -1404,29 +1404,38 @@ def effective_share(d: Data, fit: Fit) -> float:
     return float(1.0 / max(tau, 1.0))
 
 
+def end_impulses(z: np.ndarray, same: np.ndarray | None = None) -> tuple[int, int]:
+    """The rows to keep, start .. stop - 1, of residual rows z (n, k) (whitened: noise ~ 1)
+    without an impulse at either end (a throw's release, a catch, a knock): the residual jumps
+    from row to row by more than IMPULSE_JUMP times its median jump (and by more than 1); the
+    rows up to the last such jump near the start, and from the first one near the end, are left
+    out (each side at most IMPULSE_SPAN of the rows). A drift the model misses grows smoothly and
+    is kept. same (n - 1,) bool: whether rows i and i + 1 belong to one segment (a jump across
+    segments is not an impulse); None: all do. (0, n) when nothing is left out, or z is short
+    or not finite.
+    """
+    n = z.shape[0]
+    if n < 20 or not np.all(np.isfinite(z)):
+        return 0, n
+    same = np.ones(n - 1, bool) if same is None else same
+    jump = np.where(same, np.linalg.norm(np.diff(z, axis=0), axis=1), 0.0)
+    thr = IMPULSE_JUMP * max(float(np.median(jump[same])), 1.0)
+    span = int(IMPULSE_SPAN * n)
+    big = np.flatnonzero(jump > thr)
+    head, tail = big[big < span], big[big >= n - 1 - span]
+    return (int(head.max()) + 1 if head.size else 0), (int(tail.min()) + 1 if tail.size else n)
+
+
 def impulses(d: Data, fit: Fit) -> tuple[int, int]:
     """Samples to leave out at the start and the end of the record (counted from its ends,
-    those already left out included): an impulse (a throw's
-    release, a catch, a knock) makes the whitened residual jump from row to row by more than
-    IMPULSE_JUMP times its median jump; the rows up to the last such jump near the start, and
-    from the first one near the end, are trimmed (each side at most IMPULSE_SPAN of the rows).
-    A drift the model misses grows smoothly and is not trimmed.
+    those already left out included) for an impulse at either end of fit's whitened residual
+    rows (:func:`end_impulses`).
     """
-    z = fit.z
-    if d.n_rows < 20 or not np.all(np.isfinite(z)):
-        return 0, 0
-    jump = np.linalg.norm(np.diff(z, axis=0), axis=1)
-    same = d.row_seg[1:] == d.row_seg[:-1]  # a jump across a segment boundary is not an impulse
-    jump = np.where(same, jump, 0.0)
-    thr = IMPULSE_JUMP * max(float(np.median(jump[same])), 1.0)
-    span = int(IMPULSE_SPAN * d.n_rows)
-    big = np.flatnonzero(jump > thr)
-    head = big[big < span]
-    tail = big[big >= d.n_rows - 1 - span]
+    start_row, stop_row = end_impulses(fit.z, d.row_seg[1:] == d.row_seg[:-1])
     kept = np.flatnonzero(d.row >= 0)
     first_sample = kept[np.r_[True, np.diff(d.row[kept]) != 0]]  # of each row
-    start = int(first_sample[head.max() + 1]) if head.size else 0
-    end = int(d.t.size - first_sample[tail.min() + 1]) if tail.size else 0
+    start = int(first_sample[start_row]) if start_row else 0
+    end = int(d.t.size - first_sample[stop_row]) if stop_row < d.n_rows else 0
     return start, end
 
 

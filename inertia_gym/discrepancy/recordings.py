@@ -127,6 +127,13 @@ class Recording:
         value = self.meta.get("inertia_nominal")
         return None if value is None else np.asarray(value, dtype=float)
 
+    def rows(self, start: int, stop: int) -> "Recording":
+        """The recording's rows start .. stop - 1 (the same name and sidecar)."""
+        def cut(arr):
+            return None if arr is None else arr[start:stop]
+        return dataclasses.replace(self, t=self.t[start:stop], w=self.w[start:stop], q=cut(self.q),
+                                   tau=cut(self.tau), h=cut(self.h))
+
 
 def input_gaps(rec: Recording) -> np.ndarray:
     """Row indices i (k,) after which a gap begins (t[i+1] - t[i] > GAP_FACTOR x the median
@@ -171,13 +178,8 @@ def split_at_gaps(rec: Recording) -> list[Recording]:
         raise RecordingError(f"{rec.name}: {gaps.size} gap(s) in the logged {_inputs(rec)} leave no "
                              f"piece of at least {MIN_SAMPLES} rows")
     lengths = np.round(rec.t[gaps + 1] - rec.t[gaps], 6).tolist()
-
-    def cut(arr, a, b):
-        return None if arr is None else arr[a:b]
-
     return [dataclasses.replace(
-        rec, t=rec.t[a:b], w=rec.w[a:b], q=cut(rec.q, a, b), tau=cut(rec.tau, a, b), h=cut(rec.h, a, b),
-        name=f"{rec.name} rows {a + 1}-{b}",
+        rec.rows(a, b), name=f"{rec.name} rows {a + 1}-{b}",
         meta={**rec.meta, "split_at_gaps": {"piece": k + 1, "pieces": len(spans), "rows": [a + 1, b],
                                             "gaps_s": lengths, "dropped_rows": int(dropped)}})
         for k, (a, b) in enumerate(spans)]

@@ -265,3 +265,24 @@ def test_rows_too_far_apart_for_the_rotation_are_refused():
     rec, _ = simulate_recording(Scenario(), 1.0, seed=4)
     with pytest.raises(RecordingError, match="too far apart"):
         diagnose(dataclasses.replace(rec, t=rec.t * 1e5))
+
+
+def test_end_impulses_keeps_the_rows_between_the_last_jump_near_the_start_and_the_first_near_the_end():
+    z = np.random.default_rng(0).normal(size=(200, 3))
+    assert F.end_impulses(z) == (0, 200)
+    jolted = z.copy()
+    jolted[:3] += 40.0 * np.arange(3, 0, -1)[:, None]  # rows 0-2 fall back by 40 per row
+    jolted[190:] += 50.0  # a step at row 190
+    assert F.end_impulses(jolted) == (3, 190)
+    # a smooth drift to 60x the noise at the end stays; a jump in the middle is no end impulse
+    drift = z + np.linspace(0.0, 60.0, 200)[:, None] ** 2 / 60.0
+    assert F.end_impulses(drift) == (0, 200)
+    middle = z.copy()
+    middle[100:] += 50.0
+    assert F.end_impulses(middle) == (0, 200)
+    # a jump across a segment boundary is not an impulse; short or non-finite input keeps all
+    same = np.ones(199, bool)
+    same[189] = False
+    assert F.end_impulses(jolted, same) == (3, 200)
+    assert F.end_impulses(jolted[:19]) == (0, 19)
+    assert F.end_impulses(np.where(np.arange(200)[:, None] == 5, np.nan, z)) == (0, 200)
