@@ -38,7 +38,7 @@ import time
 
 import numpy as np
 
-from inertia_gym.discrepancy.fit import end_impulses
+from inertia_gym.discrepancy.fit import end_impulses, saturated_samples
 from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import filter_error, ml
@@ -438,6 +438,11 @@ def _check_recording(rec: Recording) -> None:
     if rec.t.size < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: only {rec.t.size} samples; identify needs at least "
                              f"{MIN_SAMPLES}")
+    unclipped = measured_rows(rec).size
+    if unclipped < MIN_SAMPLES:
+        raise RecordingError(f"{rec.name}: the gyro clipped at its full scale in {rec.t.size - unclipped} "
+                             f"of {rec.t.size} rows; identify needs at least {MIN_SAMPLES} unclipped "
+                             "rows (a gyro range above the body's rates, or a slower spin)")
     noise = float(np.median(estimate_white_noise(rec.w))) if rec.t.size > 10 else 0.0
     rate = np.linalg.norm(rec.w, axis=1)
     peak = float(np.max(rate))
@@ -450,23 +455,36 @@ def _check_recording(rec: Recording) -> None:
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
 
 
+def measured_rows(rec: Recording) -> np.ndarray:
+    """Row indices (M,) whose gyro reading is a measurement: all but those where an axis clipped
+    at the gyro's full scale (fit.saturated_samples), which say only that the rate was beyond it.
+    """
+    return np.flatnonzero(~saturated_samples(rec).any(axis=1))
+
+
 def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None = None,
                            fit_drag: bool = False) -> ml.Problem:
-    """The ML problem of a recording: grid = its rows, torque held per row, h linear."""
+    """The ML problem of a recording: grid = its rows, torque held per row, h linear; the
+    measurements are its rows but the clipped ones (measured_rows), where the integration plans
+    for twice the clipped rate.
+    """
     t = rec.t - rec.t[0]
     n = t.size
     tau = rec.tau if rec.tau is not None else np.zeros((n, 3))
     h = rec.h if rec.h is not None else np.zeros((n, 3))
     forced = bool(np.any(tau != 0.0)) or bool(np.ptp(h, axis=0).max() > 0.0)
+    meas = measured_rows(rec)
     if sigma_w is None:
-        sigma_w = np.maximum(estimate_white_noise(rec.w), 1e-9)
+        sigma_w = np.maximum(estimate_white_noise(rec.w[meas]), 1e-9)
     quat_sigma = float(rec.meta.get("quat_sigma", 0.0) or 0.0)
     with_att = rec.q is not None
     sigma_att = 2.0 * quat_sigma if quat_sigma > 0 else 0.02
+    rate = np.linalg.norm(rec.w, axis=1)
+    rate[np.setdiff1d(np.arange(n), meas)] *= 2.0
     return ml.Problem(
         t_grid=t, tau_grid=np.asarray(tau, float), h_grid=np.asarray(h, float),
-        n_sub=ml.substeps(t, np.linalg.norm(rec.w, axis=1)), meas_idx=np.arange(n),
-        z_w=np.asarray(rec.w, float), z_q=None if not with_att else np.asarray(rec.q, float),
+        n_sub=ml.substeps(t, rate), meas_idx=meas,
+        z_w=np.asarray(rec.w[meas], float), z_q=None if not with_att else np.asarray(rec.q[meas], float),
         sigma_w=np.broadcast_to(np.asarray(sigma_w, float), (3,)).copy(), sigma_att=sigma_att,
         fit_bias=with_att if fit_bias is None else bool(fit_bias), fix_scale=not forced,
         fit_drag=bool(fit_drag))
@@ -588,12 +606,15 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
     nominal = rec.inertia_nominal
     trace_ref = float(np.trace(nominal)) if nominal is not None else None
-    theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid,
-                                  trace=trace_ref if trace_ref is not None else 1.0)
+    meas = prob.meas_idx
+    usable = np.zeros(rec.t.size, bool)
+    usable[meas] = True
+    theta0 = equation_error_theta(prob.t_grid, rec.w, prob.tau_grid, prob.h_grid,
+                                  trace=trace_ref if trace_ref is not None else 1.0, usable=usable)
     phi0 = phi_from_inertia(inertia_from_theta(theta0))
     # Against the noise the fit did not produce: the sidecar's, or the third-difference level
     # (the residuals' own level would make the ratio 1 by construction).
-    reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(rec.w), 1e-12)
+    reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(prob.z_w), 1e-12)
     if method == "ml":
         out = _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref)
         if fit_bias is None and not prob.fit_bias:  # gyro only: does a constant bias explain it?
@@ -608,7 +629,16 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                               "the residuals are white at the noise")
     else:
         out = _identify_filter(rec, prob, phi0, method, trace_ref)
-    est, crlb, noise, e_w, bias, converged, notes = out
+    est, crlb, noise, e_meas, bias, converged, notes = out
+    e_w = np.full(rec.w.shape, np.nan)  # clipped rows have no residual
+    e_w[meas] = e_meas
+    if meas.size < rec.t.size:
+        clipped = saturated_samples(rec)
+        top = ", ".join(f"{'xyz'[i]} {np.abs(rec.w[clipped[:, i], i]).min():.4g}" for i in range(3)
+                        if clipped[:, i].any())
+        notes.append(f"the gyro clipped at its full scale ({top} rad/s) in {rec.t.size - meas.size} of "
+                     f"{rec.t.size} rows: those rows are left out of the fit"
+                     + ("" if method == "ml" else f"'s start; the {method} uses them as read"))
     if est.scale_identified and rec.q is None:
         est = _with_gyro_scale(est, rec.meta.get("gyro_scale_sigma"), notes)
     rms = np.sqrt(np.nanmean(e_w ** 2, axis=0))

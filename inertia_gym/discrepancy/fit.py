@@ -191,7 +191,7 @@ class Data:
         return self.q[self.seg[:-1]]
 
 
-def _saturated(rec: Recording) -> np.ndarray:
+def saturated_samples(rec: Recording) -> np.ndarray:
     """(n, 3) bool: samples the gyro clipped. A full scale in the sidecar (gyro_full_scale_rad_s)
     is trusted; otherwise an axis is clipped where its extreme value repeats in at least three
     consecutive samples (a moving body's rate is not flat at its extreme, a clipped one is).
@@ -268,7 +268,7 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
         raise RecordingError(f"{rec.name}: the body turns {turn:.3g} rad between consecutive rows "
                              f"(median rate x median interval {dt:.3g} s): the rows are too far apart "
                              "to follow the rotation; is the time column in seconds (--time-unit)?")
-    clipped = _saturated(rec)
+    clipped = saturated_samples(rec)
     keep = ~clipped.any(axis=1)
     keep[:trim[0]] = False
     keep[n - trim[1]:] = False

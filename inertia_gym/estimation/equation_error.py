@@ -47,11 +47,22 @@ def modulating_windows(t, samples_per_window: int):
     return edges, phi, dphi
 
 
-def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=None) -> np.ndarray:
+#: Fewest samples in a window (shorter windows' quadrature of phi' is too coarse: 8 samples cost
+#: 8 % on noiseless data).
+MIN_WINDOW_SAMPLES = 16
+#: Fewest windows an equation-error estimate rests on when windows holding unusable samples
+#: are left out (fewer: all are used).
+MIN_WINDOWS = 3
+
+
+def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=None,
+                         usable=None) -> np.ndarray:
     """Linear estimate of theta (6,) from gyro rates w (n, 3) rad/s at times t (n,) s.
 
     tau (n, 3) N·m held per row, h (n, 3) kg·m²/s (None: zero). trace (kg·m²) fixes the scale
-    when neither torque nor a changing h acts. Returns theta of a valid inertia.
+    when neither torque nor a changing h acts. usable (n,) bool or None: samples that are
+    measurements (a clipped gyro's are not); the windows holding any other are left out, unless
+    fewer than MIN_WINDOWS would remain. Returns theta of a valid inertia.
     """
     t = np.asarray(t, dtype=float)
     w = np.asarray(w, dtype=float)
@@ -59,12 +70,17 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
     tau = np.zeros((n, 3)) if tau is None else np.asarray(tau, dtype=float)
     h = np.zeros((n, 3)) if h is None else np.asarray(h, dtype=float)
     if samples_per_window is None:
-        # A window spans about a third of a rotation and at least 16 samples (shorter windows'
-        # quadrature of phi' is too coarse: 8 samples cost 8 % on noiseless data), at most a tenth
-        # of the record.
+        # A window spans about a third of a rotation and at least MIN_WINDOW_SAMPLES samples, at
+        # most a tenth of the record.
         rate = float(np.median(np.linalg.norm(w, axis=1))) + 1e-12
         dt = float(np.median(np.diff(t)))
-        samples_per_window = int(np.clip(2.0 / (rate * dt), 16, max(16, n // 10)))
+        samples_per_window = int(np.clip(2.0 / (rate * dt), MIN_WINDOW_SAMPLES,
+                                         max(MIN_WINDOW_SAMPLES, n // 10)))
+        if usable is not None and samples_per_window > MIN_WINDOW_SAMPLES:
+            # unusable samples spread over the record: try the shortest windows before all of them
+            edges = modulating_windows(t, samples_per_window)[0]
+            if _clean_windows(edges, usable).sum() < MIN_WINDOWS:
+                samples_per_window = MIN_WINDOW_SAMPLES
     edges, phi, dphi = modulating_windows(t, samples_per_window)
     starts = edges[:-1]
     quad = np.gradient(t)
@@ -76,6 +92,10 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
     rhs = (dphi[:, None] * h - phi[:, None] * np.cross(w, h) + phi[:, None] * tau) * quad[:, None]
     a = np.add.reduceat(rows, starts, axis=0).reshape(-1, 6)
     c = np.add.reduceat(rhs, starts, axis=0).reshape(-1)
+    if usable is not None:
+        clean = _clean_windows(edges, usable)
+        if clean.sum() >= MIN_WINDOWS:
+            a, c = a.reshape(-1, 3, 6)[clean].reshape(-1, 6), c.reshape(-1, 3)[clean].reshape(-1)
     col = np.linalg.norm(a, axis=0) + 1e-300
     c_win = np.linalg.norm(c.reshape(-1, 3), axis=1)
     forced_win = c_win > 1e-3 * max(c_win.max(), 1e-300)
@@ -96,6 +116,12 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
     else:
         theta = np.linalg.lstsq(a / col, c, rcond=None)[0] / col
     return valid_theta(theta)
+
+
+def _clean_windows(edges, usable) -> np.ndarray:
+    """(K,) bool: the windows between edges (K+1,) sample indices that hold only usable samples."""
+    unusable = np.r_[0, np.cumsum(~np.asarray(usable, bool))]
+    return unusable[edges[1:] + 1] - unusable[edges[:-1]] == 0
 
 
 def _null_vector(a, col) -> np.ndarray:
