@@ -630,8 +630,11 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     else:
         out = _identify_filter(rec, prob, phi0, method, trace_ref)
     est, crlb, noise, e_meas, bias, converged, notes = out
-    e_w = np.full(rec.w.shape, np.nan)  # clipped rows have no residual
-    e_w[meas] = e_meas
+    if e_meas.shape[0] == rec.t.size:  # every row is a measurement, or the filters read them all
+        e_w = e_meas
+    else:  # the ML fit's residual at its measurements; clipped rows have none
+        e_w = np.full(rec.w.shape, np.nan)
+        e_w[meas] = e_meas
     if meas.size < rec.t.size:
         clipped = saturated_samples(rec)
         top = ", ".join(f"{'xyz'[i]} {np.abs(rec.w[clipped[:, i], i]).min():.4g}" for i in range(3)

@@ -389,6 +389,9 @@ def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path
     assert any(note.startswith(f"the gyro clipped at its full scale (x 18 rad/s) in {clipped} of")
                for note in res.notes), res.notes
     assert np.isnan(res.w_fit[np.abs(rec.w[:, 0]) >= 18.0]).all()
+    filtered = identify(dataclasses.replace(rec, w=np.clip(rec.w, -18.0, 18.0)), "ekf")
+    assert any("the ekf uses them as read" in note for note in filtered.notes), filtered.notes
+    assert np.all(np.isfinite(filtered.w_fit))
     path = tmp_path / "clipped.csv"
     write_recording(path, dataclasses.replace(rec, w=np.clip(rec.w, -10.0, 10.0)))
     assert main(["identify", str(path), "--out", str(tmp_path / "out")]) == 2
