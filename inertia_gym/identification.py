@@ -518,8 +518,7 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     try:
         whole = _identify_record(rec, method, fit_bias, fit_drag)
     except EstimatorDivergedError as err:
-        start, stop = _rate_impulses(rec.w, np.maximum(estimate_white_noise(rec.w), 1e-12)) \
-            if n >= MIN_SAMPLES else (0, n)
+        start, stop = _rate_impulses(rec.w, _impulse_noise(rec)) if n >= MIN_SAMPLES else (0, n)
         if (start, stop) == (0, n) or stop - start < MIN_SAMPLES:
             raise
         located = _impulse_rows(rec, start, stop)
@@ -532,16 +531,18 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
                                          "it does not converge either") from None
         return _with_note(trimmed, f"{located} look like an impulse (a release, catch or knock): left "
                                    f"out; the whole record could not be fitted ({err})", started, first=True)
-    whitened = (whole.w_meas - whole.w_fit) / whole.noise.sigma
-    start, stop = end_impulses(whitened)
-    if whole.rms_over_noise > RIGID_MISFIT or not np.all(np.isfinite(whitened)):
+    noise = _impulse_noise(rec)
+    whitened = (whole.w_meas - whole.w_fit) / noise
+    start, stop = _residual_impulses(whitened)
+    followed = np.all(np.isfinite(whitened[measured_rows(rec)]))
+    if whole.rms_over_noise > RIGID_MISFIT or not followed:
         # a poor fit's residual drifts from row to row and hides an impulse's inner edge
-        rate_start, rate_stop = _rate_impulses(rec.w, whole.noise.sigma)
+        rate_start, rate_stop = _rate_impulses(rec.w, noise)
         start, stop = max(start, rate_start), min(stop, rate_stop)
     if (start, stop) == (0, n):
         return whole
     located = (f"{_impulse_rows(rec, start, stop)} look like an impulse (a release, catch or knock: "
-               "the residual jumps there far more than anywhere else)")
+               "the rates or the fit's residual jump there far more than anywhere else)")
     if stop - start < MIN_SAMPLES:
         return _with_note(whole, f"{located}; too few rows would remain without them: kept", started)
     try:
@@ -550,7 +551,7 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
         return _with_note(whole, f"{located}; the record without them could not be fitted ({err}): kept",
                           started)
     # over the rows both fits follow (a fit may follow only the first part of a record)
-    kept, kept_trimmed = whitened[start:stop], (trimmed.w_meas - trimmed.w_fit) / whole.noise.sigma
+    kept, kept_trimmed = whitened[start:stop], (trimmed.w_meas - trimmed.w_fit) / noise
     both = np.all(np.isfinite(kept) & np.isfinite(kept_trimmed), axis=1)
     if not np.any(both):
         return _with_note(whole, f"{located}; the fits with and without them follow no common row: kept",
@@ -564,6 +565,26 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     return _with_note(whole, f"{located}; without them the rest fits with {ratio:.3g}x the mean "
                              f"square{'' if trimmed.converged else ' and does not converge'}: kept",
                       started)
+
+
+def _impulse_noise(rec: Recording) -> np.ndarray:
+    """(3,) rad/s: the gyro noise that whitens the residual and the rates where impulses are
+    located: the sidecar's gyro_sigma, else the third-difference level of the unclipped rows
+    (not a fit's residual level: a misfit inflates it and hides the impulse).
+    """
+    if "gyro_sigma" in rec.meta:
+        return np.full(3, float(rec.meta["gyro_sigma"]))
+    return np.maximum(estimate_white_noise(rec.w[measured_rows(rec)]), 1e-12)
+
+
+def _residual_impulses(whitened: np.ndarray) -> tuple[int, int]:
+    """Rows start .. stop - 1 to keep without an impulse at either end of the whitened residual
+    (n, 3), searched over its finite rows (clipped rows and rows past a fit's span have none).
+    """
+    n = whitened.shape[0]
+    rows = np.flatnonzero(np.all(np.isfinite(whitened), axis=1))
+    first, last = end_impulses(whitened[rows])
+    return (int(rows[first]) if first else 0), (int(rows[last]) if last < rows.size else n)
 
 
 def _rate_impulses(w: np.ndarray, sigma: np.ndarray) -> tuple[int, int]:
@@ -759,17 +780,22 @@ def _identify_ml(rec, prob, phi0, sigma_w, source, trace_ref):
                      "are those of the output-error trajectory")
         return (estimate, ref.crlb, noise, e_w, bias, ref.fit.converged and fit.converged,
                 notes)
+    if filter_error_applies(prob, ref, every_row=False):  # but clipped rows are left out
+        notes.append("model error detected, but the filter-error estimate needs every row: with the "
+                     "clipped rows left out, this is the output-error estimate, its intervals "
+                     "widened for the model error")
     return ref.estimate, ref.crlb, ref.noise, e_w, bias, ref.fit.converged, notes
 
 
-def filter_error_applies(prob: ml.Problem, ref: Refinement) -> bool:
+def filter_error_applies(prob: ml.Problem, ref: Refinement, every_row: bool = True) -> bool:
     """The output-error fit ref of prob found model error (a disturbance intensity above zero)
     on a gyro-only record with a changing logged momentum, over the whole record, without a
-    fitted bias or drag: then the filter-error fit (estimation/filter_error.py) replaces it.
+    fitted bias or drag, and (every_row) every row is a measurement: then the filter-error fit
+    (estimation/filter_error.py) replaces it.
     """
     return (ref.noise.disturbance_q > 0 and not prob.with_att and not prob.fit_bias
             and not prob.fit_drag and ref.fit.n_used == prob.meas_idx.size
-            and np.array_equal(prob.meas_idx, np.arange(prob.t_grid.size))
+            and (not every_row or np.array_equal(prob.meas_idx, np.arange(prob.t_grid.size)))
             and bool(np.ptp(prob.h_grid, axis=0).max() > 0.0))
 
 

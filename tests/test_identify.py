@@ -347,13 +347,18 @@ def _with_jolt(rec: Recording, rows: int, at_start: bool, seed: int = 0) -> Reco
                                h=np.r_[rec.h, np.repeat(rec.h[-1:], rows, axis=0)])
 
 
-@pytest.mark.parametrize("at_start", [False, True], ids=["catch", "release"])
-def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start):
+@pytest.mark.parametrize("at_start, gyro_sigma", [(False, True), (True, True), (False, False)],
+                         ids=["catch", "release", "catch-without-gyro_sigma"])
+def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sigma):
     """20 ms of a catch, or of the hand letting go, on a simulated throw: without the trim the
-    estimate was 97 % off at 1031x the noise. Located on the fit's residual, left out, said, and
-    the estimate is the clean record's; a clean record loses nothing and gets no such note.
-    (A record that cannot be fitted whole stays refused: test_fuzz_recordings' units cases.)"""
+    estimate was 97 % off at 1031x the noise. Located, left out, said, and the estimate is the
+    clean record's; a clean record loses nothing and gets no such note. Without gyro_sigma in the
+    sidecar the search whitens with the rates' own noise level, not the misfit's (which hid the
+    catch: 85 % off). (A record that cannot be fitted whole stays refused:
+    test_fuzz_recordings' units cases.)"""
     rec, sc = _throw(3)
+    if not gyro_sigma:
+        rec = dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k != "gyro_sigma"})
     rows = int(round(0.02 / float(np.median(np.diff(rec.t)))))
     clean, jolted = identify(rec), identify(_with_jolt(rec, rows, at_start))
     assert not any("impulse" in note for note in clean.notes)
@@ -397,3 +402,15 @@ def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path
     assert main(["identify", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "clipped at its full scale in 2001 of 2001 rows" in err
+
+
+@pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
+def test_a_clipped_real_throw_says_why_the_filter_error_estimate_is_not_used():
+    """Empty_LOG00179 with a full scale of 0.97x its peak: the filter-error estimate needs every
+    row, so with the clipped rows left out the output-error one is reported, and said."""
+    rec = read_recordings(ROTOR / "Empty_LOG00179.csv")[0]
+    full_scale = 0.97 * float(np.abs(rec.w).max())
+    res = identify(dataclasses.replace(rec, meta={**rec.meta, "gyro_full_scale_rad_s": full_scale}))
+    assert res.noise.estimator == "output error"
+    assert any(note.startswith("model error detected, but the filter-error estimate needs every row")
+               for note in res.notes), res.notes
