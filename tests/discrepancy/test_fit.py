@@ -286,3 +286,18 @@ def test_end_impulses_keeps_the_rows_between_the_last_jump_near_the_start_and_th
     assert F.end_impulses(jolted, same) == (3, 200)
     assert F.end_impulses(jolted[:19]) == (0, 19)
     assert F.end_impulses(np.where(np.arange(200)[:, None] == 5, np.nan, z)) == (0, 200)
+
+
+def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_one_still_is():
+    """A slow spin read by a gyro quantized at 4x its noise repeats its extreme values at smooth
+    peaks (125 of 1201 rows were taken as clipped, and identify left them out with a false
+    note); clipped at 0.3 rad/s it sits there, and is."""
+    sc = Scenario(omega0=(0.05, 0.03, 0.5), tau_max=50.0, gyro_sigma=0.0005)
+    rec, _ = simulate_recording(sc, 120.0, None, seed=3, sample_dt=0.1, torque=False)
+    quantized = np.round(rec.w / 0.002) * 0.002
+    assert not F.saturated_samples(dataclasses.replace(rec, w=quantized)).any()
+    clipped = quantized.copy()
+    clipped[:, 1] = np.clip(quantized[:, 1], -0.3, 0.3)
+    flagged = F.saturated_samples(dataclasses.replace(rec, w=clipped))
+    np.testing.assert_array_equal(flagged[:, 1], np.abs(quantized[:, 1]) >= 0.3)
+    assert not flagged[:, [0, 2]].any()
