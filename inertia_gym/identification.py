@@ -438,7 +438,7 @@ def _check_recording(rec: Recording) -> None:
     if rec.t.size < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: only {rec.t.size} samples; identify needs at least "
                              f"{MIN_SAMPLES}")
-    unclipped = measured_rows(rec).size
+    unclipped = int(np.count_nonzero(~clipped_rows(rec)))
     if unclipped < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: the gyro clipped at its full scale in {rec.t.size - unclipped} "
                              f"of {rec.t.size} rows; identify needs at least {MIN_SAMPLES} unclipped "
@@ -455,17 +455,17 @@ def _check_recording(rec: Recording) -> None:
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
 
 
-def measured_rows(rec: Recording) -> np.ndarray:
-    """Row indices (M,) whose gyro reading is a measurement: all but those where an axis clipped
-    at the gyro's full scale (fit.saturated_samples), which say only that the rate was beyond it.
+def clipped_rows(rec: Recording) -> np.ndarray:
+    """(n,) bool: the rows whose gyro reading is no measurement, an axis clipped at the gyro's
+    full scale (fit.saturated_samples): they say only that the rate was beyond it.
     """
-    return np.flatnonzero(~saturated_samples(rec).any(axis=1))
+    return saturated_samples(rec).any(axis=1)
 
 
 def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None = None,
                            fit_drag: bool = False) -> ml.Problem:
     """The ML problem of a recording: grid = its rows, torque held per row, h linear; the
-    measurements are its rows but the clipped ones (measured_rows), where the integration plans
+    measurements are its rows but the clipped ones (clipped_rows), where the integration plans
     for twice the clipped rate.
     """
     t = rec.t - rec.t[0]
@@ -473,14 +473,15 @@ def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None =
     tau = rec.tau if rec.tau is not None else np.zeros((n, 3))
     h = rec.h if rec.h is not None else np.zeros((n, 3))
     forced = bool(np.any(tau != 0.0)) or bool(np.ptp(h, axis=0).max() > 0.0)
-    meas = measured_rows(rec)
+    clipped = clipped_rows(rec)
+    meas = np.flatnonzero(~clipped)
     if sigma_w is None:
         sigma_w = np.maximum(estimate_white_noise(rec.w[meas]), 1e-9)
     quat_sigma = float(rec.meta.get("quat_sigma", 0.0) or 0.0)
     with_att = rec.q is not None
     sigma_att = 2.0 * quat_sigma if quat_sigma > 0 else 0.02
     rate = np.linalg.norm(rec.w, axis=1)
-    rate[np.setdiff1d(np.arange(n), meas)] *= 2.0
+    rate[clipped] *= 2.0
     return ml.Problem(
         t_grid=t, tau_grid=np.asarray(tau, float), h_grid=np.asarray(h, float),
         n_sub=ml.substeps(t, rate), meas_idx=meas,
@@ -511,7 +512,8 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     (mean square of the whitened residual) or converges less; the notes say either way. A 20-ms
     catch appended to a simulated throw took it 97 % off (1031x the noise); on a real rotor
     throw 84 % off while the rest of the rows fitted only 1.3x worse. A record that cannot be
-    fitted whole is refused, unless the rates locate an impulse and the fit without it converges.
+    fitted whole is refused (EstimatorDivergedError); where the rates locate an impulse, the
+    message names its rows.
     """
     started = time.perf_counter()
     n = rec.t.size
@@ -519,22 +521,14 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
         whole = _identify_record(rec, method, fit_bias, fit_drag)
     except EstimatorDivergedError as err:
         start, stop = _rate_impulses(rec.w, _impulse_noise(rec)) if n >= MIN_SAMPLES else (0, n)
-        if (start, stop) == (0, n) or stop - start < MIN_SAMPLES:
+        if (start, stop) == (0, n):
             raise
-        located = _impulse_rows(rec, start, stop)
-        try:
-            trimmed = _identify_record(rec.rows(start, stop), method, fit_bias, fit_drag)
-        except (RecordingError, EstimatorDivergedError):
-            trimmed = None
-        if trimmed is None or not trimmed.converged:
-            raise EstimatorDivergedError(f"{err}; without {located}, which look like an impulse, "
-                                         "it does not converge either") from None
-        return _with_note(trimmed, f"{located} look like an impulse (a release, catch or knock): left "
-                                   f"out; the whole record could not be fitted ({err})", started, first=True)
+        raise EstimatorDivergedError(f"{err}; {_impulse_rows(rec, start, stop)} look like an impulse "
+                                     "(a release, catch or knock): cut them and run again") from None
     noise = _impulse_noise(rec)
     whitened = (whole.w_meas - whole.w_fit) / noise
     start, stop = _residual_impulses(whitened)
-    followed = np.all(np.isfinite(whitened[measured_rows(rec)]))
+    followed = np.all(np.isfinite(whitened[~clipped_rows(rec)]))
     if whole.rms_over_noise > RIGID_MISFIT or not followed:
         # a poor fit's residual drifts from row to row and hides an impulse's inner edge
         rate_start, rate_stop = _rate_impulses(rec.w, noise)
@@ -574,7 +568,7 @@ def _impulse_noise(rec: Recording) -> np.ndarray:
     """
     if "gyro_sigma" in rec.meta:
         return np.full(3, float(rec.meta["gyro_sigma"]))
-    return np.maximum(estimate_white_noise(rec.w[measured_rows(rec)]), 1e-12)
+    return np.maximum(estimate_white_noise(rec.w[~clipped_rows(rec)]), 1e-12)
 
 
 def _residual_impulses(whitened: np.ndarray) -> tuple[int, int]:

@@ -13,7 +13,7 @@ import pytest
 from inertia_gym.cli import main
 from inertia_gym.discrepancy.recordings import Recording, read_recordings, write_recording
 from inertia_gym.discrepancy.synthetic import simulate_recording
-from inertia_gym.errors import RecordingError
+from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import ml
 from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.identification import identify
@@ -369,6 +369,16 @@ def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sig
     assert abs(jolted.t.size - rec.t.size) <= 1
     assert _rel(jolted.estimate.inertia, clean.estimate.inertia) < 1e-3
     assert jolted.rms_over_noise < 1.2
+
+
+def test_a_record_refused_whole_stays_refused_and_the_message_names_the_impulse():
+    """Rates 10x too large for the logged rotor and an 80-row catch: the fit cannot explain the
+    record. A refusal is never turned into a result by a trim; its message names the catch."""
+    rec, _ = _throw(3)
+    caught = _with_jolt(dataclasses.replace(rec, w=10.0 * rec.w), 80, at_start=False)
+    with pytest.raises(EstimatorDivergedError, match=r"does not explain this recording.*; rows 20\d\d-"
+                                                     r"2081 \(from t = .* look like an impulse .* cut them"):
+        identify(caught)
 
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")

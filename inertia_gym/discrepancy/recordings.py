@@ -342,6 +342,7 @@ def _gyro_over_attitude(t, w, q) -> float | None:
     return gyro / attitude if np.isfinite(gyro) else np.inf
 
 
+#: Multiplies a scalar-first quaternion into its conjugate (the inverse rotation).
 _CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 #: How the attitude columns may have been written, as (name, fix, reading of the columns as the
 #: format's (qw, qx, qy, qz) body-to-inertial quaternion).
