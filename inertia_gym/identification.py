@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from inertia_gym.discrepancy.fit import end_impulses, saturated_samples
-from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
+from inertia_gym.discrepancy.recordings import Recording, check_input_gaps, retimed, retimed_note
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
@@ -516,6 +516,7 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     (4 of the 120 catches and releases on the real throws: the whole fit's error bars overflowed).
     """
     started = time.perf_counter()
+    rec = retimed(rec)
     n = rec.t.size
     try:
         whole = _identify_record(rec, method, fit_bias, fit_drag)
@@ -695,6 +696,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                      f"{split['rows'][1]}) of a recording split at gaps of "
                      f"{', '.join(f'{g:.3g}' for g in split['gaps_s'])} s in its logged torque or "
                      "momentum; each piece is identified on its own")
+    if "retimed" in rec.meta:
+        notes.append(retimed_note(rec.meta["retimed"]))
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

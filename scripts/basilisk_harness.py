@@ -8,7 +8,7 @@ truth sits under the sidecar key `basilisk_truth`, which `diagnose` does not rea
 runs on the file read back from disk, and the case is scored against the table ACCEPTED.
 
 Usage: PYTHONPATH=. python scripts/basilisk_harness.py [--out runs/basilisk] [--duration 60]
-           [--subset smoke] [--cases NAME,...]
+           [--subset smoke] [--cases NAME,...] [--stamp-scatter 0.1]
 Writes OUT/basilisk_harness.json and OUT/basilisk_harness.md; prints the table and the totals.
 """
 
@@ -268,16 +268,22 @@ def score(case: SpacecraftCase, report: dict) -> dict:
     }
 
 
-def run_case(case: SpacecraftCase, folder: Path) -> dict:
+def run_case(case: SpacecraftCase, folder: Path, stamp_scatter: float = 0.0) -> dict:
     """Simulate, write the recording, read it back, diagnose it and score the report.
     nominal_error: ||J_vehicle - J_nominal||_F / ||J_nominal||_F, J_vehicle Basilisk's
-    rigid-equivalent inertia with slosh and panels at rest.
+    rigid-equivalent inertia with slosh and panels at rest. stamp_scatter: the logged time
+    stamps are off the sampling instants by uniform draws within +-stamp_scatter x the
+    interval (a logger stamping when software reads the gyro; seeded by the case).
     """
     t0 = time.perf_counter()
     run = simulate(case)
     t1 = time.perf_counter()
+    rec = run.recording
+    if stamp_scatter > 0:
+        scatter = np.random.default_rng([case.seed, 7]).uniform(-stamp_scatter, stamp_scatter, rec.t.size)
+        rec = dataclasses.replace(rec, t=rec.t + scatter * case.sample_dt)
     path = folder / f"{case.name}.csv"
-    write_recording(path, run.recording, run.sidecar)
+    write_recording(path, rec, run.sidecar)
     (rec,) = read_recordings(path)
     out = diagnose(rec)
     report = out[0] if isinstance(out, tuple) else out
@@ -310,7 +316,11 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0, help="s per recording")
     ap.add_argument("--subset", choices=["all", "smoke"], default="all")
     ap.add_argument("--cases", default="", help="comma-separated case names (default: the subset)")
+    ap.add_argument("--stamp-scatter", type=float, default=0.0,
+                    help="log time stamps off the sampling instants by up to this share of the interval")
     args = ap.parse_args()
+    if not 0.0 <= args.stamp_scatter < 0.5:
+        raise SystemExit(f"--stamp-scatter must be in [0, 0.5), got {args.stamp_scatter}")
     todo = cases(args.duration)
     wanted = set(filter(None, args.cases.split(","))) or (set(SMOKE) if args.subset == "smoke" else None)
     if wanted:
@@ -322,7 +332,7 @@ def main() -> None:
     t0 = time.perf_counter()
     rows = []
     for case in todo:
-        row = run_case(case, out / "recordings")
+        row = run_case(case, out / "recordings", args.stamp_scatter)
         rows.append(row)
         print(f"{row['case']:34s} {','.join(row['components']) or 'control':28s} -> "
               f"{','.join(row['named']) or 'none':40s} {'ok' if row['correct'] else 'WRONG'} "
@@ -331,7 +341,8 @@ def main() -> None:
     concealed = [r for r in rows if r["components"]]
     totals = {"cases": len(concealed), "cases_correct": sum(r["correct"] for r in concealed),
               "controls": len(controls), "controls_clean": sum(r["correct"] for r in controls),
-              "wall_s": time.perf_counter() - t0, "duration_s": args.duration}
+              "wall_s": time.perf_counter() - t0, "duration_s": args.duration,
+              "stamp_scatter": args.stamp_scatter}
     (out / "basilisk_harness.json").write_text(json.dumps({"totals": totals, "rows": rows}, indent=1) + "\n")
     table = markdown(rows, totals)
     (out / "basilisk_harness.md").write_text(table)

@@ -28,7 +28,7 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
-from inertia_gym.discrepancy.recordings import Recording, check_input_gaps
+from inertia_gym.discrepancy.recordings import Recording, check_input_gaps, retimed, retimed_note
 from inertia_gym.errors import RecordingError
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
@@ -159,6 +159,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     and the arrays its plots need.
     """
     check_input_gaps(rec)
+    rec = retimed(rec)
     d, nominal, fits, skipped, chosen = _fits(rec)
     ranked = []
     for f in fits:
@@ -204,6 +205,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "independent_row_share": d.effective_share},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
+        "retimed": rec.meta.get("retimed"),
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
         "scale_identified": d.excited,
@@ -406,6 +408,8 @@ def markdown(report: dict, plots: list[str]) -> str:
              f"**{report['best_effect'] or 'none significant'}**",
              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
              f"after: {_fmt(report['fit_after']['rms_over_noise'])}", ""]
+    if report.get("retimed"):
+        lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
     for e in report["effects"]:
         params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}

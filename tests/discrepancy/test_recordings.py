@@ -15,6 +15,8 @@ from inertia_gym.discrepancy.recordings import (
     Recording,
     read_recordings,
     read_sidecar,
+    regular_clock,
+    retimed,
     write_recording,
 )
 from inertia_gym.errors import ConfigError, RecordingError
@@ -444,3 +446,50 @@ def test_attitude_in_another_convention_is_refused_naming_it(tmp_path, reading, 
     (fine,) = read_recordings(tmp_path / "fine.csv")
     np.testing.assert_allclose(fine.t - fine.t[0], rec.t - rec.t[0], atol=1e-6)
     assert 0.9 < identify(fine).rms_over_noise < 1.1
+
+
+# --- time stamps scattered about a regular clock -------------------------------------------------
+
+def _smooth_rates(t):
+    """(n, 3) rad/s: a smooth rate history whose change over 1 ms is well above 1e-3 rad/s."""
+    return np.stack([np.sin(3 * t), 2 * np.cos(2 * t), 0.5 * np.sin(5 * t + 1)], 1)
+
+
+def test_regular_clock_recovers_the_instants_under_scattered_stamps():
+    """Stamps off a 100-Hz clock by up to +-20 % of the interval with a dropped sample, or +-40 %
+    without, map back onto the clock within 0.2 ms; exact stamps, and intervals drawn
+    independently (no clock), give None."""
+    rng = np.random.default_rng(4)
+    every = 3.0 + 0.01 * np.arange(500)
+    for true_t, scatter in ((np.delete(every, 200), 0.1), (np.delete(every, 200), 0.2), (every, 0.4)):
+        stamps = true_t + rng.uniform(-scatter, scatter, true_t.size) * 0.01
+        np.testing.assert_allclose(regular_clock(stamps), true_t, atol=2e-4)
+    assert regular_clock(true_t) is None
+    assert regular_clock(np.cumsum(rng.uniform(0.008, 0.012, 500))) is None
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_retimed_takes_the_clock_for_software_stamps_and_keeps_stamps_that_are_right(seed):
+    """A gyro sampled on a regular clock but stamped +-10 % of the interval off it (software
+    stamps) is placed on the clock, said in meta; a gyro sampled at the irregular instants its
+    stamps record keeps them."""
+    rng = np.random.default_rng(seed)
+    clock = 0.01 * np.arange(600)
+    scatter = rng.uniform(-0.1, 0.1, clock.size) * 0.01
+    noise = rng.normal(0.0, 1e-3, (clock.size, 3))
+    stamped = Recording(clock + scatter, _smooth_rates(clock) + noise, name="software stamps")
+    placed = retimed(stamped)
+    assert placed.meta["retimed"]["misfit_z"] < -3 and placed.meta["retimed"]["misfit_ratio"] < 1
+    assert np.abs(placed.t - clock).max() < 2e-4 and placed.meta["retimed"]["max_shift_s"] < 1.2e-3
+    assert retimed(placed) is placed
+    sampled = Recording(clock + scatter, _smooth_rates(clock + scatter) + noise, name="true stamps")
+    assert retimed(sampled) is sampled
+
+
+@pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
+def test_real_recordings_keep_their_time_stamps():
+    """The real throws (4 kHz) and racquet tosses (100 Hz) stamp a regular clock: nothing to place."""
+    paths = sorted((DATA / "rotor-throws").glob("*.csv")) + sorted(
+        p.parent for p in (DATA / "phyphox-racquet").rglob("Raw Data.csv"))
+    recs = [r for path in paths for r in read_recordings(path)]
+    assert all(retimed(r) is r for r in recs)
