@@ -601,10 +601,13 @@ def _rate_impulses(w: np.ndarray, sigma: np.ndarray) -> tuple[int, int]:
 
 
 def _impulse_rows(rec: Recording, start: int, stop: int) -> str:
-    """The rows outside start .. stop - 1 in words (1-based, with their times)."""
+    """The rows outside start .. stop - 1 in words, with their times: 1-based data rows of the
+    file (a piece of a recording split at gaps counts from the file's first row, not its own).
+    """
     n = rec.t.size
-    parts = ([f"rows 1-{start} (to t = {rec.t[start - 1]:.6g} s)"] if start else []) + \
-            ([f"rows {stop + 1}-{n} (from t = {rec.t[stop]:.6g} s)"] if stop < n else [])
+    first = (rec.meta.get("split_at_gaps") or {}).get("rows", [1])[0]
+    parts = ([f"rows {first}-{first + start - 1} (to t = {rec.t[start - 1]:.6g} s)"] if start else []) + \
+            ([f"rows {first + stop}-{first + n - 1} (from t = {rec.t[stop]:.6g} s)"] if stop < n else [])
     return " and ".join(parts)
 
 

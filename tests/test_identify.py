@@ -370,6 +370,14 @@ def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sig
     assert abs(jolted.t.size - rec.t.size) <= 1
     assert _rel(jolted.estimate.inertia, clean.estimate.inertia) < 1e-3
     assert jolted.rms_over_noise < 1.2
+    if at_start and gyro_sigma:  # a piece of a file split at gaps names the file's rows
+        piece = _with_jolt(rec, rows, at_start)
+        split = {"piece": 2, "pieces": 2, "rows": [101, 100 + piece.t.size], "gaps_s": [1.0],
+                 "dropped_rows": 0}
+        piece = dataclasses.replace(piece, meta={**piece.meta, "split_at_gaps": split})
+        named = re.match(r"rows (\d+)-(\d+) \(", identify(piece).notes[0])
+        assert named and np.array(named.groups(), int).tolist() == (np.array(left_out.groups(), int)
+                                                                    + 100).tolist()
 
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
