@@ -57,9 +57,10 @@ MIN_SAMPLES = 10
 #: Time stamps are re-timed on a regular clock (retimed) when they scatter about it by at least
 #: CLOCK_SCATTER_MIN of the interval (the real throws' stamps, 1-us ticks at 4 kHz, scatter
 #: 0.15 %: harmless, left as they are), none is off by over CLOCK_OFFSET_MAX of it, and the gyro
-#: does not fit smooth curves over the stamps better by CLOCK_KEEP_STAMPS_Z standard errors;
-#: interpolation_residual uses INTERPOLATION_NODES samples either side.
-CLOCK_SCATTER_MIN, CLOCK_OFFSET_MAX, CLOCK_KEEP_STAMPS_Z, INTERPOLATION_NODES = 5e-3, 0.45, 2.0, 2
+#: does not fit smooth curves over the stamps better by CLOCK_KEEP_STAMPS_Z standard errors.
+CLOCK_SCATTER_MIN, CLOCK_OFFSET_MAX, CLOCK_KEEP_STAMPS_Z = 5e-3, 0.45, 2.0
+#: Row offsets of the four samples whose cubic interpolation_residual compares a sample with.
+CUBIC_NODES = np.array([-2, -1, 1, 2])
 #: A row interval longer than this many times the median one is a gap (a dropout).
 GAP_FACTOR = 5.0
 #: Largest magnitude accepted in any column: squares and products of such values stay finite.
@@ -202,7 +203,7 @@ def regular_clock(t) -> np.ndarray | None:
     them, three times; the closer clock wins.
     """
     t = np.asarray(t, float)
-    if t.size < 2 * INTERPOLATION_NODES + 1:
+    if t.size <= CUBIC_NODES.size:
         return None
     interval = float(np.median(np.diff(t)))
     best, best_off = None, np.inf
@@ -220,10 +221,14 @@ def regular_clock(t) -> np.ndarray | None:
                 best, best_off = clock, off
     if best is None or best_off > CLOCK_OFFSET_MAX * interval:
         return None
-    off = t - best
-    if 1.4826 * float(np.median(np.abs(off - np.median(off)))) < CLOCK_SCATTER_MIN * interval:
+    if _robust_spread(t - best) < CLOCK_SCATTER_MIN * interval:
         return None
     return best
+
+
+def _robust_spread(x) -> float:
+    """The standard deviation of x (k,) from its median absolute deviation (outliers ignored)."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x))))
 
 
 def interpolation_residual(t, w) -> np.ndarray:
@@ -232,8 +237,9 @@ def interpolation_residual(t, w) -> np.ndarray:
     when the samples were taken; the gyro's noise weighs the same either way.
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
-    mid = np.arange(INTERPOLATION_NODES, t.size - INTERPOLATION_NODES)
-    nodes = mid[:, None] + np.array([-2, -1, 1, 2])
+    reach = int(CUBIC_NODES.max())
+    mid = np.arange(reach, t.size - reach)
+    nodes = mid[:, None] + CUBIC_NODES
     tn, at = t[nodes], t[mid]
     weights = np.ones_like(tn)
     for j in range(4):
@@ -272,7 +278,7 @@ def retimed(rec: Recording) -> Recording:
         return rec
     off = rec.t - clock
     return dataclasses.replace(rec, t=clock, meta={**rec.meta, "retimed": {
-        "scatter_s": float(1.4826 * np.median(np.abs(off - np.median(off)))),
+        "scatter_s": _robust_spread(off),
         "max_shift_s": float(np.abs(off).max()),
         "misfit_ratio": float(np.mean(on_clock) / max(float(np.mean(on_stamps)), 1e-300)),
         "misfit_z": z}})
