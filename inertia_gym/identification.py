@@ -73,6 +73,10 @@ MIN_ROTATION = 0.1
 MAX_SHAPE_SIGMA = 1e3
 #: Post-fit residuals over this many times the noise: the rigid model leaves something out.
 RIGID_MISFIT = 3.0
+#: A fit that does not converge and leaves residuals over this many times the noise is refused:
+#: the rigid model does not explain the record (every real throw and toss here converges, the
+#: racquet's at up to 283x the noise; rates 10x too large stop unconverged at 84x).
+UNEXPLAINED_MISFIT = 30.0
 #: A located impulse is left out unless the rest of the record then fits worse by more than this
 #: factor (mean square of the whitened residual over the same rows) or converges less.
 TRIM_TOLERANCE = 1.1
@@ -692,6 +696,11 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                      f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
                      + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
     if not converged:
+        if rms_over_noise > UNEXPLAINED_MISFIT:
+            raise EstimatorDivergedError(
+                f"the fit does not converge and leaves residuals {rms_over_noise:.3g} times the "
+                "noise: the rigid-body model does not explain this recording (check its units "
+                "and columns, or run diagnose on it)")
         notes.append("the fit stopped at its iteration limit before converging")
     split = rec.meta.get("split_at_gaps")
     if split:

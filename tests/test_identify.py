@@ -132,9 +132,16 @@ def test_without_momentum_or_torque_the_scale_is_reported_unidentified():
 
 
 def test_a_withheld_rotor_momentum_shows_as_a_misfit_not_a_confident_answer():
+    """Either a refusal that sends the user to diagnose (the fit does not converge at ~84x the
+    noise: UNEXPLAINED_MISFIT) or, where the fit converges, a result that says it misfits and
+    does not claim the scale; never a confident answer."""
     rec, _ = _throw(0)
-    res = identify(dataclasses.replace(rec, h=None))
-    assert not res.estimate.scale_identified
+    try:
+        res = identify(dataclasses.replace(rec, h=None))
+    except EstimatorDivergedError as err:
+        assert "does not explain this recording" in str(err) and "diagnose" in str(err)
+        return
+    assert res.converged and not res.estimate.scale_identified
     assert res.rms_over_noise > 3.0
     assert any("leaves something out" in n for n in res.notes)
 
@@ -427,12 +434,13 @@ def test_a_clipped_real_throw_says_why_the_filter_error_estimate_is_not_used():
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_a_real_throw_refused_whole_for_its_catch_is_identified_without_it():
-    """Empty_LOG00184 with an 80-row catch: the whole fit leaves 1e4x the noise and its error
-    bars overflow (refused); the rates locate the catch and the fit without it converges: the
+    """Empty_LOG00184 with an 80-row catch: the whole fit leaves 1e4x the noise and does not
+    converge, or its error bars overflow (refused either way: which one comes first depends on
+    the machine's last-bit rounding); the rates locate the catch and the fit without it converges: the
     estimate is the clean throw's, and the note says the whole could not be fitted."""
     rec = read_recordings(ROTOR / "Empty_LOG00184.csv")[0]
     caught = _with_jolt(rec, 80, at_start=False, seed=80)
-    with pytest.raises(EstimatorDivergedError, match="error bars overflow"):
+    with pytest.raises(EstimatorDivergedError, match="does not explain this recording"):
         identification._identify_record(caught, "ml", None, False)
     clean, rescued = identify(rec), identify(caught)
     assert rescued.converged

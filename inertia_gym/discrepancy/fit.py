@@ -66,6 +66,8 @@ BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 #: Solver iterations: a screen, a start's trial run, a full fit; a fit stops when an iteration
 #: gains less than CONVERGED in BIC units (cost gain / mean square per residual).
 SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
+#: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
+LM_START = 1e-3
 #: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
 #: how far apart (deg) the few kept as starts are.
 MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
@@ -625,8 +627,9 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
     """Levenberg-Marquardt over the free entries of x (bounds and each effect's physical limits
     by projection: Layout.feasible). Returns (x, cost).
 
-    Stops when an accepted step gains less than CONVERGED in BIC units (the cost's gain over
-    the mean square per residual: N log(mse) moves by that much), or after max_iter iterations.
+    Stops when a step gains less than CONVERGED in BIC units (the cost's gain over the mean
+    square per residual: N log(mse) moves by that much) at no more damping than LM_START (a
+    stall at larger damping is tried once more from LM_START), or after max_iter iterations.
     """
     x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub), d)
     gi = np.flatnonzero(free[:layout.n_global])
@@ -634,7 +637,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
     r = objective(x[None], layout, d)[0]
     seg_of = np.full(r.size, -1)
     seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
-    cost, lam = np.inf, 1e-3
+    cost, lam, restarted = np.inf, LM_START, False
     for _ in range(max_iter):
         r, g, js = jacobian(x, free, layout, d, r0=r)
         if not np.isfinite(cost):
@@ -645,6 +648,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
         blocks = NormalBlocks.of(g, js, r, seg_of, layout.segments, seg_free)
         face_blocks = None
         improved = False
+        lam_tried = lam
         for _ in range(12):
             trials = [_moved(x, blocks.step(lam), gi, layout, d, lb, ub)]
             if on_face is not None and not np.array_equal(*trials[0]):
@@ -661,14 +665,21 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             rs = objective(np.array(trials), layout, d)
             best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
             xn, rn = trials[best], rs[best]
-            cn = float(rn @ rn)
+            cn, lam_tried = float(rn @ rn), lam
             if cn < cost:
                 improved = cost - cn > CONVERGED * cost / r.size
                 x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
                 break
             lam *= 6
-        if not improved:
+        if improved:
+            restarted = False
+            continue
+        # no damping tried lowered the cost, or only by a little: converged, unless the damping
+        # had grown past the start's; then once more from it (damping grown along a curved
+        # valley stopped a drag fit at 4.7x the noise that still moves to 1x)
+        if restarted or lam_tried <= LM_START:
             break
+        lam, restarted = LM_START, True
     return x, cost
 
 
