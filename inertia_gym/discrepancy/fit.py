@@ -648,7 +648,6 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
         blocks = NormalBlocks.of(g, js, r, seg_of, layout.segments, seg_free)
         face_blocks = None
         improved = False
-        lam_tried = lam
         for _ in range(12):
             trials = [_moved(x, blocks.step(lam), gi, layout, d, lb, ub)]
             if on_face is not None and not np.array_equal(*trials[0]):
@@ -665,7 +664,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
             rs = objective(np.array(trials), layout, d)
             best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
             xn, rn = trials[best], rs[best]
-            cn, lam_tried = float(rn @ rn), lam
+            cn = float(rn @ rn)
             if cn < cost:
                 improved = cost - cn > CONVERGED * cost / r.size
                 x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
@@ -674,10 +673,11 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int):
         if improved:
             restarted = False
             continue
-        # no damping tried lowered the cost, or only by a little: converged, unless the damping
-        # had grown past the start's; then once more from it (damping grown along a curved
-        # valley stopped a drag fit at 4.7x the noise that still moves to 1x)
-        if restarted or lam_tried <= LM_START:
+        # no damping tried lowered the cost, or only by a little: converged, unless the last
+        # step tried was damped more than LM_START (lam is now 6x it, or a quarter of an accepted
+        # one's); then once more from LM_START (damping grown along a curved valley stopped a
+        # drag fit at 4.7x the noise that still moves to 1x)
+        if restarted or lam <= LM_START / 4:
             break
         lam, restarted = LM_START, True
     return x, cost
