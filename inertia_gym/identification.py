@@ -230,6 +230,7 @@ def model_error_covariance(prob: ml.Problem, p, ev: ml.Evaluation) -> tuple[floa
     excess over the white noise at prob.sigma: E |r|^2 = (R - n) + q tr((I - P) K) with K the
     disturbance's output covariance per unit q and P the fit's hat matrix (method of moments;
     q = 0 when the residuals show no excess). ev: the evaluation (with Jacobian) at p (n,).
+    Both are infinite where dL(s)/dL0 cannot be inverted: the model's error bars then say nothing.
     """
     m = ev.e_w.shape[0]
     n = prob.n_params
@@ -243,7 +244,10 @@ def model_error_covariance(prob: ml.Problem, p, ev: ml.Evaluation) -> tuple[floa
     out_state = np.zeros((m, 3 * blocks, n_state))
     out_state[:, :3, :3] = jb[0][:, :, 6:9] @ jinv
     g = -jb[0][:, :, 6:9] * prob.sigma_w[None, :, None]  # dw/dw0 (m, 3, 3)
-    phi_ll_inv = np.linalg.inv(jm @ g @ jinv)  # (dL(s)/dL0)^-1
+    try:
+        phi_ll_inv = np.linalg.inv(jm @ g @ jinv)  # (dL(s)/dL0)^-1
+    except np.linalg.LinAlgError:  # sensitivities grown past inversion (a real toss re-cut to
+        return np.inf, np.full((n, n), np.inf)  # hold its catch: entries 1e8): no error bars
     back = np.zeros((m, n_state, 3))  # Phi(s, 0)^-1[:, :3]
     back[:, :3] = phi_ll_inv
     if prob.with_att:

@@ -10,7 +10,7 @@ from inertia_gym.dynamics import euler_to_quat, propagate, quat_to_rotation
 from inertia_gym.estimation import ml
 from inertia_gym.estimation.equation_error import equation_error_theta, valid_theta
 from inertia_gym.estimation.inertia_param import phi_from_inertia
-from inertia_gym.identification import inertia_estimate, refine
+from inertia_gym.identification import inertia_estimate, model_error_covariance, refine
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
 
 J_TRUE = np.array([[100.0, 2.0, -3.0], [2.0, 130.0, 4.0], [-3.0, 4.0, 200.0]])
@@ -230,3 +230,21 @@ def test_window_restricts_the_problem_to_its_first_measurements():
     sub = prob.window(10)
     assert sub.meas_idx.size == 10 and sub.t_grid.size == prob.meas_idx[9] + 1
     assert dataclasses.replace(sub, fit_bias=False).n_params == 12
+
+
+def test_model_error_error_bars_are_infinite_where_the_transition_cannot_be_inverted():
+    """dL(s)/dL0 is read off the sensitivities to the initial rates; where they are grown past
+    inversion (a real toss cut to hold its catch had entries of 1e8 and rank 1) the model error's
+    intensity and covariance are infinite (refine then refuses the error bars) instead of numpy's
+    LinAlgError escaping identify."""
+    prob = _noisy_problem(0, torque=False, momentum=False, n=400)
+    p = np.r_[phi_from_inertia(J_TRUE), W0, 0, 0, 0]
+    ev = ml.evaluate(prob, p, Q0, True)
+    q, cov = model_error_covariance(prob, p, ev)
+    assert np.isfinite(q) and np.all(np.isfinite(cov))
+    folded = ev.jac.copy()
+    m = ev.e_w.shape[0]
+    last = 3 * (m - 1)  # rows: block (gyro, attitude), measurement, axis
+    folded[[last, last + 2], 6:9] = 0.0  # d w_x / d w0 = d w_z / d w0 = 0 at the last: rank 1
+    q, cov = model_error_covariance(prob, p, dataclasses.replace(ev, jac=folded))
+    assert q == np.inf and np.all(cov == np.inf)
