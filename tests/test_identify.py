@@ -463,7 +463,8 @@ def test_scattered_time_stamps_are_placed_on_their_clock():
         assert error / np.linalg.norm(theta_from_inertia(sc.inertia_true_array)) < 1e-4
 
 
-@pytest.mark.skipif(not (DATA / "phyphox-racquet").is_dir(), reason="development data (../shared/data) absent")
+@pytest.mark.skipif(not (DATA / "phyphox-racquet").is_dir(),
+                    reason="development data (../shared/data) absent")
 def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it():
     """Racquet round 1, segment 4, its free-flight window widened by 0.05 s at both ends: the
     last rows hold the catch (34.7 rad/s), the whole fit's sensitivities grow to 1e8 and numpy's

@@ -804,8 +804,9 @@ def fit_nominal(d: Data) -> Fit:
     if d.inertia0 is not None:
         x = starts[0]
     elif d.segments < SHORT_SEGMENTS:
-        chosen, *direct = [finish(layout, solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, FULL_ITER)[0], d)
-                           for x0 in [_best_start_on_short_segments(starts, layout, d, lb, ub), *starts]]
+        runs = [solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, FULL_ITER)[0]
+                for x0 in [_best_start_on_short_segments(starts, layout, d, lb, ub), *starts]]
+        chosen, *direct = [finish(layout, x, d) for x in runs]
         best = min(direct, key=lambda f: f.bic)
         return best if best.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
     else:

@@ -304,8 +304,8 @@ def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_
     assert not flagged[:, [0, 2]].any()
 
 
-RACQUET_ROUND1 = next((p / "shared" / "data" / "phyphox-racquet" / "round1" for p in Path(__file__).resolve().parents
-                       if (p / "shared" / "data" / "phyphox-racquet" / "round1").is_dir()), None)
+RACQUET_ROUND1 = next((p / "shared/data/phyphox-racquet/round1" for p in Path(__file__).resolve().parents
+                       if (p / "shared/data/phyphox-racquet/round1").is_dir()), None)
 
 
 @pytest.mark.skipif(RACQUET_ROUND1 is None, reason="development data (../shared/data) absent")
@@ -315,7 +315,8 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches():
     (1, 0.06, 0.03), where the equation-error start reaches 175x and (1, 0.81, 0.20). The
     nominal fit is now within the significance margin of the best of its starts run to
     convergence on the record."""
-    folder = next(p.parent for p in sorted(RACQUET_ROUND1.rglob("Raw Data.csv")) if "17-10-11" in p.parent.name)
+    folder = next(p.parent for p in sorted(RACQUET_ROUND1.rglob("Raw Data.csv"))
+                  if "17-10-11" in p.parent.name)
     start, end = next(r.meta["window"] for r in read_recordings(folder) if r.meta["segment"] == 1)
     table = np.loadtxt(folder / "Raw Data.csv", delimiter=",", skiprows=1)
     keep = (table[:, 0] >= start + 0.05) & (table[:, 0] <= end - 0.05)
@@ -325,8 +326,9 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches():
     layout = F.Layout.of((), (), d)
     lb, ub = F._bounds(layout, d)
     free = F._free(layout, d)
-    direct = [F.finish(layout, F.solve(np.r_[phi, F.initial_rates(d)], free, layout, d, lb, ub, F.FULL_ITER)[0], d)
-              for phi in F._inertia_starts(d)]
+    runs = [F.solve(np.r_[phi, F.initial_rates(d)], free, layout, d, lb, ub, F.FULL_ITER)[0]
+            for phi in F._inertia_starts(d)]
+    direct = [F.finish(layout, x, d) for x in runs]
     assert nominal.bic <= min(f.bic for f in direct) + F.SIGNIFICANT_DELTA_BIC
     worst_axis = np.sqrt(np.mean(nominal.r ** 2, 0)).max() / d.sigma.max()
     assert worst_axis < 300.0  # 1604 before the fix
