@@ -17,12 +17,14 @@ from inertia_gym.discrepancy.fit import (
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
+    covariance,
     effective_share,
     finish,
     fit_all,
     fit_nominal,
     impulses,
     intervals,
+    model_inertia,
     prepare,
     ranked,
     select,
@@ -33,6 +35,10 @@ from inertia_gym.errors import RecordingError
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
+#: A principal-moment ratio whose 95 % interval is wider than this says little of the body's shape.
+RATIO_SPREAD = 0.1
+#: Seeded draws of a fit's parameters behind the ratios' intervals.
+RATIO_DRAWS = 400
 
 
 def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
@@ -96,14 +102,37 @@ def invariants(d: Data, fit: Fit) -> dict:
     return out
 
 
-def _fit_summary(fit: Fit, sigma) -> dict:
+def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
+    """The fit's principal moments over the largest (3,), descending, and their 95 % intervals
+    ((3, 2) [lo, hi], None where the fit's covariance is not finite): the inertia's shape, which
+    gyro-only data fix without its scale. The intervals come from RATIO_DRAWS seeded draws of the
+    parameters from covariance() (the fit's own, widened by its misfit), each turned into the
+    model's inertia, so an effect that trades with the inertia widens them.
+    """
+    def ratios(inertia):
+        moments = np.sort(np.linalg.eigvalsh(inertia))[::-1]
+        return moments / moments[0]
+
+    cov, idx = covariance(fit, d)
+    if not np.all(np.isfinite(cov)):
+        return ratios(fit.inertia).tolist(), None
+    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    draws = np.random.default_rng(0).standard_normal((RATIO_DRAWS, values.size))
+    xs = np.repeat(fit.x[None], RATIO_DRAWS, axis=0)
+    xs[:, idx] += (draws * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
+    drawn = np.array([ratios(model_inertia(fit.layout, x, d)) for x in xs])
+    return ratios(fit.inertia).tolist(), np.percentile(drawn, [2.5, 97.5], axis=0).T.tolist()
+
+
+def _fit_summary(fit: Fit, d: Data) -> dict:
     rms = np.sqrt(np.mean(fit.r ** 2, 0))
     if not np.all(np.isfinite(rms)):  # no positive-definite inertia fits: JSON has no Infinity
         return {"rms": None, "rms_over_noise": None, "nis_mean": None, "inertia": fit.inertia.tolist(),
-                "valid": False}
-    return {"rms": rms.tolist(), "rms_over_noise": (rms / sigma).tolist(),
-            "nis_mean": float(np.mean((fit.r / sigma) ** 2)), "inertia": fit.inertia.tolist(),
-            "valid": True}
+                "principal_ratios": None, "principal_ratios_ci95": None, "valid": False}
+    ratios, ci = principal_ratios(fit, d)
+    return {"rms": rms.tolist(), "rms_over_noise": (rms / d.sigma).tolist(),
+            "nis_mean": float(np.mean((fit.r / d.sigma) ** 2)), "inertia": fit.inertia.tolist(),
+            "principal_ratios": ratios, "principal_ratios_ci95": ci, "valid": True}
 
 
 def _trimmed(rec: Recording, d: Data) -> list[dict]:
@@ -184,7 +213,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     t_row = d.t_row
     locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
-    after = _fit_summary(best, d.sigma)
+    before, after = _fit_summary(nominal, d), _fit_summary(best, d)
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
     inv = invariants(d, nominal)
@@ -194,8 +223,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
         "explanation": _explanation(chosen, d), "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
-        "fit_before": _fit_summary(nominal, d.sigma),
-        "fit_inertia_fitted": _fit_summary(offset or nominal, d.sigma), "fit_after": after,
+        "fit_before": before,
+        "fit_inertia_fitted": before if offset is None else _fit_summary(offset, d), "fit_after": after,
         "inertia_vs_nominal": None if offset is None else {
             "delta_bic": float(nominal.bic - offset.bic) if np.isfinite(offset.bic) else None,
             **inertia_comparison(d.inertia0, offset.inertia, d.excited)},
@@ -398,6 +427,41 @@ def _explanation_words(report: dict) -> str:
     return text
 
 
+def _ratios_words(fit: dict) -> str:
+    ci = fit["principal_ratios_ci95"] or [[None, None]] * 3
+    return ", ".join(f"{r:.3g}" + ("" if lo is None or hi - lo < 5e-4 else f" [{lo:.3g}, {hi:.3g}]")
+                     for r, (lo, hi) in zip(fit["principal_ratios"], ci))
+
+
+def _shape_words(report: dict) -> list[str]:
+    """The inertia's shape before and after the explanation, with a warning where a ratio's 95 %
+    interval is wider than RATIO_SPREAD: after the explanation and over twice the rigid fit's
+    (the explanation's effects trade with the inertia), or already for the rigid fit (the record
+    fixes the shape poorly).
+    """
+    before, after = report["fit_before"], report["fit_after"]
+    if not (before.get("valid") and after.get("valid")):  # a fit not followed, or no ratios written
+        return []
+    words = [f"- principal-moment ratios (95 % intervals): rigid fit {_ratios_words(before)}; "
+             f"with the explanation {_ratios_words(after)}"]
+    if before["principal_ratios_ci95"] is None or after["principal_ratios_ci95"] is None:
+        return words
+    rigid = np.ptp(np.array(before["principal_ratios_ci95"]), axis=1)
+    width = np.ptp(np.array(after["principal_ratios_ci95"]), axis=1)
+    if report["explanation"] and np.any((width > RATIO_SPREAD) & (width > 2.0 * rigid)):
+        momentum = any(e["name"] == "internal_momentum" for e in report["explanation"])
+        words.append("- **the explanation leaves the inertia's shape poorly determined** (a ratio's "
+                     f"95 % interval is wider than {RATIO_SPREAD:g} and than twice the rigid fit's): "
+                     "its effects trade with the inertia"
+                     + (" (about a near-steady spin, a momentum along the spin axis changes the "
+                        "nutation as the moments do)" if momentum else "")
+                     + "; do not read the body's shape from this fit")
+    elif np.any(rigid > RATIO_SPREAD):
+        words.append(f"- the record fixes the inertia's shape poorly: a ratio's 95 % interval is wider "
+                     f"than {RATIO_SPREAD:g} already for the rigid fit")
+    return words
+
+
 def markdown(report: dict, plots: list[str]) -> str:
     """A readable summary of one report."""
     lines = [f"# Diagnosis of {report['recording']}", "",
@@ -407,7 +471,7 @@ def markdown(report: dict, plots: list[str]) -> str:
              f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
              f"**{report['best_effect'] or 'none significant'}**",
              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
-             f"after: {_fmt(report['fit_after']['rms_over_noise'])}", ""]
+             f"after: {_fmt(report['fit_after']['rms_over_noise'])}", *_shape_words(report), ""]
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
