@@ -33,6 +33,7 @@ CUTS = ((-0.05, 0.05), (0.05, -0.05), (0.1, 0.0), (0.0, -0.1), (0.0, 0.0))
 
 
 def _ratios(inertia) -> list[float]:
+    """Principal moments 2 and 3 over the largest, rounded (identify's inertia (3, 3))."""
     moments = np.sort(np.linalg.eigvalsh(np.asarray(inertia, float)))[::-1]
     return np.round(moments[1:] / moments[0], 3).tolist()
 
@@ -44,11 +45,11 @@ def recut(t, w, window, name: str) -> dict:
     row = {"cut": name}
     try:
         report, _ = diagnose(rec)
+        after = report["fit_after"]
         row |= {"lead": report["explanation"][0]["name"] if report["explanation"] else None,
                 "before": round(max(report["fit_before"]["rms_over_noise"]), 1),
-                "after": (round(max(report["fit_after"]["rms_over_noise"]), 1)
-                          if report["fit_after"]["valid"] else None),
-                "ratios": _ratios(report["fit_after"]["inertia"])}
+                "after": round(max(after["rms_over_noise"]), 1) if after["valid"] else None,
+                "ratios": np.round(after["principal_ratios"][1:], 3).tolist() if after["valid"] else None}
     except RecordingError as err:
         row["diagnose_refused"] = str(err)
     try:

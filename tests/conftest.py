@@ -1,7 +1,14 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.scenario import Scenario
+
+#: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
+RACQUET = next((p / "shared/data/phyphox-racquet" for p in Path(__file__).resolve().parents
+                if (p / "shared/data/phyphox-racquet").is_dir()), None)
 
 
 @pytest.fixture(scope="session")
@@ -13,3 +20,25 @@ def paper() -> Scenario:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def racquet_toss():
+    """toss(round_name, segment, shift=(0, 0)) -> the Recording of a real racquet toss's kept
+    free-flight window with its start and end moved by shift (s), cut from the raw file (so it
+    may widen past the window); the test skips where ../shared/data is absent."""
+    if RACQUET is None:
+        pytest.skip("development data (../shared/data) absent")
+
+    def toss(round_name: str, segment: int, shift=(0.0, 0.0)) -> Recording:
+        for raw in sorted((RACQUET / round_name).glob("*/Raw Data.csv")):
+            for rec in read_recordings(raw.parent):
+                if rec.meta["segment"] == segment:
+                    start, end = rec.meta["window"]
+                    table = np.loadtxt(raw, delimiter=",", skiprows=1)
+                    keep = (table[:, 0] >= start + shift[0]) & (table[:, 0] <= end + shift[1])
+                    return Recording(table[keep, 0], table[keep, 1:4],
+                                     name=f"{round_name} segment {segment} {shift}")
+        raise LookupError(f"no segment {segment} in {RACQUET / round_name}")
+
+    return toss

@@ -463,23 +463,15 @@ def test_scattered_time_stamps_are_placed_on_their_clock():
         assert error / np.linalg.norm(theta_from_inertia(sc.inertia_true_array)) < 1e-4
 
 
-@pytest.mark.skipif(not (DATA / "phyphox-racquet").is_dir(),
-                    reason="development data (../shared/data) absent")
-def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it():
+def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it(racquet_toss):
     """Racquet round 1, segment 4, its free-flight window widened by 0.05 s at both ends: the
     last rows hold the catch (34.7 rad/s), the whole fit's sensitivities grow to 1e8 and numpy's
     'Singular matrix' escaped identify. The error bars are now refused, the rates locate the
     catch, and the toss without it fits with the principal ratios of the toss as cut by its
     window."""
-    folder = next(p.parent for p in sorted((DATA / "phyphox-racquet" / "round1").rglob("Raw Data.csv"))
-                  if "17-10-11" in p.parent.name)
-    cut = next(r for r in read_recordings(folder) if r.meta["segment"] == 4)
-    start, end = cut.meta["window"]
-    table = np.loadtxt(folder / "Raw Data.csv", delimiter=",", skiprows=1)
-    keep = (table[:, 0] >= start - 0.05) & (table[:, 0] <= end + 0.05)
-    res = identify(Recording(table[keep, 0], table[keep, 1:4], name="toss with its catch"))
+    res = identify(racquet_toss("round1", 4, (-0.05, 0.05)))
     assert res.converged
     assert "left out; the whole record could not be fitted" in res.notes[0], res.notes
     ratios = np.sort(np.linalg.eigvalsh(res.estimate.inertia))[::-1]
-    window = np.sort(np.linalg.eigvalsh(identify(cut).estimate.inertia))[::-1]
+    window = np.sort(np.linalg.eigvalsh(identify(racquet_toss("round1", 4)).estimate.inertia))[::-1]
     np.testing.assert_allclose(ratios / ratios[0], window / window[0], atol=0.01)

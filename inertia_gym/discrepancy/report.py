@@ -213,7 +213,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     t_row = d.t_row
     locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
-    before, after = _fit_summary(nominal, d), _fit_summary(best, d)
+    before = _fit_summary(nominal, d)
+    after = before if best is nominal else _fit_summary(best, d)
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
     inv = invariants(d, nominal)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,9 +39,6 @@ from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.scenario import Scenario
 
 REPORT_KEYS = {"mismatch_detected", "locations", "effects", "fit_before", "fit_after"}
-#: ../shared/data beside the repository (or beside the folder holding its worktrees), or None
-DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
-             if (p / "shared" / "data").is_dir()), None)
 
 
 def _concealed(rec):
@@ -310,9 +306,11 @@ def test_shape_words_warn_where_the_explanation_or_the_record_leaves_the_shape_o
     """The rule as stated: a ratio interval after the explanation wider than RATIO_SPREAD and
     than twice the rigid fit's is the explanation trading with the inertia; one already wider for
     the rigid fit is the record; neither: no warning."""
+    def fit(ci):
+        return {"valid": True, "principal_ratios": [1.0, 0.8, 0.2],
+                "principal_ratios_ci95": [[1.0, 1.0], [0.8 - ci / 2, 0.8 + ci / 2], [0.19, 0.21]]}
+
     def report(rigid, after, names=("viscous_damping",)):
-        fit = lambda ci: {"valid": True, "principal_ratios": [1.0, 0.8, 0.2],  # noqa: E731
-                          "principal_ratios_ci95": [[1.0, 1.0], [0.8 - ci / 2, 0.8 + ci / 2], [0.19, 0.21]]}
         return {"fit_before": fit(rigid), "fit_after": fit(after),
                 "explanation": [{"name": n} for n in names]}
 
@@ -326,14 +324,11 @@ def test_shape_words_warn_where_the_explanation_or_the_record_leaves_the_shape_o
     assert "already for the rigid fit" in _shape_words(report(wide, 0.05))[-1]
 
 
-@pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
-def test_a_real_toss_whose_explanation_trades_with_the_inertia_is_flagged():
+def test_a_real_toss_whose_explanation_trades_with_the_inertia_is_flagged(racquet_toss):
     """Racquet round 1 segment 2, a spin about the handle: the explanation's momentum along the
     spin takes the second ratio to 0.53 with a 95 % interval 0.18-0.83, where the rigid fit and
     identify give 0.81-0.83; the summary says not to read the shape from that fit."""
-    folder = next(p.parent for p in sorted((DATA / "phyphox-racquet" / "round1").rglob("Raw Data.csv"))
-                  if "17-10-11" in p.parent.name)
-    rec = next(r for r in read_recordings(folder) if r.meta["segment"] == 2)
+    rec = racquet_toss("round1", 2)
     report, _ = diagnose(rec)
     ci = np.array(report["fit_after"]["principal_ratios_ci95"])
     assert np.ptp(ci, axis=1).max() > RATIO_SPREAD

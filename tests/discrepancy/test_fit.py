@@ -7,7 +7,6 @@ could not do (a fast toss at 100 Hz, a rotor with its momentum withheld).
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ import pytest
 from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy.effects import REGISTRY, Effect, rotvec_matrix
 from inertia_gym.discrepancy.model import Grid, held_cumulative
-from inertia_gym.discrepancy.recordings import Recording, read_recordings, retimed
+from inertia_gym.discrepancy.recordings import Recording, retimed
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
@@ -304,23 +303,13 @@ def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_
     assert not flagged[:, [0, 2]].any()
 
 
-RACQUET_ROUND1 = next((p / "shared/data/phyphox-racquet/round1" for p in Path(__file__).resolve().parents
-                       if (p / "shared/data/phyphox-racquet/round1").is_dir()), None)
-
-
-@pytest.mark.skipif(RACQUET_ROUND1 is None, reason="development data (../shared/data) absent")
-def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches():
+def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(racquet_toss):
     """A real toss (round 1, segment 1) cut 0.05 s shorter at both ends is one segment: the start
     chosen on short pieces led the whole toss to 1604x the noise with principal ratios
     (1, 0.06, 0.03), where the equation-error start reaches 175x and (1, 0.81, 0.20). The
     nominal fit is now within the significance margin of the best of its starts run to
     convergence on the record."""
-    folder = next(p.parent for p in sorted(RACQUET_ROUND1.rglob("Raw Data.csv"))
-                  if "17-10-11" in p.parent.name)
-    start, end = next(r.meta["window"] for r in read_recordings(folder) if r.meta["segment"] == 1)
-    table = np.loadtxt(folder / "Raw Data.csv", delimiter=",", skiprows=1)
-    keep = (table[:, 0] >= start + 0.05) & (table[:, 0] <= end - 0.05)
-    d = F.prepare(retimed(Recording(table[keep, 0], table[keep, 1:4], name="toss cut shorter")))
+    d = F.prepare(retimed(racquet_toss("round1", 1, (0.05, -0.05))))
     assert d.segments < F.SHORT_SEGMENTS
     nominal = F.fit_nominal(d)
     layout = F.Layout.of((), (), d)
