@@ -2,18 +2,22 @@
 
 :func:`map_unordered` yields ``(task, result)`` pairs in completion order, so a caller can save
 each result the moment it exists; the caller's code does not depend on the backend. Every task
-runs in a worker with one numba thread and one torch thread (a worker per core is the
-parallelism; more threads only oversubscribe the cores).
+runs in a worker with one numba, torch and BLAS thread (a worker per core is the
+parallelism; more threads only oversubscribe the cores). :func:`kernels_own_the_cores` keeps
+BLAS off the cores while numba's parallel kernels run in this process.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import functools
 import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+
+from threadpoolctl import threadpool_limits
 
 from inertia_gym.errors import ConfigError
 
@@ -21,12 +25,28 @@ BACKENDS = ("local", "ray")
 
 
 def single_threaded_worker() -> None:
-    """Pin numba and torch to one thread in this (worker) process."""
+    """Pin numba, torch and the BLAS and OpenMP libraries to one thread in this (worker) process."""
     import numba
     import torch
 
     numba.set_num_threads(1)
     torch.set_num_threads(1)
+    threadpool_limits(1)
+
+
+def kernels_own_the_cores(fn: Callable) -> Callable:
+    """fn, run with BLAS (numpy's and scipy's OpenBLAS) held to one thread.
+
+    For work that alternates numba's parallel kernels with small linear algebra (the fits of
+    diagnose and identify): after each call OpenBLAS's idle workers spin for a while on the cores
+    that the next kernel's threads need, and the kernel runs slower by a third (README,
+    diagnose speed); the matrices between the kernels are too small to gain from BLAS threads.
+    """
+    @functools.wraps(fn)
+    def with_serial_blas(*args, **kwargs):
+        with threadpool_limits(1, user_api="blas"):
+            return fn(*args, **kwargs)
+    return with_serial_blas
 
 
 def _call_single_threaded(fn: Callable, task: Any) -> Any:

@@ -5,7 +5,9 @@ excluded); the median wall time is reported. The peer, in the same run: the nomi
 recording by scipy.optimize.least_squares (trust-region reflective, finite-difference Jacobian
 over every parameter, the segments' rates included) against the package's own solver
 (fit.fit_nominal: Levenberg-Marquardt on the arrow-shaped Jacobian, columns batched) on the
-same objective from the same start.
+same objective from the same start. A second peer: the same diagnosis with BLAS free to use
+its threads (diagnose without executors.kernels_own_the_cores), whose idle workers spin on the
+cores numba's kernels need.
 
 Usage: PYTHONPATH=. python scripts/bench_diagnose.py [--repeat 3] [--json OUT.json]
 Limits asked by the issue on this 2-core machine: 600-s 10-Hz <= 10 s, 1-s toss <= 5 s.
@@ -85,12 +87,15 @@ def main() -> None:
     out = {}
     for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", toss(), 5.0)):
         wall, (report, _) = timed(lambda r=rec: diagnose(r), args.repeat)
+        threaded, (threaded_report, _) = timed(lambda r=rec: diagnose.__wrapped__(r), args.repeat)
         d = F.prepare(rec)
         own, nominal = timed(lambda d=d: F.fit_nominal(d), args.repeat)
         peer, peer_cost = peer_nominal(d)
         own_cost = float(np.sum(nominal.z ** 2))
         out[name] = {"rows": d.n_rows, "segments": d.segments, "diagnose_s": wall, "limit_s": limit,
                      "within_limit": wall <= limit, "explanation": [e["name"] for e in report["explanation"]],
+                     "diagnose_blas_threads_s": threaded, "blas_threads_slowdown": threaded / wall,
+                     "same_report": json.dumps(report) == json.dumps(threaded_report),
                      "nominal_fit_s": own, "peer_least_squares_s": peer, "speedup": peer / own,
                      "nominal_cost": own_cost, "peer_cost": peer_cost}
         print(json.dumps({name: out[name]}), flush=True)

@@ -32,6 +32,7 @@ from inertia_gym.discrepancy.fit import (
 )
 from inertia_gym.discrepancy.recordings import Recording, check_input_gaps, retimed, retimed_note
 from inertia_gym.errors import RecordingError
+from inertia_gym.executors import kernels_own_the_cores
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
@@ -183,6 +184,7 @@ def _fits(rec: Recording):
     return d, nominal, fits, skipped, chosen
 
 
+@kernels_own_the_cores
 def diagnose(rec: Recording) -> tuple[dict, dict]:
     """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)
     and the arrays its plots need.
