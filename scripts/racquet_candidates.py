@@ -1,0 +1,207 @@
+"""Prototype effects, not in the catalogue, measured on the racquet tosses (issue 11, must-show 3).
+
+The racquet's leading explanation splits between `internal_momentum` (time-varying) and
+`viscous_damping`. This script asks whether a physical effect the catalogue lacks explains the
+tosses better. It fits two prototypes on each toss next to the catalogue's own:
+
+- ``flight_aero``: the racquet's head is a flat plate moving through still air. The force on it
+  is along its normal n, -k |u_n| u_n, at an arm from the centre of mass; its torque is
+  -k a |u_n| u_n with a = r x n (m). The head's normal air speed is u_n = n . u + w . a, where
+  u is the centre of mass's velocity v0 + g t carried into the body frame. The attitude comes
+  from integrating the measured gyro. The measured rates also stand in for w, so the torque is
+  an input computed from the data. Its 11 parameters are a (3), k, n (2 angles), v0 (3, m/s, in
+  the body frame at the first row) and the direction of g (2 angles, |g| = 9.81 m/s^2). Its
+  starts: a along the fitted intermediate principal axis (0.3 m), n along the major axis, g
+  along each body axis, and v0 putting the apex mid-toss.
+- ``gyro_matrix``: the gyro reads (I + E) w with E symmetric (scale and cross-axis errors,
+  6 parameters, each within 0.1).
+
+Each prototype is registered in this process only, so `diagnose` is unchanged. It is fitted by
+the same solver as the catalogue (fit.fit_effect) on the same prepared record, with the same
+trimmed ends; its BICs count every row as independent (diagnose recounts them where what a fit
+leaves is correlated, so its delta BICs are smaller). Output per toss: the delta BIC each
+candidate gains over the rigid fit, the worst-axis rms/noise, the fitted plate geometry, and the
+pairs viscous_damping + each of (flight_aero, internal_momentum).
+
+Usage: PYTHONPATH=. python scripts/racquet_candidates.py [--data ../shared/data/phyphox-racquet]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from typing_extensions import override
+
+from inertia_gym.discrepancy import effects as E
+from inertia_gym.discrepancy import fit as F
+from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.discrepancy.report import impulses
+
+GRAVITY = 9.81  # m/s^2
+
+
+def unit(polar: float, azimuth: float) -> np.ndarray:
+    """The unit vector (3,) of polar and azimuth angles (rad)."""
+    return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+
+
+def angles(v) -> tuple[float, float]:
+    """Polar and azimuth angles (rad) of the direction of v (3,)."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    return float(np.arccos(np.clip(v[2], -1, 1))), float(np.arctan2(v[1], v[0]))
+
+
+class Flight:
+    """The measured toss the flight_aero prototype reads: times t (n,) s, rates w (n, 3) rad/s and
+    the body-to-start rotations (n, 3, 3) integrated from them (midpoint rate over each row)."""
+
+    t = np.zeros(1)
+    w = np.zeros((1, 3))
+    rotation = np.eye(3)[None]
+
+    @classmethod
+    def set(cls, t, w) -> None:
+        turns = Rotation.from_rotvec(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None])
+        rot = [Rotation.identity()]
+        for step in turns:
+            rot.append(rot[-1] * step)
+        cls.t, cls.w = t, w
+        cls.rotation = np.stack([r.as_matrix() for r in rot])
+
+
+def plate_torque(p) -> np.ndarray:
+    """The flight_aero torque (n, 3) at the measured rows for the vector p (11,)."""
+    arm, k, normal = p[0:3], p[3], unit(p[4], p[5])
+    v0, down = p[6:9], unit(p[9], p[10])
+    velocity = v0[None] + GRAVITY * down[None] * (Flight.t - Flight.t[0])[:, None]
+    u = np.einsum("kji,kj->ki", Flight.rotation, velocity)  # R^T v: in the body frame
+    u_n = u @ normal + Flight.w @ arm
+    return -k * arm[None] * (np.abs(u_n) * u_n)[:, None]
+
+
+@E.register
+class FlightAero(E.EffectModel):
+    """Prototype: a plate's aerodynamic torque in flight (see the module docstring)."""
+
+    name, params, size, family = "flight_aero", ("p",), 11, "drag"
+
+    @override
+    def typical(self, form, d):
+        return np.array([0.1, 0.1, 0.1, 0.3, 0.3, 0.3, 1.0, 1.0, 1.0, 0.3, 0.3])
+
+    @override
+    def bounds(self, form, d):
+        top = np.array([1.0, 1.0, 1.0, np.inf, 10, 10, 40, 40, 40, 10, 10])
+        return np.r_[-top[:3], 0.0, -top[4:]], top
+
+    @override
+    def starts(self, form, d, probe):
+        _, axes = np.linalg.eigh(probe.base.inertia)  # minor, intermediate, major
+        normal = angles(axes[:, 2])
+        duration = float(d.t[-1] - d.t[0])
+        out = []
+        for sign in (1.0, -1.0):
+            for down in np.vstack([np.eye(3), -np.eye(3)]):
+                for k in (0.3, 3.0):
+                    out.append(np.r_[sign * 0.3 * axes[:, 1], k, normal,
+                                     -GRAVITY * down * duration / 2, angles(down)])
+        return out
+
+    @override
+    def applied(self, params, cumulative):
+        tau = plate_torque(params["p"])
+        steps = 0.5 * (tau[1:] + tau[:-1]) * np.diff(Flight.t)[:, None]
+        knots = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+
+        def with_plate(t):
+            return cumulative(t) + np.stack([np.interp(t, Flight.t, knots[:, i]) for i in range(3)], 1)
+
+        return with_plate
+
+
+@E.register
+class GyroMatrix(E.EffectModel):
+    """Prototype: the gyro reads (I + E) w, E symmetric (diagonal first, then xy, xz, yz)."""
+
+    name, params, size, family = "gyro_matrix", ("e",), 6, "gyro error"
+
+    @override
+    def bounds(self, form, d):
+        return np.full(6, -0.1), np.full(6, 0.1)
+
+    @override
+    def typical(self, form, d):
+        return np.full(6, 0.01)
+
+    @override
+    def gyro(self, params, w):
+        e = np.asarray(params["e"], float)
+        return w + w @ np.array([[e[0], e[3], e[4]], [e[3], e[1], e[5]], [e[4], e[5], e[2]]])
+
+
+def zero_command(t) -> np.ndarray:
+    """The running integral of no commanded torque (N·m·s, (k, 3) at times t)."""
+    return np.zeros((np.atleast_1d(t).size, 3))
+
+
+class WithPlateInput(F.Data):
+    """The prepared record, with a zero command where it has none, so that the torque-input hook
+    (EffectModel.applied) that flight_aero uses is called on a gyro-only toss."""
+
+    def inputs(self, grid):
+        cumulative, commanded, h = super().inputs(grid)
+        return (zero_command if cumulative is None else cumulative), commanded, h
+
+
+def worst(fit) -> float:
+    """Worst-axis rms/noise of a fit."""
+    return round(float(np.sqrt(np.mean(fit.z ** 2, axis=0)).max()), 1)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    data = Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"
+    ap.add_argument("--data", default=str(data))
+    args = ap.parse_args()
+    singles = ("flight_aero", "gyro_matrix", "viscous_damping", "internal_momentum")
+    rows = []
+    for raw in sorted(Path(args.data).glob("round*/*/Raw Data.csv")):
+        for rec in read_recordings(raw.parent):
+            d = F.prepare(rec)
+            nominal = F.fit_nominal(d)
+            trim = impulses(d, nominal)
+            d = F.prepare(rec, trim)
+            d = WithPlateInput(**{f.name: getattr(d, f.name) for f in dataclasses.fields(d)
+                                  if f.name != "cache"})
+            nominal = F.fit_nominal(d)
+            keep = slice(trim[0], rec.t.size - trim[1])
+            Flight.set(np.asarray(rec.t, float)[keep], np.asarray(rec.w, float)[keep])
+            row = {"toss": f"{raw.parent.parent.name} {rec.name[-9:]}", "rigid": worst(nominal)}
+            fits = {name: F.fit_effect(name, d, nominal) for name in singles}
+            for name, f in fits.items():
+                row[name] = [round(float(nominal.bic - f.bic)), worst(f)]
+            for second in ("flight_aero", "internal_momentum"):
+                pair = min((F.fit_model(("viscous_damping", second), ("", form), d, fits["viscous_damping"])
+                            for form in E.REGISTRY[second].forms(d)), key=lambda f: f.bic)
+                row["viscous_damping+" + second] = [round(float(nominal.bic - pair.bic)), worst(pair)]
+            p = fits["flight_aero"].params["p"]
+            row["plate"] = {"arm_m": round(float(np.linalg.norm(p[:3])), 3),
+                            "normal": np.round(unit(p[4], p[5]), 2).tolist(),
+                            "launch_m_s": round(float(np.linalg.norm(p[6:9])), 2),
+                            "gravity_at_start": np.round(unit(p[9], p[10]), 2).tolist()}
+            row["best_single"] = max(singles, key=lambda n: row[n][0])
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    best = [r["best_single"] for r in rows]
+    pairs = sum(r["viscous_damping+flight_aero"][0] > r["viscous_damping+internal_momentum"][0] for r in rows)
+    print(f"best single effect: {({n: best.count(n) for n in singles})}; viscous_damping+flight_aero "
+          f"above viscous_damping+internal_momentum on {pairs}/{len(rows)} tosses")
+
+
+if __name__ == "__main__":
+    main()
