@@ -1,9 +1,10 @@
 """Run independent tasks here (a process pool) or on a Ray cluster, one interface for both.
 
 :func:`map_unordered` yields ``(task, result)`` pairs in completion order, so a caller can save
-each result the moment it exists; the caller's code does not depend on the backend. Every task
-runs in a worker with one numba, torch and BLAS thread (a worker per core is the
-parallelism; more threads only oversubscribe the cores). :func:`kernels_own_the_cores` keeps
+each result the moment it exists; the caller's code does not depend on the backend. A task sent to
+a pool or a Ray worker runs with one numba, torch and BLAS thread (a worker per core is the
+parallelism; more threads only oversubscribe the cores); with one worker or one task the
+tasks run here, under the caller's own thread settings. :func:`kernels_own_the_cores` keeps
 BLAS off the cores while numba's parallel kernels run in this process.
 """
 
@@ -37,10 +38,11 @@ def single_threaded_worker() -> None:
 def kernels_own_the_cores(fn: Callable) -> Callable:
     """fn, run with BLAS (numpy's and scipy's OpenBLAS) held to one thread.
 
-    For work that alternates numba's parallel kernels with small linear algebra (the fits of
-    diagnose and identify): after each call OpenBLAS's idle workers spin for a while on the cores
-    that the next kernel's threads need, and the kernel runs slower by a third (README,
-    diagnose speed); the matrices between the kernels are too small to gain from BLAS threads.
+    For work that alternates numba's parallel kernels with small linear algebra (diagnose's
+    fits): after each call OpenBLAS's idle workers spin for a while on the cores that the next
+    kernel's threads need, and the kernel runs slower by a third (README, diagnose speed).
+    Work whose BLAS calls are large gains from their threads instead (identify's sensitivities
+    on a long record: it is not wrapped).
     """
     @functools.wraps(fn)
     def with_serial_blas(*args, **kwargs):
@@ -146,4 +148,4 @@ def _map_ray(fn, tasks, workers, address):
             ray.shutdown()
 
 
-__all__ = ["BACKENDS", "default_workers", "map_unordered", "single_threaded_worker"]
+__all__ = ["BACKENDS", "default_workers", "kernels_own_the_cores", "map_unordered", "single_threaded_worker"]

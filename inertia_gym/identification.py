@@ -47,7 +47,6 @@ from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
-from inertia_gym.executors import kernels_own_the_cores
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -500,7 +499,6 @@ def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None =
         fit_drag=bool(fit_drag))
 
 
-@kernels_own_the_cores
 def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None,
              fit_drag: bool = False) -> Identification:
     """Identify the inertia of the body in one recording (see the module docstring).
