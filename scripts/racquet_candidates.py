@@ -6,22 +6,24 @@ tosses better. It fits two prototypes on each toss next to the catalogue's own:
 
 - ``flight_aero``: the racquet's head is a flat plate moving through still air. The force on it
   is along its normal n, -k |u_n| u_n, at an arm from the centre of mass; its torque is
-  -k a |u_n| u_n with a = r x n (m). The head's normal air speed is u_n = n . u + w . a, where
-  u is the centre of mass's velocity v0 + g t carried into the body frame. The attitude comes
-  from integrating the measured gyro. The measured rates also stand in for w, so the torque is
-  an input computed from the data. Its 11 parameters are a (3), k, n (2 angles), v0 (3, m/s, in
-  the body frame at the first row) and the direction of g (2 angles, |g| = 9.81 m/s^2). Its
-  starts: a along the fitted intermediate principal axis (0.3 m), n along the major axis, g
-  along each body axis, and v0 putting the apex mid-toss.
+  -k a |u_n| u_n with a = r x n (m), which lies in the plate's plane. The head's normal air
+  speed is u_n = n . u + w . a, where u is the centre of mass's velocity v0 + g t carried into
+  the body frame. The attitude comes from integrating the measured gyro. The measured rates
+  also stand in for w, so the torque is an input computed from the data. Its 10 parameters are
+  a's two components in the plane (along the polar and azimuth directions of n, m), k, n
+  (2 angles), v0 (3, m/s, in the body frame at the first row) and the direction of g (2 angles,
+  |g| = 9.81 m/s^2). Its starts: a along the fitted intermediate principal axis (0.3 m), n along
+  the major axis, g along each body axis, and v0 putting the apex mid-toss.
 - ``gyro_matrix``: the gyro reads (I + E) w with E symmetric (scale and cross-axis errors,
   6 parameters, each within 0.1).
 
 Each prototype is registered in this process only, so `diagnose` is unchanged. It is fitted by
-the same solver as the catalogue (fit.fit_effect) on the same prepared record, with the same
-trimmed ends; its BICs count every row as independent (diagnose recounts them where what a fit
-leaves is correlated, so its delta BICs are smaller). Output per toss: the delta BIC each
-candidate gains over the rigid fit, the worst-axis rms/noise, the fitted plate geometry, and the
-pairs viscous_damping + each of (flight_aero, internal_momentum).
+the same solver as the catalogue (fit.fit_effect) on the record as diagnose prepares it
+(re-timed, its ends trimmed where the rigid fit locates impulses; diagnose may trim again after
+its explanation, this script does not). Its BICs count every row as independent (diagnose
+recounts them where what a fit leaves is correlated, so its delta BICs are smaller). Output per
+toss: the delta BIC each candidate gains over the rigid fit, the worst-axis rms/noise, the fitted
+plate geometry, and the pairs viscous_damping + each of (flight_aero, internal_momentum).
 
 Usage: PYTHONPATH=. python scripts/racquet_candidates.py [--data ../shared/data/phyphox-racquet]
 """
@@ -39,7 +41,7 @@ from typing_extensions import override
 
 from inertia_gym.discrepancy import effects as E
 from inertia_gym.discrepancy import fit as F
-from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.discrepancy.recordings import read_recordings, retimed
 from inertia_gym.discrepancy.report import impulses
 
 GRAVITY = 9.81  # m/s^2
@@ -48,6 +50,18 @@ GRAVITY = 9.81  # m/s^2
 def unit(polar: float, azimuth: float) -> np.ndarray:
     """The unit vector (3,) of polar and azimuth angles (rad)."""
     return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+
+
+def plane(polar: float, azimuth: float) -> np.ndarray:
+    """(2, 3): the unit vectors along increasing polar and azimuth angle, both normal to
+    unit(polar, azimuth) and smooth in the angles."""
+    return np.array([[np.cos(polar) * np.cos(azimuth), np.cos(polar) * np.sin(azimuth), -np.sin(polar)],
+                     [-np.sin(azimuth), np.cos(azimuth), 0.0]])
+
+
+def arm(p) -> np.ndarray:
+    """The flight_aero arm a (3,) m: its two in-plane components p[0:2] on the plate's plane."""
+    return p[0:2] @ plane(p[3], p[4])
 
 
 def angles(v) -> tuple[float, float]:
@@ -75,29 +89,29 @@ class Flight:
 
 
 def plate_torque(p) -> np.ndarray:
-    """The flight_aero torque (n, 3) at the measured rows for the vector p (11,)."""
-    arm, k, normal = p[0:3], p[3], unit(p[4], p[5])
-    v0, down = p[6:9], unit(p[9], p[10])
+    """The flight_aero torque (n, 3) at the measured rows for the vector p (10,)."""
+    a, k, normal = arm(p), p[2], unit(p[3], p[4])
+    v0, down = p[5:8], unit(p[8], p[9])
     velocity = v0[None] + GRAVITY * down[None] * (Flight.t - Flight.t[0])[:, None]
     u = np.einsum("kji,kj->ki", Flight.rotation, velocity)  # R^T v: in the body frame
-    u_n = u @ normal + Flight.w @ arm
-    return -k * arm[None] * (np.abs(u_n) * u_n)[:, None]
+    u_n = u @ normal + Flight.w @ a
+    return -k * a[None] * (np.abs(u_n) * u_n)[:, None]
 
 
 @E.register
 class FlightAero(E.EffectModel):
     """Prototype: a plate's aerodynamic torque in flight (see the module docstring)."""
 
-    name, params, size, family = "flight_aero", ("p",), 11, "drag"
+    name, params, size, family = "flight_aero", ("p",), 10, "drag"
 
     @override
     def typical(self, form, d):
-        return np.array([0.1, 0.1, 0.1, 0.3, 0.3, 0.3, 1.0, 1.0, 1.0, 0.3, 0.3])
+        return np.array([0.1, 0.1, 0.3, 0.3, 0.3, 1.0, 1.0, 1.0, 0.3, 0.3])
 
     @override
     def bounds(self, form, d):
-        top = np.array([1.0, 1.0, 1.0, np.inf, 10, 10, 40, 40, 40, 10, 10])
-        return np.r_[-top[:3], 0.0, -top[4:]], top
+        top = np.array([1.0, 1.0, np.inf, 10, 10, 40, 40, 40, 10, 10])
+        return np.r_[-top[:2], 0.0, -top[3:]], top
 
     @override
     def starts(self, form, d, probe):
@@ -105,10 +119,11 @@ class FlightAero(E.EffectModel):
         normal = angles(axes[:, 2])
         duration = float(d.t[-1] - d.t[0])
         out = []
+        in_plane = plane(*normal) @ (0.3 * axes[:, 1])
         for sign in (1.0, -1.0):
             for down in np.vstack([np.eye(3), -np.eye(3)]):
                 for k in (0.3, 3.0):
-                    out.append(np.r_[sign * 0.3 * axes[:, 1], k, normal,
+                    out.append(np.r_[sign * in_plane, k, normal,
                                      -GRAVITY * down * duration / 2, angles(down)])
         return out
 
@@ -171,7 +186,7 @@ def main() -> None:
     singles = ("flight_aero", "gyro_matrix", "viscous_damping", "internal_momentum")
     rows = []
     for raw in sorted(Path(args.data).glob("round*/*/Raw Data.csv")):
-        for rec in read_recordings(raw.parent):
+        for rec in map(retimed, read_recordings(raw.parent)):
             d = F.prepare(rec)
             nominal = F.fit_nominal(d)
             trim = impulses(d, nominal)
@@ -190,10 +205,10 @@ def main() -> None:
                             for form in E.REGISTRY[second].forms(d)), key=lambda f: f.bic)
                 row["viscous_damping+" + second] = [round(float(nominal.bic - pair.bic)), worst(pair)]
             p = fits["flight_aero"].params["p"]
-            row["plate"] = {"arm_m": round(float(np.linalg.norm(p[:3])), 3),
-                            "normal": np.round(unit(p[4], p[5]), 2).tolist(),
-                            "launch_m_s": round(float(np.linalg.norm(p[6:9])), 2),
-                            "gravity_at_start": np.round(unit(p[9], p[10]), 2).tolist()}
+            row["plate"] = {"arm_m": round(float(np.linalg.norm(arm(p))), 3),
+                            "normal": np.round(unit(p[3], p[4]), 2).tolist(),
+                            "launch_m_s": round(float(np.linalg.norm(p[5:8])), 2),
+                            "gravity_at_start": np.round(unit(p[8], p[9]), 2).tolist()}
             row["best_single"] = max(singles, key=lambda n: row[n][0])
             rows.append(row)
             print(json.dumps(row), flush=True)
