@@ -227,6 +227,7 @@ def _phyphox_with_empty_segment(folder: Path) -> Path:
     ("huge values", "beyond any physical scale"),
     ("NaN column", "column 'wy': value is NaN"),
     ("empty segment", "segment 1 .* holds 0 samples"),
+    ("clipped", r"the gyro clipped at its full scale in \d+ of 101 (samples|rows)"),
 ])
 def test_odd_inputs_end_in_one_line(base, tmp_path, capsys, command, case, message):
     columns, _ = base
@@ -241,6 +242,11 @@ def test_odd_inputs_end_in_one_line(base, tmp_path, capsys, command, case, messa
             data["wz"] = data["wz"] * 1e300
         elif case == "NaN column":
             data["wy"][:] = np.nan
+        elif case == "clipped":  # a gyro whose range the body's rates exceed on 90 % of the rows
+            w = np.stack([data[name] for name in ("wx", "wy", "wz")], axis=1)
+            limit = np.percentile(np.abs(w).max(axis=1), 10)
+            for name in ("wx", "wy", "wz"):
+                data[name] = np.clip(data[name], -limit, limit)
         path = tmp_path / "rec.csv"
         np.savetxt(path, np.stack(list(data.values()), axis=1)[:rows], delimiter=",", header="t,wx,wy,wz",
                    comments="", fmt="%.10g")

@@ -10,9 +10,7 @@ from inertia_gym.commands.common import (
     recording_folders,
     write_json,
 )
-from inertia_gym.discrepancy.fit import MIN_ROWS, prepare
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
-from inertia_gym.errors import RecordingError
 
 
 def add_parser(subparsers) -> None:
@@ -27,10 +25,6 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Diagnose each recording (each phyphox window on its own); one sub-folder per window."""
     for rec, sub in recording_folders(args):
-        rows = prepare(rec).n_rows
-        if rows < MIN_ROWS:
-            raise RecordingError(f"{rec.name}: {rec.t.size} samples make {rows} residual rows; "
-                                 f"diagnose needs at least {MIN_ROWS} (a longer recording)")
         report, arrays = diagnose(rec)
         check_physical_inertia(report["fit_after"]["inertia"], rec.name)
         plots = [] if args.no_plots else write_plots(sub, report, arrays)

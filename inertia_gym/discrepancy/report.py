@@ -14,6 +14,7 @@ from scipy import signal, stats
 from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
+    MIN_ROWS,
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
@@ -149,6 +150,22 @@ def _trimmed(rec: Recording, d: Data) -> list[dict]:
     return out
 
 
+def check_enough_rows(rec: Recording, d: Data) -> None:
+    """Refuse in one line a recording whose samples make fewer than MIN_ROWS residual rows,
+    saying where they went when the gyro clipped (clipped samples are left out).
+    """
+    if d.n_rows >= MIN_ROWS:
+        return
+    clipped = d.notes["saturated_samples"]
+    if clipped:
+        raise RecordingError(f"{rec.name}: the gyro clipped at its full scale in {clipped} of "
+                             f"{rec.t.size} samples, which say only that the rate was beyond it; the "
+                             f"rest make {d.n_rows} residual rows and diagnose needs at least "
+                             f"{MIN_ROWS} (a gyro range above the body's rates, or a slower spin)")
+    raise RecordingError(f"{rec.name}: {rec.t.size} samples make {d.n_rows} residual rows; "
+                         f"diagnose needs at least {MIN_ROWS} (a longer recording)")
+
+
 def _fits(rec: Recording):
     """Nominal, single-effect and compound fits of a recording, its impulses trimmed.
 
@@ -158,6 +175,7 @@ def _fits(rec: Recording):
     Returns (data, nominal, singles ranked, skipped, explanation).
     """
     d = prepare(rec)
+    check_enough_rows(rec, d)
     nominal = fit_nominal(d)
     if not np.isfinite(nominal.bic):
         raise RecordingError(f"{rec.name}: the rigid-body model could not be integrated over this "

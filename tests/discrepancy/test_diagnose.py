@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -34,7 +35,7 @@ from inertia_gym.discrepancy.report import (
     markdown,
 )
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
-from inertia_gym.errors import ConfigError
+from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.scenario import Scenario
 
@@ -183,6 +184,22 @@ def test_torque_free_reads_scale_unidentified(tmp_path):
     assert "actuator_scale" in report["skipped_effects"]
     assert report["invariants"]["applicable"]
     assert "units of the sidecar's nominal inertia" in markdown(report, [])
+
+
+def test_a_gyro_clipped_on_most_rows_is_refused_in_one_line_without_warnings():
+    """Clipped samples are left out; where too few rows remain, diagnose itself (not only the
+    CLI) says so, naming the clipping, and no RuntimeWarning of the fits on a handful of rows
+    escapes (a racquet toss clipped at 0.7 of its peak rate leaked four kinds of them).
+    """
+    rec, _ = simulate_recording(Scenario(), 1.0, seed=4)
+    limit = np.percentile(np.abs(rec.w).max(axis=1), 5)
+    clipped = dataclasses.replace(_concealed(rec), w=np.clip(rec.w, -limit, limit))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(RecordingError, match=r"clipped at its full scale in 9[0-9] of 101 samples.*"
+                                                 r"needs at least 20") as caught:
+            diagnose(clipped)
+    assert "\n" not in str(caught.value)
 
 
 def test_summary_says_torques_scale_with_an_unknown_inertia():
