@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.errors import ConfigError, RecordingError
+from inertia_gym.errors import ConfigError, InertiaGymError, RecordingError
 from inertia_gym.scenario import Scenario, ScenarioWarning, shipped_scenarios
 
 
@@ -101,17 +101,37 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     return mapping
 
 
-def recording_folders(args: argparse.Namespace):
-    """Read every recording (segment) of args.rec (with args.columns, args.time_unit,
-    args.rate_unit); yield (recording, its output folder): args.out itself for a single
-    recording, else one sub-folder per segment named after it.
+def for_each_recording(args: argparse.Namespace, work) -> int:
+    """Run work(recording, its output folder) on every recording (segment) of args.rec (read
+    with args.columns, args.time_unit, args.rate_unit); the folder is args.out itself for a
+    single recording, else one sub-folder per recording named after it. Returns 0.
+
+    A single recording's refusal (an InertiaGymError: the recording refused, the fit diverged) is
+    raised as it is. Of several, a refused one does not stop the rest: its one-line reason goes
+    to stderr and to refused.txt in its folder, and once all are done a RecordingError says how
+    many were refused (exit 2).
     """
     from inertia_gym.discrepancy.recordings import read_recordings
 
     recs = read_recordings(args.rec, parse_column_map(args.columns), args.time_unit, args.rate_unit)
     folder = prepare_out_dir(args.out)
+    if len(recs) == 1:
+        work(recs[0], folder)
+        return 0
+    refused = []
     for rec in recs:
-        yield rec, folder if len(recs) == 1 else prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", rec.name))
+        sub = prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", rec.name))
+        try:
+            work(rec, sub)
+        except InertiaGymError as exc:
+            refused.append(rec.name)
+            (sub / "refused.txt").write_text(f"{exc}\n")
+            print(f"{rec.name}: refused: {exc}", file=sys.stderr)
+    if refused:
+        raise RecordingError(f"{len(refused)} of {len(recs)} recordings refused (reasons above and in "
+                             f"each one's refused.txt under {folder}); the other {len(recs) - len(refused)} "
+                             "are written")
+    return 0
 
 
 def check_physical_inertia(inertia, what: str) -> None:

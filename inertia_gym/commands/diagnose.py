@@ -7,7 +7,7 @@ import argparse
 from inertia_gym.commands.common import (
     add_recording_argument,
     check_physical_inertia,
-    recording_folders,
+    for_each_recording,
     write_json,
 )
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
@@ -24,12 +24,15 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Diagnose each recording (each phyphox window on its own); one sub-folder per window."""
-    for rec, sub in recording_folders(args):
-        report, arrays = diagnose(rec)
-        check_physical_inertia(report["fit_after"]["inertia"], rec.name)
-        plots = [] if args.no_plots else write_plots(sub, report, arrays)
-        write_json(sub / "report.json", report)
-        (sub / "summary.md").write_text(markdown(report, plots))
-        print(f"{rec.name}: mismatch={report['mismatch_detected']} best={report['best_effect']} "
-              f"-> {sub / 'report.json'}")
-    return 0
+    return for_each_recording(args, lambda rec, sub: _diagnose_one(rec, sub, args.no_plots))
+
+
+def _diagnose_one(rec, sub, no_plots: bool) -> None:
+    """Diagnose one recording into the folder sub (report.json, summary.md, plots)."""
+    report, arrays = diagnose(rec)
+    check_physical_inertia(report["fit_after"]["inertia"], rec.name)
+    plots = [] if no_plots else write_plots(sub, report, arrays)
+    write_json(sub / "report.json", report)
+    (sub / "summary.md").write_text(markdown(report, plots))
+    print(f"{rec.name}: mismatch={report['mismatch_detected']} best={report['best_effect']} "
+          f"-> {sub / 'report.json'}")

@@ -9,7 +9,7 @@ import numpy as np
 from inertia_gym.commands.common import (
     add_recording_argument,
     check_physical_inertia,
-    recording_folders,
+    for_each_recording,
     write_json,
 )
 from inertia_gym.identification import METHODS, identify, markdown
@@ -31,15 +31,18 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Identify each recording (each phyphox window on its own); one sub-folder per window."""
-    for rec, sub in recording_folders(args):
-        result = identify(rec, args.method)
-        summary = result.summary()
-        check_physical_inertia(summary["inertia"], rec.name)
-        plots = [] if args.no_plots else plot_identification(result, sub)
-        write_json(sub / "identify.json", summary)
-        (sub / "summary.md").write_text(markdown(summary, [p.name for p in plots]))
-        moments = np.array(summary["principal_moments"])
-        print(f"{rec.name}: principal moments {np.array2string(moments, precision=4)} "
-              f"{'kg·m²' if summary['scale_identified'] else '(normalised: scale not identified)'}"
-              f", rms/noise {summary['rms_over_noise']:.2f} -> {sub / 'identify.json'}")
-    return 0
+    return for_each_recording(args, lambda rec, sub: _identify_one(rec, sub, args.method, args.no_plots))
+
+
+def _identify_one(rec, sub, method: str, no_plots: bool) -> None:
+    """Identify one recording into the folder sub (identify.json, summary.md, plots)."""
+    result = identify(rec, method)
+    summary = result.summary()
+    check_physical_inertia(summary["inertia"], rec.name)
+    plots = [] if no_plots else plot_identification(result, sub)
+    write_json(sub / "identify.json", summary)
+    (sub / "summary.md").write_text(markdown(summary, [p.name for p in plots]))
+    moments = np.array(summary["principal_moments"])
+    print(f"{rec.name}: principal moments {np.array2string(moments, precision=4)} "
+          f"{'kg·m²' if summary['scale_identified'] else '(normalised: scale not identified)'}"
+          f", rms/noise {summary['rms_over_noise']:.2f} -> {sub / 'identify.json'}")

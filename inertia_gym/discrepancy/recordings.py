@@ -717,7 +717,10 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
 
 def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                     rate_unit: str | None = None) -> list[Recording]:
-    """Any supported input: project CSV, Parquet, phyphox file or folder. Returns one or more.
+    """Any supported input: project CSV, Parquet, phyphox file or folder, or a folder holding
+    phyphox exports in its sub-folders at any depth (each recording then named by its export's
+    path below that folder, e.g. "round1/Gyroscope rotation rate ... segment 0"). Returns one
+    or more.
 
     columns: {format name: the file's column name}, e.g. {"t": "time", "wx": "gx"}: format names
         as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
@@ -736,7 +739,13 @@ def _read_any(path, columns, time_unit, rate_unit) -> list[Recording]:
     if path.is_dir():
         if (path / "Raw Data.csv").exists():
             return read_phyphox(path, **units)
-        raise RecordingError(f"{path}: a folder must be a phyphox export holding 'Raw Data.csv'")
+        exports = sorted(raw.parent for raw in path.rglob("Raw Data.csv"))
+        if not exports:
+            raise RecordingError(f"{path}: a folder must be a phyphox export holding 'Raw Data.csv', "
+                                 "or hold such exports in its sub-folders")
+        return [dataclasses.replace(rec, name=export.relative_to(path).as_posix()
+                                    + rec.name[len(export.name):])  # the segment, if any
+                for export in exports for rec in read_phyphox(export, **units)]
     if path.suffix.lower() == ".parquet":
         return [read_parquet_recording(path, **units)]
     with path.open(errors="replace") as fh:

@@ -181,6 +181,20 @@ def test_phyphox_segments_kept_windows_only(tmp_path):
     assert len(read_recordings(folder / "Raw Data.csv")) == 2
 
 
+def test_a_folder_of_phyphox_exports_is_read_whole_each_named_by_its_path(tmp_path):
+    """A user's tosses as exported (round1/<export>, round2/<export>, names that may repeat):
+    every kept window of every export below the folder, named by the export's path below it."""
+    for parent in ("round1", "round2/more"):
+        _phyphox(tmp_path / parent, "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,0\n2,2.1,2.9,\n")
+    recs = read_recordings(tmp_path)
+    assert [r.name for r in recs] == [f"{p}/Gyroscope rotation rate 1 segment {k}"
+                                      for p in ("round1", "round2/more") for k in (0, 2)]
+    assert all(r.t[0] >= r.meta["window"][0] for r in recs)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RecordingError, match="or hold such exports in its sub-folders"):
+        read_recordings(tmp_path / "empty")
+
+
 def test_phyphox_bad_segment(tmp_path):
     folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n0,x,1.0,,a\n")
     with pytest.raises(RecordingError, match="segments.csv, row 2"):
