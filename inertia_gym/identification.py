@@ -45,7 +45,12 @@ from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
-from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
+from inertia_gym.estimation.inertia_param import (
+    dtheta_dphi,
+    nearest_realizable,
+    phi_from_inertia,
+    theta_from_phi,
+)
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
@@ -646,7 +651,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     usable[meas] = True
     theta0 = equation_error_theta(prob.t_grid, rec.w, prob.tau_grid, prob.h_grid,
                                   trace=trace_ref if trace_ref is not None else 1.0, usable=usable)
-    phi0 = phi_from_inertia(inertia_from_theta(theta0))
+    phi0 = phi_from_inertia(nearest_realizable(inertia_from_theta(theta0)))
     # Against the noise the fit did not produce: the sidecar's, or the third-difference level
     # (the residuals' own level would make the ratio 1 by construction).
     reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(prob.z_w), 1e-12)

@@ -16,7 +16,10 @@ from inertia_gym.estimation import ekf
 from inertia_gym.estimation.inertia_param import (
     dtheta_dphi,
     inertia_from_phi,
+    nearest_realizable,
     phi_from_inertia,
+    realizable_face,
+    realizable_phi,
     theta_from_phi,
 )
 from inertia_gym.information import theta_from_inertia
@@ -40,6 +43,50 @@ def test_scale_coordinate_is_pure_scale():
     shifted[0] += np.log(3.0)
     assert np.allclose(inertia_from_phi(shifted), 3.0 * J)
     assert np.allclose(dtheta_dphi(phi)[:, 0], theta_from_inertia(J))
+
+
+def _slack(inertia) -> float:
+    """(J_min + J_mid - J_max) / trace J: >= 0 for every body, 0 for a flat plate."""
+    moments = np.linalg.eigvalsh(inertia)
+    return float((moments[0] + moments[1] - moments[2]) / moments.sum())
+
+
+def test_nearest_realizable_is_the_nearest_mass_distribution(rng):
+    """Against its definition: J = trace(S) I - S with S >= 0 (a mass distribution's second
+    moment), nearest in the principal moments with J's axes kept; a body's inertia is kept."""
+    assert np.array_equal(nearest_realizable(J), J)
+    # hand-worked: (1, 0.45, 0.05) moves along (-1, 1, 1) by 1/6 onto J_max = J_mid + J_min
+    assert np.allclose(np.linalg.eigvalsh(nearest_realizable(np.diag([1.0, 0.45, 0.05]))),
+                       [13 / 60, 37 / 60, 5 / 6])
+    for _ in range(20):
+        axes = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        moments = np.sort(rng.uniform(0.05, 1.0, 3))
+        moments[2] = (moments[0] + moments[1]) * rng.uniform(1.01, 1.5)  # beyond the limit
+        bad = axes @ np.diag(moments) @ axes.T
+        near = nearest_realizable(bad)
+        assert abs(_slack(near)) < 1e-12  # on the limit: a flat plate
+        assert np.allclose(axes.T @ near @ axes, np.diag(np.diag(axes.T @ near @ axes)), atol=1e-12)
+        # no mass distribution on these axes comes nearer: a grid over S >= 0
+        grid = np.stack(np.meshgrid(*[np.linspace(0, 1.5, 61)] * 3), -1).reshape(-1, 3)
+        candidates = grid.sum(1, keepdims=True) - grid  # J_i = S_j + S_k
+        best = np.min(np.linalg.norm(candidates - moments, axis=1))
+        found = np.linalg.norm(np.linalg.eigvalsh(near) - np.sort(moments))
+        assert found <= best + 1e-12
+
+
+def test_realizable_phi_and_its_face_keep_a_fit_on_the_bodies_that_exist(rng):
+    phi = phi_from_inertia(J)
+    assert np.array_equal(realizable_phi(phi), phi) and realizable_face(phi).shape == (0, 6)
+    flat = realizable_phi(phi_from_inertia(np.diag([1.0, 0.45, 0.05])))
+    assert abs(_slack(inertia_from_phi(flat))) < 1e-12
+    face = realizable_face(flat)
+    assert face.shape == (1, 6)
+    for _ in range(10):  # a step with face . step = 0 stays on the limit to second order
+        step = rng.normal(size=6) * 1e-3
+        along = step - face[0] * (face[0] @ step) / (face[0] @ face[0])
+        assert abs(_slack(inertia_from_phi(flat + along))) < 1e-5
+    across = 1e-3 * face[0] / np.linalg.norm(face[0])
+    assert _slack(inertia_from_phi(flat + across)) > 1e-4  # into the bodies that exist
 
 
 def test_dtheta_dphi_matches_finite_differences(rng):

@@ -12,6 +12,7 @@ import pytest
 
 from inertia_gym import identification
 from inertia_gym.cli import main
+from inertia_gym.commands.common import check_physical_inertia
 from inertia_gym.discrepancy.recordings import Recording, read_recordings, write_recording
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
@@ -475,3 +476,12 @@ def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it(racquet_toss
     ratios = np.sort(np.linalg.eigvalsh(res.estimate.inertia))[::-1]
     window = np.sort(np.linalg.eigvalsh(identify(racquet_toss("round1", 4)).estimate.inertia))[::-1]
     np.testing.assert_allclose(ratios / ratios[0], window / window[0], atol=0.01)
+
+
+def test_a_nearly_flat_real_toss_is_identified_as_a_body_that_exists(racquet_toss):
+    """Racquet round 2 segment 4: the ML fit had ended at moments (0.0327, 0.3593, 0.3939), the
+    largest beyond the sum of the others, and the CLI refused it as no body's; its steps are now
+    projected onto the bodies that exist and move along their limit."""
+    res = identify(racquet_toss("round2", 4))
+    assert res.converged
+    check_physical_inertia(res.estimate.inertia, "identify")

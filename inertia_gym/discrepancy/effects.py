@@ -28,7 +28,13 @@ import numpy as np
 from typing_extensions import override
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
+from inertia_gym.estimation.inertia_param import (
+    PHI_BOUND,
+    inertia_from_phi,
+    phi_from_inertia,
+    realizable_face,
+    realizable_phi,
+)
 
 #: Modal frequencies (Hz) screened for flexible_mode: lowest (lower on a long record of a slow
 #: body: flex_floor_hz), and highest as a share of Nyquist.
@@ -883,7 +889,8 @@ class InertiaOffset(EffectModel):
 
     Every other model holds the user's nominal inertia as given (fit.py); this effect fits J in
     the positive-definite log-Cholesky parameterization p = phi (estimation.inertia_param: never
-    indefinite), its overall scale too where a known torque or changing momentum shows it, else
+    indefinite), each step projected onto the inertias a body can have (realizable_phi), its
+    overall scale too where a known torque or changing momentum shows it, else
     its shape at the nominal's trace. The comparison of the fitted J with the nominal (% per
     principal moment, axis rotation) is report.inertia_comparison.
     """
@@ -935,6 +942,16 @@ class InertiaOffset(EffectModel):
     @override
     def neutral(self, form, d, base):
         return phi_from_inertia(base.inertia)
+
+    @override
+    def feasible(self, p, inertia):
+        out = realizable_phi(p)
+        out[0] = p[0]  # the scale coordinate (held where the scale is not seen) kept: J's shape moves
+        return out
+
+    @override
+    def face(self, p):
+        return realizable_face(p)
 
     @override
     def true_inertia(self, params):

@@ -40,7 +40,14 @@ from inertia_gym.estimation.equation_error import (
     omega_matrix,
     valid_theta,
 )
-from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, phi_from_inertia
+from inertia_gym.estimation.inertia_param import (
+    PHI_BOUND,
+    inertia_from_phi,
+    nearest_realizable,
+    phi_from_inertia,
+    realizable_face,
+    realizable_phi,
+)
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
@@ -377,18 +384,26 @@ class Layout:
         return out
 
     def feasible(self, x, d: Data) -> np.ndarray:
-        """The joint vector x with each effect's part projected onto what its physics allows
-        with the model's inertia at x (EffectModel.feasible).
+        """The joint vector x with a fitted base inertia projected onto the inertias a body can
+        have (inertia_param.realizable_phi: each principal moment at most the sum of the other
+        two), and each effect's part onto what its physics allows with the model's inertia at x
+        (EffectModel.feasible).
         """
         x = np.array(x, float)
+        if d.inertia0 is None and not any(m.sets_inertia for m in self.models):
+            x[:6] = realizable_phi(x[:6])  # the fitted inertia: only bodies that exist
         inertia = model_inertia(self, x, d)
         for m, s in zip(self.models, self.slices()):
             x[s] = m.feasible(x[s], inertia)
         return x
 
     def face(self, x) -> np.ndarray:
-        """(m, n_global) rows of every effect's face (EffectModel.face) at x, in x's columns."""
-        rows = [np.zeros((0, self.n_global))]
+        """(m, n_global) rows of every effect's face (EffectModel.face) at x, in x's columns, and
+        of the inertias' limit (realizable_face of phi = x[:6]; its rows fall outside the free
+        columns where the nominal inertia is held).
+        """
+        limit = realizable_face(np.asarray(x[:6], float))
+        rows = [np.zeros((0, self.n_global)), np.pad(limit, ((0, 0), (0, self.n_global - 6)))]
         for m, s in zip(self.models, self.slices()):
             a = m.face(np.asarray(x[s], float))
             if a.size:
@@ -615,7 +630,10 @@ def _moved(x, step, gi, layout: Layout, d: Data, lb, ub) -> tuple[np.ndarray, np
 
 
 def _face_basis(a) -> np.ndarray | None:
-    """(P, P - rank a) orthonormal basis of the steps with a dg = 0, or None without face rows."""
+    """(P, P - rank a) orthonormal basis of the steps with a dg = 0, or None without face rows
+    (rows all zero, a limit on parameters that are held, count as none).
+    """
+    a = a[np.any(a != 0, axis=1)]
     if not a.size:
         return None
     _, sv, vt = np.linalg.svd(a)
@@ -776,7 +794,7 @@ def _inertia_starts(d: Data) -> list[np.ndarray]:
     kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
     theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
                                  None if d.h is None else d.h[kept], trace=d.trace0)
-    out.append(phi_from_inertia(inertia_from_theta(theta)))
+    out.append(phi_from_inertia(nearest_realizable(inertia_from_theta(theta))))
     if d.segments == 1:
         for diag in ([1.0, 1.0, 0.1], [1.0, 0.1, 1.0], [0.1, 1.0, 1.0], [1.0, 1.0, 1.0]):
             out.append(phi_from_inertia(np.diag(diag) * d.trace0 / sum(diag)))

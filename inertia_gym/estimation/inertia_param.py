@@ -18,6 +18,7 @@ import math
 
 import numba as nb
 import numpy as np
+from scipy import optimize
 
 from inertia_gym.errors import ConfigError
 
@@ -108,3 +109,53 @@ def decouple_scale(cov_phi: np.ndarray) -> np.ndarray:
     out[..., 0, 1:] = 0.0
     out[..., 1:, 0] = 0.0
     return out
+
+
+def nearest_realizable(inertia) -> np.ndarray:
+    """The inertia (3, 3) kg·m² nearest to a symmetric one that a body can have: each principal
+    moment at most the sum of the other two (J = trace(S) I - S for a mass distribution's second
+    moment S >= 0; equality only for a flat plate). Where that holds it is the inertia itself;
+    otherwise its moments are moved, least squares with its principal axes kept, onto the
+    nearest flat plate's: (1, 0.45, 0.05) becomes (5/6, 37/60, 13/60). A fit projected on it
+    cannot end where no body is, as racquet tosses did (the largest moment 0.04-3.9 % beyond
+    the limit, pulled there by what the model leaves out).
+    """
+    j = np.asarray(inertia, dtype=float)
+    j = 0.5 * (j + j.T)
+    moments, axes = np.linalg.eigh(j)
+    if moments[2] <= moments[0] + moments[1]:
+        return j
+    pairs = np.ones((3, 3)) - np.eye(3)  # moment i is the sum of S's other two principal values
+    second = optimize.nnls(pairs, moments)[0]
+    return (axes * (pairs @ second)) @ axes.T
+
+
+def realizable_phi(phi) -> np.ndarray:
+    """Phi (6,) of nearest_realizable(J(phi)): phi itself where J(phi) is a body's inertia (or
+    not finite: the fit's own checks refuse that).
+    """
+    phi = np.asarray(phi, dtype=float)
+    j = inertia_from_phi(phi)
+    if not np.all(np.isfinite(j)):
+        return phi
+    near = nearest_realizable(j)
+    return phi if np.array_equal(near, j) else phi_from_inertia(near)
+
+
+def realizable_face(phi, tol: float = 1e-9) -> np.ndarray:
+    """(m, 6) rows A (m = 1 where J(phi) is a flat plate's, at the limit nearest_realizable
+    projects onto; else 0): steps d phi with A d phi = 0 keep the largest moment equal to the
+    sum of the other two to first order, so a fit can move along the limit rather than creep
+    by projections. The row is the gradient of (J_min + J_mid - J_max) / trace(J), by central
+    differences.
+    """
+    def slack(p):
+        moments = np.linalg.eigvalsh(inertia_from_phi(p))
+        return (moments[0] + moments[1] - moments[2]) / moments.sum()
+
+    phi = np.asarray(phi, dtype=float)
+    if not (np.all(np.isfinite(inertia_from_phi(phi))) and slack(phi) <= tol):
+        return np.zeros((0, 6))
+    step = 1e-6 * np.maximum(1.0, np.abs(phi))
+    rows = [(slack(phi + e * h) - slack(phi - e * h)) / (2 * h) for e, h in zip(np.eye(6), step)]
+    return np.array([rows])

@@ -36,7 +36,12 @@ import numba as nb
 import numpy as np
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
+from inertia_gym.estimation.inertia_param import (
+    dtheta_dphi,
+    inertia_from_phi,
+    realizable_face,
+    realizable_phi,
+)
 
 N_DYN = 12  # sensitivity columns integrated by the kernel: phi (6), w0 (3), dq0 (3)
 #: Largest rotation per integration sub-step, rad (RK4's phase error ~ (w h)^5 / 120 per step).
@@ -446,27 +451,28 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
             blocks.append(prior_root / col)
             rhs.append(-prior_root @ (p - prior_mean)[free])
         g = np.concatenate(blocks).T @ np.concatenate(rhs)  # -gradient, in scaled coordinates
+        # at the limit of the bodies that exist (a flat plate's inertia) steps are taken along
+        # it (inertia_param.realizable_face, in scaled coordinates), not creeping by projections
+        along = _face_steps(realizable_face(p[:6]), free, col)
         improved = False
         for _ in range(20):
             damped = np.concatenate(blocks + [math.sqrt(lam) * np.eye(col.size)])
-            scaled = np.linalg.lstsq(damped, np.concatenate(rhs + [np.zeros(col.size)]), rcond=None)[0]
-            step = scaled / col
-            p_new = p.copy()
-            p_new[free] += step
-            if np.abs(p_new[:6] - p[:6]).max() > MAX_PHI_STEP:
+            stacked = np.concatenate(rhs + [np.zeros(col.size)])
+            steps = [np.linalg.lstsq(damped, stacked, rcond=None)[0]]
+            if along is not None:
+                steps.append(along @ np.linalg.lstsq(damped @ along, stacked, rcond=None)[0])
+            trials = [(scaled, t) for scaled in steps
+                      if (t := _trial(prob, p, q_ref, free, scaled / col)) is not None]
+            if not trials:  # every step leaps too far in the inertia: damp more
                 lam = max(lam * 10.0, 1e-6)
                 continue
-            q_new = q_ref
-            if prob.with_att:
-                q_new = quat_mul(q_ref, quat_exp(p_new[9:12]))
-                q_new /= np.linalg.norm(q_new)
-                p_new[9:12] = 0.0
-            ev_new = evaluate(prob, p_new, q_new, False)
-            cost_new = total_cost(ev_new, p_new) if ev_new.ok else np.inf
-            if cost_new <= cost:
+            costs = [total_cost(ev_new, p_new) if ev_new.ok else np.inf for _, (p_new, _, ev_new) in trials]
+            best = int(np.argmin(costs))
+            if costs[best] <= cost:
+                scaled, (p, q_ref, _) = trials[best]
                 predicted = float(scaled @ g)  # ~ twice the predicted decrease
-                drop = cost - cost_new
-                p, q_ref, cost = p_new, q_new, cost_new
+                drop = cost - costs[best]
+                cost = costs[best]
                 lam = max(lam / 10.0, 1e-15)
                 improved = True
                 break
@@ -480,6 +486,41 @@ def _levenberg_marquardt(prob: Problem, p, q_ref, prior_mean=None, prior_info=No
             converged = True
             break
     return p, q_ref, ev, cost, iterations, converged
+
+
+def _trial(prob: Problem, p, q_ref, free, step):
+    """(p, q_ref, evaluation) after the step (of the free parameters), the inertia projected
+    onto the bodies that exist with its scale coordinate kept (a flat body's fit, pulled by
+    what the model leaves out, otherwise ends where no body is); None where the step changes
+    the inertia's log-parameters by more than MAX_PHI_STEP (a trust region: on a short, poorly
+    conditioned window an undamped step can leap to another basin).
+    """
+    p_new = p.copy()
+    p_new[free] += step
+    p_new[1:6] = realizable_phi(p_new[:6])[1:6]
+    if np.abs(p_new[:6] - p[:6]).max() > MAX_PHI_STEP:
+        return None
+    q_new = q_ref
+    if prob.with_att:
+        q_new = quat_mul(q_ref, quat_exp(p_new[9:12]))
+        q_new /= np.linalg.norm(q_new)
+        p_new[9:12] = 0.0
+    return p_new, q_new, evaluate(prob, p_new, q_new, False)
+
+
+def _face_steps(face, free, col) -> np.ndarray | None:
+    """Orthonormal basis (F, F - 1) of the scaled steps of the free parameters that keep the
+    face row (1, 6) over phi at zero, or None off the face (face (0, 6)) or where phi is held.
+    """
+    if not face.size:
+        return None
+    row = np.zeros(free.size)
+    row[:6] = face[0]
+    row = row[free] / col
+    if not np.any(row):
+        return None
+    _, _, vt = np.linalg.svd(row[None])
+    return vt[1:].T
 
 
 def _qr_rhs(a, b):
