@@ -29,7 +29,10 @@ from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.scenario import Scenario
 
-RACQUET = np.diag([20.7e-3, 18.8e-3, 1.39e-3])  # kg·m² (phyphox-racquet README)
+#: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
+#: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
+#: body has them (18.8 + 1.39 < 20.7) and the fits keep to the bodies that exist
+RACQUET = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
 
 
 def long_recording() -> Recording:

@@ -357,8 +357,9 @@ def test_a_real_toss_whose_explanation_trades_with_the_inertia_is_flagged(racque
 def test_a_nearly_flat_real_toss_is_fitted_as_a_body_that_exists(racquet_toss):
     """Racquet round 2 segment 0, nearly a flat plate: pulled by what the model leaves out, its
     fits had put the largest moment beyond the sum of the other two (rigid (0.069, 0.426,
-    0.506), compound (0.048, 0.448, 0.504)), and the CLI refused the toss as no body's. Every step is now projected onto the bodies that
-    exist, and the fit still explains the toss (measured: rms 56.7 -> 2.9 times the noise)."""
+    0.506), compound (0.048, 0.448, 0.504)), and the CLI refused the toss as no body's. Every
+    step is now projected onto the bodies that exist, and the fit still explains the toss
+    (measured: rms 56.7 -> 2.9 times the noise)."""
     report, _ = diagnose(racquet_toss("round2", 0))
     for key in ("fit_before", "fit_after"):
         check_physical_inertia(report[key]["inertia"], key)

@@ -20,7 +20,10 @@ from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
 from inertia_gym.scenario import Scenario
 
-RACQUET = np.diag([20.7e-3, 18.8e-3, 1.39e-3])  # kg·m², a tennis racquet (phyphox README)
+#: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
+#: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
+#: body has them (18.8 + 1.39 < 20.7) and the fits keep to the bodies that exist
+RACQUET = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
 
 
 def _toss(w0, sigma=0.005, n=1000, every=10, seed=0, inertia=RACQUET, effects=()):
@@ -171,7 +174,8 @@ def test_drag_nil_about_one_axis_is_fitted_and_stays_dissipative(seed):
 
 def test_clipped_samples_are_left_out_and_reported():
     rec = _toss((0.3, 15.0, 0.4), sigma=0.002)
-    top = 0.97 * np.abs(rec.w).max()  # a gyro whose range ends just below the fastest rate
+    # a gyro whose range ends just below the fastest rate: ten samples beyond it
+    top = np.sort(np.abs(rec.w).ravel())[-11]
     w = np.clip(rec.w, -top, top)
     assert 3 <= (np.abs(w) >= top).sum() <= 20
     d = F.prepare(dataclasses.replace(rec, w=w))
