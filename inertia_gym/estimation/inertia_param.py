@@ -142,7 +142,7 @@ def realizable_phi(phi) -> np.ndarray:
     return phi if np.array_equal(near, j) else phi_from_inertia(near)
 
 
-def realizable_face(phi, tol: float = 1e-9) -> np.ndarray:
+def realizable_face(phi, tol: float = 1e-6) -> np.ndarray:
     """(m, 6) rows A (m = 1 where J(phi) is a flat plate's, at the limit nearest_realizable
     projects onto; else 0): steps d phi with A d phi = 0 keep the largest moment equal to the
     sum of the other two to first order, so a fit can move along the limit rather than creep
