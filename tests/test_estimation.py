@@ -77,8 +77,12 @@ def test_nearest_realizable_is_the_nearest_mass_distribution(rng):
 def test_realizable_phi_and_its_face_keep_a_fit_on_the_bodies_that_exist(rng):
     phi = phi_from_inertia(J)
     assert np.array_equal(realizable_phi(phi), phi) and realizable_face(phi).shape == (0, 6)
-    flat = realizable_phi(phi_from_inertia(np.diag([1.0, 0.45, 0.05])))
+    beyond = phi_from_inertia(np.diag([1.0, 0.45, 0.05]))
+    flat = realizable_phi(beyond)
     assert abs(_slack(inertia_from_phi(flat))) < 1e-12
+    kept = realizable_phi(beyond, keep_scale=True)  # the scale coordinate held: the shape moves
+    assert kept[0] == beyond[0] and abs(_slack(inertia_from_phi(kept))) < 1e-12
+    np.testing.assert_allclose(inertia_from_phi(kept), inertia_from_phi(flat) * np.exp(beyond[0] - flat[0]))
     face = realizable_face(flat)
     assert face.shape == (1, 6)
     for _ in range(10):  # a step with face . step = 0 stays on the limit to second order

@@ -945,9 +945,7 @@ class InertiaOffset(EffectModel):
 
     @override
     def feasible(self, p, inertia):
-        out = realizable_phi(p)
-        out[0] = p[0]  # the scale coordinate (held where the scale is not seen) kept: J's shape moves
-        return out
+        return realizable_phi(p, keep_scale=True)  # p[0] is held where the scale is not seen
 
     @override
     def face(self, p):

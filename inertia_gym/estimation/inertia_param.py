@@ -130,16 +130,23 @@ def nearest_realizable(inertia) -> np.ndarray:
     return (axes * (pairs @ second)) @ axes.T
 
 
-def realizable_phi(phi) -> np.ndarray:
+def realizable_phi(phi, keep_scale: bool = False) -> np.ndarray:
     """Phi (6,) of nearest_realizable(J(phi)): phi itself where J(phi) is a body's inertia (or
-    not finite: the fit's own checks refuse that).
+    not finite: the fit's own checks refuse that). keep_scale: phi[0], the pure scale coordinate,
+    is kept (a fit that holds it, where the scale is not seen), so only J's shape moves; J is
+    then the nearest one times a positive factor, a body's inertia still.
     """
     phi = np.asarray(phi, dtype=float)
     j = inertia_from_phi(phi)
     if not np.all(np.isfinite(j)):
         return phi
     near = nearest_realizable(j)
-    return phi if np.array_equal(near, j) else phi_from_inertia(near)
+    if np.array_equal(near, j):
+        return phi
+    out = phi_from_inertia(near)
+    if keep_scale:
+        out[0] = phi[0]
+    return out
 
 
 def realizable_face(phi, tol: float = 1e-6) -> np.ndarray:

@@ -497,7 +497,7 @@ def _trial(prob: Problem, p, q_ref, free, step):
     """
     p_new = p.copy()
     p_new[free] += step
-    p_new[1:6] = realizable_phi(p_new[:6])[1:6]
+    p_new[:6] = realizable_phi(p_new[:6], keep_scale=True)
     if np.abs(p_new[:6] - p[:6]).max() > MAX_PHI_STEP:
         return None
     q_new = q_ref
