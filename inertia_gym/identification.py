@@ -47,8 +47,10 @@ from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import (
     dtheta_dphi,
+    inertia_from_phi,
     nearest_realizable,
     phi_from_inertia,
+    realizable_phi,
     theta_from_phi,
 )
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
@@ -893,16 +895,48 @@ def _identify_filter(rec, prob, phi0, estimator, trace_ref):
         raise RecordingError(f"{rec.name}: the {estimator} diverged on this recording ({exc}); "
                              "try --method ml") from exc
     cov_phi = filt.P[7:13, 7:13].copy()
-    est = inertia_estimate(filt.x[7:13], cov_phi, prob.fix_scale, trace_ref)
+    notes = [f"{estimator.upper()} over {t.size} rows, final NIS {filt.nis:.3g}; its covariance is "
+             "the filter's own (process noise included), not a likelihood bound"]
+    phi, beyond = realizable_estimate(filt.x[7:13], prob.fix_scale)
+    if beyond is not None:
+        notes.append(beyond)
+    est = inertia_estimate(phi, cov_phi, prob.fix_scale, trace_ref)
     # The bound belongs to the data: the ML Fisher information at the filter's estimate.
     p = np.zeros(prob.n_params)
-    p[:6], p[6:9] = filt.x[7:13], rec.w[0]
+    p[:6], p[6:9] = phi, rec.w[0]
     bound = cramer_rao_bound(prob, p, rec.q[0] if rec.q is not None else None, trace_ref)
     crlb = ml.relative_frobenius_bound(bound.theta, bound.theta_cov)
     noise = NoiseModel("white", sigma_w, "filter measurement noise R", 0, 1.0)
-    notes = [f"{estimator.upper()} over {t.size} rows, final NIS {filt.nis:.3g}; its covariance is "
-             "the filter's own (process noise included), not a likelihood bound"]
     return est, crlb, noise, e_w, None, True, notes
+
+
+def realizable_estimate(phi, scale_fixed: bool) -> tuple[np.ndarray, str | None]:
+    """A filter's final inertia phi (6,) (log-Cholesky) and, where no body has J(phi) (the
+    largest principal moment above the sum of the other two), the note that says so: phi is
+    then replaced by the nearest inertia a body can have (inertia_param.realizable_phi, the
+    principal axes kept; the scale coordinate kept where the data do not fix it). The filter
+    itself runs unconstrained, as in the paper; this is the estimate projection of constrained
+    Kalman filtering. On a nearly flat body (a racquet) the filter's mean crossed the limit on
+    4 of 12 real tosses, and the command then refused a usable estimate.
+    """
+    phi = np.asarray(phi, dtype=float)
+    moments = np.linalg.eigvalsh(inertia_from_phi(phi))
+    excess = (moments[2] - moments[0] - moments[1]) / moments[2]
+    if not excess > REALIZABLE_TOLERANCE:
+        return phi, None
+    projected = realizable_phi(phi, keep_scale=scale_fixed)
+    moved = np.linalg.eigvalsh(inertia_from_phi(projected))
+    return projected, (
+        f"the filter's estimate has principal moments {np.array2string(moments, precision=4)}: the "
+        f"largest exceeds the sum of the other two by {100 * excess:.2g} % of it, which no body "
+        f"does; reported is the nearest inertia a body can have (a flat plate's, axes kept: "
+        f"{np.array2string(moved, precision=4)}). A filter ending this far outside often means "
+        "the model leaves physics out: compare --method ml, or run diagnose on the recording")
+
+
+#: A filter's estimate beyond the triangle inequality by at most this share of its largest
+#: moment is taken as on the limit (commands.common.check_physical_inertia's tolerance).
+REALIZABLE_TOLERANCE = 1e-6
 
 
 def markdown(summary: dict, plots=()) -> str:

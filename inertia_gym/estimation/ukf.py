@@ -30,11 +30,49 @@ SPREAD = 1.0
 
 
 @nb.njit(cache=True)
-def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
-    """Fill sigma (2n, 13) and each point's J, J^-1 (2n, 3, 3); False if P is not PD."""
+def covariance_root(P):
+    """(low (n, n), ok): a lower factor with low low^T = P (n, n). A held state, whose row and
+    column of P are zero (a parameter the filter keeps fixed: the scale of a torque-free record,
+    identification.py), gets a zero column, so its sigma points all keep the estimate's value;
+    ok is False where P is not positive definite over the other states (the estimate has left
+    its domain).
+    """
+    sym = 0.5 * (P + P.T)
+    n = sym.shape[0]
+    low = np.zeros((n, n))
     try:
-        low = np.linalg.cholesky(0.5 * (P + P.T))
-    except Exception:  # not positive definite: the estimate has left its domain
+        return np.linalg.cholesky(sym), True
+    except Exception:  # not positive definite: held states, or divergence
+        pass
+    free = np.zeros(n, np.bool_)
+    for i in range(n):
+        for j in range(n):
+            if sym[i, j] != 0.0:
+                free[i] = True
+    idx = np.flatnonzero(free)
+    if idx.size == n or idx.size == 0:
+        return low, idx.size == 0
+    sub = np.empty((idx.size, idx.size))
+    for a in range(idx.size):
+        for b in range(idx.size):
+            sub[a, b] = sym[idx[a], idx[b]]
+    try:
+        sub_low = np.linalg.cholesky(sub)
+    except Exception:
+        return low, False
+    for a in range(idx.size):
+        for b in range(idx.size):
+            low[idx[a], idx[b]] = sub_low[a, b]
+    return low, True
+
+
+@nb.njit(cache=True)
+def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
+    """Fill sigma (2n, 13) and each point's J, J^-1 (2n, 3, 3); False if P is not positive
+    definite (held states aside: covariance_root).
+    """
+    low, ok = covariance_root(P)
+    if not ok:
         return False
     spread = SPREAD
     for j in range(N_STATE):

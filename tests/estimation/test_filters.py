@@ -6,6 +6,7 @@ import pytest
 
 from inertia_gym.dynamics import euler_to_quat
 from inertia_gym.errors import ConfigError
+from inertia_gym.estimation import ukf
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import phi_from_inertia
@@ -84,3 +85,25 @@ def test_bad_start_is_refused():
         InertiaFilter(cfg, np.zeros(12), np.eye(13))
     with pytest.raises(ConfigError, match="quat_sigma"):
         FilterConfig(dt=0.01, gyro_sigma=0.01, use_quat=True, quat_sigma=0.0)
+
+
+def test_the_unscented_sigma_points_keep_a_held_state_and_refuse_an_indefinite_covariance():
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((13, 13))
+    p = a @ a.T + 0.1 * np.eye(13)
+    p[7, :] = p[:, 7] = 0.0  # the scale held: its row and column zero
+    low, ok = ukf.covariance_root(p)
+    assert ok
+    np.testing.assert_allclose(low @ low.T, p, atol=1e-12)
+    assert np.all(low[:, 7] == 0.0) and np.all(np.triu(low, 1) == 0.0)
+    x = np.r_[1.0, 0, 0, 0, 0.1, 0.2, 0.3, np.zeros(6)]
+    sigma = np.empty((ukf.N_SIGMA, 13))
+    inertia, inertia_inv = np.empty((ukf.N_SIGMA, 3, 3)), np.empty((ukf.N_SIGMA, 3, 3))
+    assert ukf.draw_sigma_points(x, p, sigma, inertia, inertia_inv)
+    assert np.all(sigma[:, 7] == x[7])  # every point keeps the held value
+    np.testing.assert_allclose(sigma.mean(axis=0), x, atol=1e-12)
+    indefinite = p.copy()
+    indefinite[3, 3] = -1.0
+    assert not ukf.covariance_root(indefinite)[1]
+    assert not ukf.draw_sigma_points(x, indefinite, sigma, inertia, inertia_inv)
+    assert ukf.covariance_root(np.zeros((13, 13)))[1]
