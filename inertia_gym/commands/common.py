@@ -107,31 +107,57 @@ def for_each_recording(args: argparse.Namespace, work) -> int:
     single recording, else one sub-folder per recording named after it. Returns 0.
 
     A single recording's refusal (an InertiaGymError: the recording refused, the fit diverged) is
-    raised as it is. Of several, a refused one does not stop the rest: its one-line reason goes
-    to stderr and to refused.txt in its folder, and once all are done a RecordingError says how
-    many were refused (exit 2).
+    raised as it is. Of several (a folder of recordings, a file of segments), a refused one does
+    not stop the rest, nor does a file of the folder that cannot be read: its one-line reason
+    goes to stderr and to refused.txt in its folder, and once all are done a RecordingError says
+    how many were refused (exit 2).
     """
-    from inertia_gym.discrepancy.recordings import read_recordings
+    from inertia_gym.discrepancy.recordings import recording_sources
 
-    recs = read_recordings(args.rec, parse_column_map(args.columns), args.time_unit, args.rate_unit)
+    path = Path(args.rec)
+    many = path.is_dir() and not (path / "Raw Data.csv").exists()  # not one phyphox export
+    sources = recording_sources(path) if many else [(None, path)]
+    pending = list(_read_each(sources, (parse_column_map(args.columns), args.time_unit, args.rate_unit)))
     folder = prepare_out_dir(args.out)
-    if len(recs) == 1:
-        work(recs[0], folder)
+    if len(pending) == 1:
+        rec = pending[0][1]
+        if isinstance(rec, InertiaGymError):
+            raise rec
+        work(rec, folder)
         return 0
     refused = []
-    for rec in recs:
-        sub = prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", rec.name))
+    for label, rec in pending:
+        sub = prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", label))
         try:
+            if isinstance(rec, InertiaGymError):  # the file could not be read
+                raise rec
             work(rec, sub)
         except InertiaGymError as exc:
-            refused.append(rec.name)
+            refused.append(label)
             (sub / "refused.txt").write_text(f"{exc}\n")
-            print(f"{rec.name}: refused: {exc}", file=sys.stderr)
+            print(f"{label}: refused: {exc}", file=sys.stderr)
     if refused:
-        raise RecordingError(f"{len(refused)} of {len(recs)} recordings refused (reasons above and in "
-                             f"each one's refused.txt under {folder}); the other {len(recs) - len(refused)} "
-                             "are written")
+        written = len(pending) - len(refused)
+        raise RecordingError(f"{len(refused)} of {len(pending)} recordings refused (reasons above and in "
+                             f"each one's refused.txt under {folder}); the other {written} are written")
     return 0
+
+
+def _read_each(sources, units):
+    """(name, recording) of every recording of sources ((name or None, path) pairs, read with
+    units = (columns, time_unit, rate_unit)); (name, the InertiaGymError) for a source that
+    cannot be read (name: its path where None).
+    """
+    from inertia_gym.discrepancy.recordings import read_source
+
+    for name, source in sources:
+        try:
+            recs = read_source(source, name, *units)
+        except InertiaGymError as exc:
+            yield (name or str(source)), exc
+            continue
+        for rec in recs:
+            yield rec.name, rec
 
 
 def check_physical_inertia(inertia, what: str) -> None:

@@ -718,9 +718,9 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
 def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                     rate_unit: str | None = None) -> list[Recording]:
     """Any supported input: project CSV, Parquet, phyphox file or folder, or a folder holding
-    phyphox exports in its sub-folders at any depth (each recording then named by its export's
-    path below that folder, e.g. "round1/Gyroscope rotation rate ... segment 0"). Returns one
-    or more.
+    recordings at any depth (recording_sources: phyphox exports, and project CSV or Parquet
+    files, each then named by its path below that folder, e.g. "round1/Gyroscope rotation rate
+    ... segment 0" or "throws/LOG00186"). Returns one or more.
 
     columns: {format name: the file's column name}, e.g. {"t": "time", "wx": "gx"}: format names
         as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
@@ -728,31 +728,58 @@ def read_recordings(path: str | Path, columns: dict | None = None, time_unit: st
         rad/s, refused when evidently otherwise (check_units). Stated: converted and trusted.
     A recording whose logged torque or momentum has gaps comes as its pieces (split_at_gaps).
     """
-    return [piece for rec in _read_any(path, columns, time_unit, rate_unit) for piece in split_at_gaps(rec)]
-
-
-def _read_any(path, columns, time_unit, rate_unit) -> list[Recording]:
     path = Path(path)
+    if not path.is_dir() or (path / "Raw Data.csv").exists():
+        return read_source(path, None, columns, time_unit, rate_unit)
+    return [rec for name, source in recording_sources(path)
+            for rec in read_source(source, name, columns, time_unit, rate_unit)]
+
+
+#: Suffixes of the project's recording files that a folder is searched for.
+RECORDING_SUFFIXES = (".csv", ".parquet")
+
+
+def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
+    """(name, path) of every recording a folder holds at any depth, sorted: each phyphox export
+    (a folder holding 'Raw Data.csv'; its own meta/ files are not recordings) and each project
+    CSV or Parquet file outside the exports, named by its path below folder (a file without its
+    suffix). RecordingError where it holds none.
+    """
+    folder = Path(folder)
+    exports = sorted(raw.parent for raw in folder.rglob("Raw Data.csv"))
+    files = sorted(f for f in folder.rglob("*") if f.is_file() and f.suffix.lower() in RECORDING_SUFFIXES
+                   and not any(export in f.parents or export == f.parent for export in exports))
+    sources = [(export.relative_to(folder).as_posix(), export) for export in exports]
+    sources += [(f.relative_to(folder).with_suffix("").as_posix(), f) for f in files]
+    if not sources:
+        raise RecordingError(f"{folder}: a folder must be a phyphox export holding 'Raw Data.csv', or hold "
+                             "such exports or recordings (.csv, .parquet) at any depth")
+    return sorted(sources)
+
+
+def read_source(path: str | Path, name: str | None = None, columns: dict | None = None,
+                time_unit: str | None = None, rate_unit: str | None = None) -> list[Recording]:
+    """The recordings of one file or phyphox export (read_recordings' options), named name (and
+    the segment or piece, if any) in place of the reader's own name where name is given.
+    """
+    label, recs = _read_any(Path(path), dict(columns=columns, time_unit=time_unit, rate_unit=rate_unit))
+    return [piece if name is None else dataclasses.replace(piece, name=name + piece.name[len(label):])
+            for rec in recs for piece in split_at_gaps(rec)]
+
+
+def _read_any(path: Path, units: dict) -> tuple[str, list[Recording]]:
+    """(the reader's name of the recording, its recordings) of one file or phyphox export."""
     if not path.exists():
         raise RecordingError(f"{path}: no such file or folder")
-    units = dict(columns=columns, time_unit=time_unit, rate_unit=rate_unit)
     if path.is_dir():
-        if (path / "Raw Data.csv").exists():
-            return read_phyphox(path, **units)
-        exports = sorted(raw.parent for raw in path.rglob("Raw Data.csv"))
-        if not exports:
-            raise RecordingError(f"{path}: a folder must be a phyphox export holding 'Raw Data.csv', "
-                                 "or hold such exports in its sub-folders")
-        return [dataclasses.replace(rec, name=export.relative_to(path).as_posix()
-                                    + rec.name[len(export.name):])  # the segment, if any
-                for export in exports for rec in read_phyphox(export, **units)]
+        return path.name, read_phyphox(path, **units)
     if path.suffix.lower() == ".parquet":
-        return [read_parquet_recording(path, **units)]
+        return path.stem, [read_parquet_recording(path, **units)]
     with path.open(errors="replace") as fh:
         first = fh.readline()
     if "Gyroscope x" in first:
-        return read_phyphox(path, **units)
-    return [read_csv_recording(path, **units)]
+        return path.parent.name, read_phyphox(path, **units)
+    return path.stem, [read_csv_recording(path, **units)]
 
 
 def write_recording(path: str | Path, rec: Recording, sidecar: dict | None = None) -> None:

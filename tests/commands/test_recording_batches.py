@@ -4,12 +4,14 @@ of the batch."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from inertia_gym.cli import main
+from inertia_gym.discrepancy.recordings import write_recording
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.scenario import Scenario
 
@@ -47,3 +49,22 @@ def test_a_refused_recording_does_not_stop_the_batch(tosses, tmp_path, capsys, c
     assert len(err) == 2  # one line per refusal, one for the batch
     assert err[0].startswith("round2/Gyroscope rotation rate 1: refused: ")
     assert "1 of 2 recordings refused" in err[1] and "the other 1 are written" in err[1]
+
+
+@pytest.mark.parametrize("command, result", [("diagnose", "report.json"), ("identify", "identify.json")])
+def test_a_folder_of_recording_files_with_an_unreadable_one(tmp_path, capsys, command, result):
+    """A folder of the project's CSV recordings (sidecars beside them), as a logger writes
+    throws: each is run, and a file that is no recording costs its own result only."""
+    rec, side = simulate_recording(Scenario(), 2.0, seed=3, torque=False, sample_dt=0.01)
+    folder = tmp_path / "throws"
+    folder.mkdir()
+    write_recording(folder / "LOG01.csv", dataclasses.replace(rec, q=None), side)
+    (folder / "notes.csv").write_text("when,who\nmonday,me\n")
+    out = tmp_path / "out"
+    code = main([command, str(folder), "--out", str(out), "--no-plots"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert (out / "LOG01" / result).is_file()
+    assert "notes.csv" in (out / "notes" / "refused.txt").read_text()
+    assert len(err) == 2 and err[0].startswith("notes: refused: ")
+    assert "1 of 2 recordings refused" in err[1]

@@ -15,6 +15,7 @@ from inertia_gym.discrepancy.recordings import (
     Recording,
     read_recordings,
     read_sidecar,
+    recording_sources,
     regular_clock,
     retimed,
     write_recording,
@@ -191,8 +192,26 @@ def test_a_folder_of_phyphox_exports_is_read_whole_each_named_by_its_path(tmp_pa
                                       for p in ("round1", "round2/more") for k in (0, 2)]
     assert all(r.t[0] >= r.meta["window"][0] for r in recs)
     (tmp_path / "empty").mkdir()
-    with pytest.raises(RecordingError, match="or hold such exports in its sub-folders"):
+    with pytest.raises(RecordingError, match=r"or hold such exports or recordings \(.csv, .parquet\)"):
         read_recordings(tmp_path / "empty")
+
+
+def test_a_folder_of_project_recordings_is_read_whole_each_named_by_its_path(tmp_path):
+    """A user's throws as logged (LOG01.csv + LOG01.json sidecar, ... in sub-folders, next to a
+    phyphox export whose own meta/*.csv are not recordings): every file, named by its path below
+    the folder without its suffix, its sidecar read with it."""
+    rec = Recording(np.arange(50) * 0.01, np.tile([0.1, 0.2, 0.3], (50, 1)), name="x")
+    for day in ("day1", "day2"):
+        (tmp_path / day).mkdir()
+    write_recording(tmp_path / "day1" / "LOG01.csv", rec, {"gyro_sigma": 0.002})
+    write_recording(tmp_path / "day2" / "LOG01.csv", rec, {})
+    _phyphox(tmp_path / "phone", "segment,start,end,keep\n0,0.2,1.0,\n")
+    recs = read_recordings(tmp_path)
+    assert [r.name for r in recs] == ["day1/LOG01", "day2/LOG01", "phone/Gyroscope rotation rate 1 segment 0"]
+    assert recs[0].meta["gyro_sigma"] == 0.002 and "gyro_sigma" not in recs[1].meta
+    assert [name for name, _ in recording_sources(tmp_path)] == ["day1/LOG01", "day2/LOG01",
+                                                                 "phone/Gyroscope rotation rate 1"]
+    assert read_recordings(tmp_path / "day1" / "LOG01.csv")[0].name == "LOG01"  # a file keeps its own
 
 
 def test_phyphox_bad_segment(tmp_path):
