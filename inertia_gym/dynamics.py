@@ -33,7 +33,8 @@ SQRT3_6 = math.sqrt(3.0) / 6.0
 # Layout of the packed disturbance vector.
 _D_TAU = slice(0, 3)  # constant body torque, N·m
 _D_H = slice(3, 6)  # internal angular momentum (wheel bias), N·m·s
-_D_C = slice(6, 15)  # viscous damping matrix, row-major, N·m·s
+_D_C0, _D_C1 = 6, 15
+_D_C = slice(_D_C0, _D_C1)  # viscous damping matrix, row-major, N·m·s
 _D_AERO_ON = 15  # 1 when the drag matrix is not zero (one test in the hot loop)
 _D_AERO = slice(16, 25)  # aerodynamic drag matrix C in -|w| C w, row-major, N·m·s²
 _D_N = 25  # orbital rate for gravity gradient, rad/s
@@ -612,10 +613,11 @@ def _change_inertia(y, j_now, j_new):
 
 @nb.njit(cache=True)
 def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, inertia_after, change_t,
-                   tau, h, dist, out):
+                   tau, h, dist, damping, out):
     """One segment of a model trajectory: grid steps a .. b from (q, w) = y0 (7,) and the modal
     state (eta, etad); writes (q, w) at the samples from index i on (sample_pos[i] == a) into out
     and returns the modal state at b. last: the segment ends the record (its end is a sample).
+    damping (m,): the factor of dist's viscous damping matrix over each grid interval.
 
     J is `inertia` before change_t and `inertia_after` from there on; a change inside a grid
     interval splits its step at change_t, so the trajectory is continuous and differentiable in
@@ -633,6 +635,7 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
         y[c] = y0[c]
     _normalize_quat(y)
     y[7], y[8] = eta, etad
+    scaled = dist.copy()  # dist with the damping matrix times the interval's factor
     for k in range(a, b + 1):
         while i < n_samples and sample_pos[i] == k and (k < b or last):
             for c in range(7):
@@ -642,6 +645,11 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
             break
         t0, t1 = grid_t[k], grid_t[k + 1]
         dt = t1 - t0
+        step_dist = dist
+        if damping[k] != 1.0:
+            for c in range(_D_C0, _D_C1):
+                scaled[c] = dist[c] * damping[k]
+            step_dist = scaled
         if not changed and t0 >= change_t:
             j_inv = _change_inertia(y, j_now, inertia_after)
             j_now = inertia_after.copy()
@@ -656,22 +664,22 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
             f = change_t - t0
             hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
             _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                hc0, hc1, hc2, dist)
+                                hc0, hc1, hc2, step_dist)
             j_inv = _change_inertia(y, j_now, inertia_after)
             j_now = inertia_after.copy()
             denom = _modal_coupling(j_inv, dist, jd)
             changed = True
             _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist)
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
         else:
             _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], dist)
+                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
     return y[7], y[8]
 
 
 @nb.njit(cache=True, parallel=True)
 def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_after, change_t, tau,
-                 tau_index, h, h_index, dist, out):
+                 tau_index, h, h_index, dist, damping, damping_index, out):
     """Every (trajectory, segment) pair as one task, in parallel: multiple shooting makes the
     segments of a trajectory independent, except that a flexible mode's state carries from one
     segment into the next; a trajectory with a mode runs its segments in order, in one task.
@@ -689,11 +697,12 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
             eta, etad = _model_segment(grid_t, sample_pos, seg_pos[r], seg_pos[r + 1], seg_sample[r],
                                        r == n_seg - 1, y0[b, r], eta, etad, inertia[b],
                                        inertia_after[b], change_t[b], tau[tau_index[b]],
-                                       h[h_index[b]], dist[b], out[b])
+                                       h[h_index[b]], dist[b], damping[damping_index[b]], out[b])
 
 
 def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
-                          h, dist, tau_index=None, h_index=None) -> np.ndarray:
+                          h, dist, tau_index=None, h_index=None, damping=None,
+                          damping_index=None) -> np.ndarray:
     """Integrate B model trajectories on one time grid (RK4, one step per grid interval) and return
     (q, w) at the sample points: the truth simulator of the effect catalogue and the model that
     diagnose fits, one integrator for both.
@@ -719,6 +728,9 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     h : (W, m+1, 3) kg·m²/s known internal momentum at the grid points, linear in between (its
         rate is each interval's slope); h_index (B,) as tau_index.
     dist : (B, DISTURBANCE_SIZE) packed Disturbance vectors.
+    damping : (U, m) factor of each trajectory's viscous damping matrix over each grid interval
+        (a drag coefficient that changes in time; default 1 throughout); damping_index (B,) as
+        tau_index.
 
     Returns
     -------
@@ -728,6 +740,10 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     batch = y0.shape[0]
     tau_index = np.zeros(batch, np.int64) if tau_index is None else np.asarray(tau_index, np.int64)
     h_index = np.zeros(batch, np.int64) if h_index is None else np.asarray(h_index, np.int64)
+    if damping is None:
+        damping, damping_index = np.ones((1, np.asarray(grid_t).size - 1)), None
+    damping_index = (np.zeros(batch, np.int64) if damping_index is None
+                     else np.asarray(damping_index, np.int64))
     out = np.empty((batch, sample_pos.size, 7))
     sample_pos, seg_pos = np.asarray(sample_pos, np.int64), np.asarray(seg_pos, np.int64)
     _model_batch(np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
@@ -735,5 +751,6 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
                  np.ascontiguousarray(inertia, dtype=float), np.ascontiguousarray(inertia_after, dtype=float),
                  np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
                  tau_index, np.ascontiguousarray(h, dtype=float), h_index,
-                 np.ascontiguousarray(dist, dtype=float), out)
+                 np.ascontiguousarray(dist, dtype=float), np.ascontiguousarray(damping, dtype=float),
+                 damping_index, out)
     return out

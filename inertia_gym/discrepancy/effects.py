@@ -146,6 +146,11 @@ class EffectModel:
     needs_momentum: ClassVar[bool] = False
     ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     sets_inertia: ClassVar[bool] = False
+    #: A varying form's time profile: one knot per this many residual rows (0: no varying
+    #: form), within these bounds; and the ambiguities that form adds.
+    ROWS_PER_KNOT: ClassVar[int] = 0
+    KNOTS: ClassVar[tuple[int, int]] = (0, 0)
+    varying_ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     restarts_on_base: ClassVar[bool] = False
     optional: ClassVar[dict] = {}
 
@@ -164,8 +169,19 @@ class EffectModel:
         return np.broadcast_to(value, (self.size,)).copy() if value.size == 1 else value
 
     def confounded(self, form: str) -> tuple[tuple[str, str], ...]:
-        """The known ambiguities of the effect fitted in that form: ``ambiguities`` by default."""
-        return self.ambiguities
+        """The known ambiguities of the effect fitted in that form: ``ambiguities``, and in the
+        varying form also ``varying_ambiguities``.
+        """
+        return self.ambiguities + (self.varying_ambiguities if form == "varying" else ())
+
+    def knots(self, d) -> int:
+        """Knots of the varying form's time profile on d: one per ROWS_PER_KNOT residual rows
+        within KNOTS (0: too few rows for it, or the effect has no varying form).
+        """
+        if not self.ROWS_PER_KNOT:
+            return 0
+        k = d.n_rows // self.ROWS_PER_KNOT
+        return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
 
     # --- fit set-up -------------------------------------------------------------------------
     def forms(self, d) -> tuple[str, ...]:
@@ -205,6 +221,12 @@ class EffectModel:
         start moves more (probe.x(p, inertia)); probe (fit.Probe) scores candidates.
         """
         return [np.zeros(self.form_size(form, d))]
+
+    def nested(self, form: str, d, p) -> np.ndarray | None:
+        """The vector of this form that equals p, the fit of the first form (forms(d)[0]), where
+        this form nests that one (its fit then starts there alone); None where it does not.
+        """
+        return None
 
     def neutral(self, form: str, d, base) -> np.ndarray:
         """A vector p at which the effect changes nothing of the fit `base` it is added to (zero
@@ -249,6 +271,12 @@ class EffectModel:
         recording logs (its h columns).
         """
         return h
+
+    def damping_factor(self, params: dict, t: np.ndarray):
+        """The factor (k,) of the viscous damping matrix at times t (k,) s where the drag
+        coefficient changes in time, or None.
+        """
+        return None
 
     def gyro(self, params: dict, w: np.ndarray) -> np.ndarray:
         """Gyro output (n, 3) from true rates w (n, 3)."""
@@ -358,17 +386,16 @@ class InternalMomentum(EffectModel):
     """
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
-    #: Knots of the varying form: one per this many residual rows, within these bounds.
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
+    varying_ambiguities = (("external torque", (
+        "a momentum changing along one body axis acts on the rates as a torque about that axis; "
+        "without the rotor's momentum logged (h columns), an external torque about a fixed body "
+        "axis with a free time course (say, air on a thrown body's far end) fits the same way: "
+        "on a body with no rotor, read it as such a torque")),)
 
     @override
     def draw(self, rng, body):
         return {"h": _unit(rng) * rng.uniform(0.02, 0.08) * body.j * body.omega_ref}
-
-    def knots(self, d) -> int:
-        """Profile knots on d (0: too few rows for a varying form)."""
-        k = d.n_rows // self.ROWS_PER_KNOT
-        return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
 
     @override
     def skip_reason(self, d):
@@ -381,16 +408,6 @@ class InternalMomentum(EffectModel):
     @override
     def forms(self, d):
         return ("constant", "varying") if self.knots(d) else ("constant",)
-
-    @override
-    def confounded(self, form):
-        if form != "varying":
-            return self.ambiguities
-        return self.ambiguities + (("external torque", (
-            "a momentum changing along one body axis acts on the rates as a torque about that axis; "
-            "without the rotor's momentum logged (h columns), an external torque about a fixed body "
-            "axis with a free time course (say, air on a thrown body's far end) fits the same way: "
-            "on a body with no rotor, read it as such a torque")),)
 
     @override
     def form_size(self, form, d):
@@ -519,10 +536,13 @@ class _Drag(EffectModel):
         # in a shallow minimum) the two best of isotropic and single-axis drag over two decades
         if not probe.few_segments:
             return [np.zeros(6)]
+        return [np.zeros(6)] + probe.best_of(self._trials(d), keep=2)
+
+    def _trials(self, d) -> list[np.ndarray]:
+        """Isotropic and single-axis drag matrices (6 entries each) over two decades."""
         size = self._scale(d)
         shapes = [np.eye(3)] + [np.diag(e) for e in np.eye(3)]
-        trials = [inertia6(c * size * m) for c in (0.5, 2.0, 8.0, 32.0) for m in shapes]
-        return [np.zeros(6)] + probe.best_of(trials, keep=2)
+        return [inertia6(c * size * m) for c in (0.5, 2.0, 8.0, 32.0) for m in shapes]
 
     @override
     def feasible(self, p, inertia):
@@ -545,10 +565,23 @@ class _Drag(EffectModel):
 
 @register
 class ViscousDamping(_Drag):
-    """Torque -C w (C symmetric, N·m·s)."""
+    """Torque -C w (C symmetric, N·m·s). Two forms: constant C, and varying, -s(t) C w, where
+    the coefficient changes over the record by a factor s(t) >= 0, piecewise linear through
+    knots at profile_t, s = 1 at the first (a thrown plate's rotational damping grows with the
+    air speed across it, which the flight changes: on the intermediate-axis flips of the real
+    racquet tosses the best single effect, scripts/racquet_candidates.py). The varying vector is
+    [C (6), profile_t (K, held), profile (K, the first held at 1)].
+    """
 
     name = "viscous_damping"
     ambiguities = (("aero_drag", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
+    # fewer knots than the time-varying momentum's: a coefficient that follows the flight, not a
+    # free torque history
+    ROWS_PER_KNOT, KNOTS = 12, (4, 8)
+    varying_ambiguities = (("internal_momentum", (
+        "a drag coefficient that changes over the record and a momentum that changes along one "
+        "body axis both change the spin's decay in time; where the body has no rotor, read it "
+        "as the drag")),)
 
     @override
     def _scale(self, d):
@@ -559,8 +592,86 @@ class ViscousDamping(_Drag):
         return {"c": np.diag(rng.uniform(0.004, 0.015, 3) * body.j)}
 
     @override
+    def forms(self, d):
+        return ("", "varying") if self.knots(d) else ("",)
+
+    @override
+    def form_size(self, form, d):
+        return 6 if form != "varying" else 6 + 2 * self.knots(d)
+
+    @override
+    def unpack(self, p):
+        if p.size == 6:
+            return {"c": matrix6(p)}
+        k = (p.size - 6) // 2
+        return {"c": matrix6(p[:6]), "profile_t": np.array(p[6:6 + k]), "profile": np.array(p[6 + k:])}
+
+    @override
+    def pack(self, params):
+        c = inertia6(_drag_matrix(params["c"]))
+        if "profile" not in params:
+            return c
+        return np.concatenate([c, np.asarray(params["profile_t"], float),
+                               np.asarray(params["profile"], float)])
+
+    def _flat(self, d) -> np.ndarray:
+        """The varying form's knots and a factor of 1 throughout (2K,)."""
+        k = self.knots(d)
+        return np.concatenate([np.linspace(d.t[0], d.t[-1], k), np.ones(k)])
+
+    @override
+    def bounds(self, form, d):
+        lo, hi = super().bounds(form, d)
+        if form == "varying":
+            lo[6 + self.knots(d):] = 0.0  # the factor: no negative drag
+        return lo, hi
+
+    @override
+    def held(self, form, d):
+        out = np.zeros(self.form_size(form, d), bool)
+        if form == "varying":
+            out[6:6 + self.knots(d) + 1] = True  # knot times, and s = 1 at the first
+        return out
+
+    @override
+    def typical(self, form, d):
+        if form != "varying":
+            return super().typical(form, d)
+        return np.concatenate([np.full(6, self._scale(d)), np.ones(2 * self.knots(d))])
+
+    @override
+    def starts(self, form, d, probe):
+        if form != "varying":
+            return super().starts(form, d, probe)
+        flat = self._flat(d)
+        return [np.r_[np.zeros(6), flat]] + probe.best_of([np.r_[c, flat] for c in self._trials(d)], keep=2)
+
+    @override
+    def neutral(self, form, d, base):
+        return np.zeros(6) if form != "varying" else np.r_[np.zeros(6), self._flat(d)]
+
+    @override
+    def nested(self, form, d, p):
+        return np.r_[p[:6], self._flat(d)] if form == "varying" else None
+
+    @override
+    def feasible(self, p, inertia):
+        return np.r_[super().feasible(p[:6], inertia), p[6:]]
+
+    @override
+    def face(self, p):
+        rows = super().face(p[:6])
+        return np.hstack([rows, np.zeros((rows.shape[0], p.size - 6))])
+
+    @override
     def disturbance(self, params):
         return {"damping": tuple(map(tuple, _drag_matrix(params["c"])))}
+
+    @override
+    def damping_factor(self, params, t):
+        if "profile" not in params:
+            return None
+        return np.interp(t, params["profile_t"], params["profile"])
 
 
 @register

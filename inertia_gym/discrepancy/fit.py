@@ -1113,20 +1113,21 @@ class Probe:
         return self.best_x(starts, keep=len(starts))  # ranked: an estimate can be worse than none
 
 
-def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None,
+def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, extra_starts=(),
               omega_max: float | None = None) -> Fit:
     """Fit the effects `names` (in `forms`) jointly with the inertia and the segments' rates,
     the last one added to the fit `base` of the others (whose x starts everything else).
 
     joint=False fits only the new effect's parameters (everything else held) with SCREEN_ITER
     iterations per start: a cheap screen, refitted jointly after. start: one joint x to start
-    from instead of the new effect's own starts (omega_max: the grid's fastest mode for it).
-    Several starts each get START_ITER iterations and the best is run to convergence.
+    from instead of the new effect's own starts (omega_max: the grid's fastest mode for it);
+    extra_starts: joint xs tried beside them. Several starts each get START_ITER iterations and
+    the best is run to convergence.
     """
     layout = Layout.of(names, forms, d, base.layout.omega_max if omega_max is None else omega_max)
     new, form = layout.models[-1], layout.forms[-1]
     probe = Probe(layout, d, base)
-    starts = [start] if start is not None else probe.own_starts()
+    starts = ([start] if start is not None else probe.own_starts()) + list(extra_starts)
     if new.name == "flexible_mode" and starts:  # integrate finely enough for the fastest start
         i = layout.slices()[-1].start
         fastest = max(abs(x0[i]) for x0 in starts)
@@ -1200,9 +1201,27 @@ def candidates(d: Data) -> tuple[list[str], dict]:
 
 def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
     """One effect fitted jointly with the inertia from the nominal fit, in each of its forms;
-    the form of lowest BIC.
+    the form of lowest BIC. A form that nests the first (EffectModel.nested: viscous_damping's
+    varying factor at 1 is its constant drag) extends it: it is fitted only where the first form
+    improves the nominal's BIC by SIGNIFICANT_DELTA_BIC (a drag that changes in time, where a
+    drag is seen at all), started from the first form's fit (and, on a record of few segments,
+    where starts matter more, from its own starts as well).
     """
-    fits = [fit_model((name,), (form,), d, nominal) for form in REGISTRY[name].forms(d)]
+    model = REGISTRY[name]
+    forms = model.forms(d)
+    first = fit_model((name,), (forms[0],), d, nominal)
+    fits = [first]
+    span = first.layout.slices()[-1]
+    for form in forms[1:]:
+        inner = model.nested(form, d, first.x[span])
+        if inner is None:
+            fits.append(fit_model((name,), (form,), d, nominal))
+        elif nominal.bic - first.bic > SIGNIFICANT_DELTA_BIC:
+            extended = np.concatenate([first.x[:span.start], inner, first.x[span.stop:]])
+            if d.segments < SHORT_SEGMENTS:
+                fits.append(fit_model((name,), (form,), d, nominal, extra_starts=[extended]))
+            else:
+                fits.append(fit_model((name,), (form,), d, nominal, start=extended))
     return min(fits, key=lambda f: f.bic)
 
 

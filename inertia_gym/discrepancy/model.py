@@ -70,7 +70,8 @@ def held_cumulative(t_rows, tau_rows) -> Cumulative:
 class Terms:
     """The integrator's inputs of one model: inertia and inertia_after (3, 3) kg·m², change_t s
     (inf: none), tau (m, 3) N·m applied over each grid interval, h (m+1, 3) kg·m²/s internal
-    momentum at the grid points (known plus modelled), dist (DISTURBANCE_SIZE,) packed hook.
+    momentum at the grid points (known plus modelled), dist (DISTURBANCE_SIZE,) packed hook,
+    damping (m,) the factor of the hook's viscous damping over each grid interval.
     """
 
     inertia: np.ndarray
@@ -79,6 +80,7 @@ class Terms:
     tau: np.ndarray
     h: np.ndarray
     dist: np.ndarray
+    damping: np.ndarray
 
 
 def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
@@ -94,6 +96,7 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
     fields: dict = {}
     change_t, inertia_after = np.inf, inertia
     h = h_known
+    damping = _ones(grid.steps)
     for model, params in effects:
         true = model.true_inertia(params)
         inertia = inertia if true is None else np.asarray(true, float)
@@ -113,6 +116,9 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         extra = model.momentum(params, grid.t)
         if extra is not None:
             h = extra if h is None else h + extra
+        factor = model.damping_factor(params, grid.t)
+        if factor is not None:  # held over each interval at its mean
+            damping = damping * 0.5 * (factor[1:] + factor[:-1])
         if applied is not None:
             applied = model.applied(params, applied)
     if applied is None:
@@ -123,7 +129,7 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
     if h is None:
         h = _zeros(grid.t.size)
-    return Terms(inertia, inertia_after, change_t, tau, h, Disturbance(**fields).pack())
+    return Terms(inertia, inertia_after, change_t, tau, h, Disturbance(**fields).pack(), damping)
 
 
 @functools.lru_cache(maxsize=8)
@@ -132,6 +138,16 @@ def _zeros(rows: int) -> np.ndarray:
     without a torque or a momentum, so simulate() passes it once without comparing its bytes.
     """
     out = np.zeros((rows, 3))
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _ones(steps: int) -> np.ndarray:
+    """A read-only (steps,) array of ones, one per size: the damping factor of every model whose
+    drag does not change in time (passed once, as _zeros).
+    """
+    out = np.ones(steps)
     out.flags.writeable = False
     return out
 
@@ -147,15 +163,17 @@ def simulate(grid: Grid, seg_pos, y0, terms: list[Terms]) -> np.ndarray:
     """Integrate one trajectory per Terms (B of them) on the grid; y0 (B, S, 7) (q, w) at the
     segment starts seg_pos (S+1,) grid indices. Returns (B, n, 7) q and w at the samples.
 
-    Equal tau and h arrays are passed to the integrator once.
+    Equal tau, h and damping arrays are passed to the integrator once.
     """
     taus, tau_index = _unique([tm.tau for tm in terms])
     hs, h_index = _unique([tm.h for tm in terms])
+    dampings, damping_index = _unique([tm.damping for tm in terms])
     return propagate_model_batch(grid.t, grid.sample_pos, seg_pos, y0,
                                  np.stack([tm.inertia for tm in terms]),
                                  np.stack([tm.inertia_after for tm in terms]),
                                  np.array([tm.change_t for tm in terms]), np.stack(taus), np.stack(hs),
-                                 np.stack([tm.dist for tm in terms]), tau_index, h_index)
+                                 np.stack([tm.dist for tm in terms]), tau_index, h_index,
+                                 np.stack(dampings), damping_index)
 
 
 def _unique(arrays) -> tuple[list[np.ndarray], list[int]]:

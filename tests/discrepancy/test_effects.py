@@ -57,11 +57,12 @@ def test_varying_internal_momentum_round_trip():
 # --- an independent reference: scipy's adaptive integrator on the stated equations -----------
 
 def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)), extra=None,
-               inertia=INERTIA, flex=None, breaks=(), w0=W0):
+               inertia=INERTIA, flex=None, breaks=(), w0=W0, timed=None):
     """w(t_end) and q(t_end) of J w_dot + h_dot + d eta_ddot + w x (J w + h + d eta_dot) = tau + extra,
     eta_ddot + 2 z W eta_dot + W^2 eta = -d . w_dot, q_dot = q (x) (0, w) / 2, integrated by
     solve_ivp piece by piece between `breaks` (where the torque or h_dot jumps). flex: (d, W, z)
-    with the mode at rest at the start, or (d, W, z, eta0, eta_dot0).
+    with the mode at rest at the start, or (d, W, z, eta0, eta_dot0). timed(t, w): a torque that
+    also depends on time, added to extra.
     """
     delta, om, ze, eta0, eta_dot0 = (*flex, 0.0, 0.0)[:5] if flex is not None else (np.zeros(3), 0.0, 0.0,
                                                                                     0.0, 0.0)
@@ -69,7 +70,7 @@ def _reference(t_end, torque_at, momentum_at=lambda t: (np.zeros(3), np.zeros(3)
     def rhs(t, y):
         q, w, eta, eta_d = y[:4], y[4:7], y[7], y[8]
         h, h_dot = momentum_at(t)
-        tau = torque_at(t) - h_dot + (extra(q, w, h) if extra else 0.0)
+        tau = torque_at(t) - h_dot + (extra(q, w, h) if extra else 0.0) + (timed(t, w) if timed else 0.0)
         m = np.zeros((4, 4))
         m[:3, :3], m[:3, 3], m[3, :3], m[3, 3] = inertia, delta, delta, 1.0
         f = np.append(tau - np.cross(w, inertia @ w + h + delta * eta_d),
@@ -317,3 +318,42 @@ def test_the_modal_screen_reaches_down_to_what_a_long_record_of_a_slow_body_show
     assert floor(1200.0, 0.02) == pytest.approx(0.02 / (2 * np.pi))  # a slow stage: its rotation
     assert floor(1200.0, 1e-3) == pytest.approx(2.0 / 1200.0)  # nearly still: two cycles in 20 min
     assert floor(60.0, 0.3) == pytest.approx(0.3 / (2 * np.pi))
+
+
+def test_varying_viscous_damping_matches_its_stated_equation():
+    """-s(t) C w, s piecewise linear through its knots: the truth simulator (the model diagnose
+    fits; s held over each step at the step's mean) against the reference with s(t) exact."""
+    knots_t, knots = np.array([0.0, 0.8, 2.0]), np.array([1.0, 3.0, 0.5])
+    effect = Effect("viscous_damping", {"c": DRAG, "profile_t": knots_t, "profile": knots})
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, breaks=knots_t,
+                              timed=lambda t, w: -np.interp(t, knots_t, knots) * DRAG @ w)
+    _check(effect, w_ref, q_ref)
+    w_flat, _ = _truth(Effect("viscous_damping", {"c": DRAG}))
+    assert np.abs(_truth(effect)[0] - w_flat).max() > 1e-2  # the factor acted
+
+
+def test_varying_viscous_damping_round_trip_and_its_fitted_layout():
+    model = REGISTRY["viscous_damping"]
+    params = {"c": DRAG, "profile_t": [0.0, 1.0, 2.0, 3.0], "profile": [1.0, 2.0, 0.5, 0.0]}
+    back = model.unpack(model.pack(params))
+    for key, value in params.items():
+        np.testing.assert_allclose(back[key], value, atol=1e-12)
+    np.testing.assert_allclose(model.damping_factor(back, np.array([0.5, 2.5])), [1.5, 0.25])
+    assert model.damping_factor(model.unpack(model.pack({"c": DRAG})), np.zeros(2)) is None
+
+    class Rows:  # what the form's layout reads of the prepared record
+        def __init__(self, n_rows):
+            self.n_rows, self.t, self.j_ref = n_rows, np.linspace(0.0, 2.0, 5), 1.0
+
+    assert model.forms(Rows(47)) == ("",)  # fewer than 4 knots' worth of rows: constant only
+    d = Rows(100)
+    k = model.knots(d)
+    assert model.forms(d) == ("", "varying") and k == 8
+    lo, hi = model.bounds("varying", d)
+    held = model.held("varying", d)
+    assert model.form_size("varying", d) == lo.size == held.size == 6 + 2 * k
+    assert np.all(lo[6 + k:] == 0.0) and np.all(np.isinf(lo[:6]))  # the factor is never negative
+    assert held[6:6 + k + 1].all() and not held[:6].any() and not held[6 + k + 1:].any()
+    p = np.r_[model.pack({"c": -DRAG})[:6], model.neutral("varying", d, None)[6:]]
+    assert np.all(np.linalg.eigvalsh(model.unpack(model.feasible(p, None))["c"]) >= -1e-12)
+    np.testing.assert_array_equal(model.feasible(p, None)[6:], p[6:])  # the profile untouched
