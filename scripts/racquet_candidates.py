@@ -1,8 +1,10 @@
 """Prototype effects, not in the catalogue, measured on the racquet tosses (issue 11, must-show 3).
 
-The racquet's leading explanation splits between `internal_momentum` (time-varying) and
+The racquet's leading explanation split between `internal_momentum` (time-varying) and
 `viscous_damping`. This script asks whether a physical effect the catalogue lacks explains the
-tosses better. It fits two prototypes on each toss next to the catalogue's own:
+tosses better. It fits prototypes on each toss next to the catalogue's own (`viscous_damping`
+in its best form: since 2026-11-26 also the varying form, a drag whose coefficient changes over
+the flight, which this script first measured as a prototype):
 
 - ``flight_aero``: the racquet's head is a flat plate moving through still air. The force on it
   is along its normal n, -k |u_n| u_n, at an arm from the centre of mass; its torque is
@@ -16,6 +18,10 @@ tosses better. It fits two prototypes on each toss next to the catalogue's own:
   the major axis, g along each body axis, and v0 putting the apex mid-toss.
 - ``gyro_matrix``: the gyro reads (I + E) w with E symmetric (scale and cross-axis errors,
   6 parameters, each within 0.1).
+- ``space_torque`` (added 2026-11-26): a torque fixed in space, tau0 + tau1 t in the frame of the
+  body at the first row, carried into the body by the attitude integrated from the gyro
+  (6 parameters): what a torque about a fixed body axis with a free time course (the
+  time-varying internal momentum) can mimic on a steady spin.
 
 Each prototype is registered in this process only, so `diagnose` is unchanged. It is fitted by
 the same solver as the catalogue (fit.fit_effect) on the record as diagnose prepares it
@@ -23,7 +29,9 @@ the same solver as the catalogue (fit.fit_effect) on the record as diagnose prep
 its explanation, this script does not). Its BICs count every row as independent (diagnose
 recounts them where what a fit leaves is correlated, so its delta BICs are smaller). Output per
 toss: the delta BIC each candidate gains over the rigid fit, the worst-axis rms/noise, the fitted
-plate geometry, and the pairs viscous_damping + each of (flight_aero, internal_momentum).
+plate geometry, the pairs viscous_damping + each of (flight_aero, internal_momentum), and the
+best single effect, counted over all tosses and over the intermediate-axis flips alone (the
+segments whose comment in meta/segments.csv says "Intermediate").
 
 Usage: PYTHONPATH=. python scripts/racquet_candidates.py [--data ../shared/data/phyphox-racquet]
 """
@@ -31,6 +39,7 @@ Usage: PYTHONPATH=. python scripts/racquet_candidates.py [--data ../shared/data/
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import json
 from pathlib import Path
@@ -129,14 +138,36 @@ class FlightAero(E.EffectModel):
 
     @override
     def applied(self, params, cumulative):
-        tau = plate_torque(params["p"])
-        steps = 0.5 * (tau[1:] + tau[:-1]) * np.diff(Flight.t)[:, None]
-        knots = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+        return with_torque(plate_torque(params["p"]), cumulative)
 
-        def with_plate(t):
-            return cumulative(t) + np.stack([np.interp(t, Flight.t, knots[:, i]) for i in range(3)], 1)
 
-        return with_plate
+def with_torque(tau, cumulative):
+    """The running integral of the command (cumulative) plus that of a torque tau (n, 3) N·m at
+    the measured rows (trapezoidal, linear between rows): an input torque added to the model."""
+    steps = 0.5 * (tau[1:] + tau[:-1]) * np.diff(Flight.t)[:, None]
+    knots = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+
+    def added(t):
+        return cumulative(t) + np.stack([np.interp(t, Flight.t, knots[:, i]) for i in range(3)], 1)
+
+    return added
+
+
+@E.register
+class SpaceTorque(E.EffectModel):
+    """Prototype: a torque fixed in space, changing linearly in time (module docstring)."""
+
+    name, params, size, family = "space_torque", ("p",), 6, "external torque"
+
+    @override
+    def typical(self, form, d):
+        return np.r_[np.full(3, d.tau_ref), np.full(3, d.tau_ref / max(d.duration, d.dt))]
+
+    @override
+    def applied(self, params, cumulative):
+        p = params["p"]
+        in_space = p[None, :3] + p[None, 3:] * (Flight.t - Flight.t[0])[:, None]
+        return with_torque(np.einsum("kji,kj->ki", Flight.rotation, in_space), cumulative)
 
 
 @E.register
@@ -183,9 +214,10 @@ def main() -> None:
     data = Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"
     ap.add_argument("--data", default=str(data))
     args = ap.parse_args()
-    singles = ("flight_aero", "gyro_matrix", "viscous_damping", "internal_momentum")
+    singles = ("flight_aero", "gyro_matrix", "space_torque", "viscous_damping", "internal_momentum")
     rows = []
     for raw in sorted(Path(args.data).glob("round*/*/Raw Data.csv")):
+        comments = segment_comments(raw.parent)
         for rec in map(retimed, read_recordings(raw.parent)):
             d = F.prepare(rec)
             nominal = F.fit_nominal(d)
@@ -196,12 +228,14 @@ def main() -> None:
             nominal = F.fit_nominal(d)
             keep = slice(trim[0], rec.t.size - trim[1])
             Flight.set(np.asarray(rec.t, float)[keep], np.asarray(rec.w, float)[keep])
-            row = {"toss": f"{raw.parent.parent.name} {rec.name[-9:]}", "rigid": worst(nominal)}
+            row = {"toss": f"{raw.parent.parent.name} {rec.name[-9:]}", "rigid": worst(nominal),
+                   "flip": "intermediate" in comments.get(rec.meta.get("segment"), "").lower()}
             fits = {name: F.fit_effect(name, d, nominal) for name in singles}
             for name, f in fits.items():
                 row[name] = [round(float(nominal.bic - f.bic)), worst(f)]
+            drag = fits["viscous_damping"]  # in its best form
             for second in ("flight_aero", "internal_momentum"):
-                pair = min((F.fit_model(("viscous_damping", second), ("", form), d, fits["viscous_damping"])
+                pair = min((F.fit_model(("viscous_damping", second), (drag.forms[0], form), d, drag)
                             for form in E.REGISTRY[second].forms(d)), key=lambda f: f.bic)
                 row["viscous_damping+" + second] = [round(float(nominal.bic - pair.bic)), worst(pair)]
             p = fits["flight_aero"].params["p"]
@@ -213,9 +247,20 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
     best = [r["best_single"] for r in rows]
+    flips = [r["best_single"] for r in rows if r["flip"]]
     pairs = sum(r["viscous_damping+flight_aero"][0] > r["viscous_damping+internal_momentum"][0] for r in rows)
-    print(f"best single effect: {({n: best.count(n) for n in singles})}; viscous_damping+flight_aero "
+    print(f"best single effect: {({n: best.count(n) for n in singles})}; on the {len(flips)} "
+          f"intermediate-axis flips: {({n: flips.count(n) for n in singles})}; viscous_damping+flight_aero "
           f"above viscous_damping+internal_momentum on {pairs}/{len(rows)} tosses")
+
+
+def segment_comments(export: Path) -> dict[int, str]:
+    """Segment number -> the comment meta/segments.csv gives it (what the tosser did)."""
+    path = export / "meta" / "segments.csv"
+    if not path.exists():
+        return {}
+    with path.open() as fh:
+        return {int(row["segment"]): row.get("comment") or "" for row in csv.DictReader(fh)}
 
 
 if __name__ == "__main__":
