@@ -740,8 +740,7 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     batch = y0.shape[0]
     tau_index = np.zeros(batch, np.int64) if tau_index is None else np.asarray(tau_index, np.int64)
     h_index = np.zeros(batch, np.int64) if h_index is None else np.asarray(h_index, np.int64)
-    if damping is None:
-        damping, damping_index = np.ones((1, np.asarray(grid_t).size - 1)), None
+    damping = np.ones((1, np.asarray(grid_t).size - 1)) if damping is None else damping
     damping_index = (np.zeros(batch, np.int64) if damping_index is None
                      else np.asarray(damping_index, np.int64))
     out = np.empty((batch, sample_pos.size, 7))

@@ -46,6 +46,7 @@ from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.equation_error import equation_error_theta
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import (
+    REALIZABLE_TOLERANCE,
     dtheta_dphi,
     inertia_from_phi,
     nearest_realizable,
@@ -932,11 +933,6 @@ def realizable_estimate(phi, scale_fixed: bool) -> tuple[np.ndarray, str | None]
         f"does; reported is the nearest inertia a body can have (a flat plate's, axes kept: "
         f"{np.array2string(moved, precision=4)}). A filter ending this far outside often means "
         "the model leaves physics out: compare --method ml, or run diagnose on the recording")
-
-
-#: A filter's estimate beyond the triangle inequality by at most this share of its largest
-#: moment is taken as on the limit (commands.common.check_physical_inertia's tolerance).
-REALIZABLE_TOLERANCE = 1e-6
 
 
 def markdown(summary: dict, plots=()) -> str:

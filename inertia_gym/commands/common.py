@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.errors import ConfigError, InertiaGymError, RecordingError
+from inertia_gym.estimation.inertia_param import REALIZABLE_TOLERANCE
 from inertia_gym.scenario import Scenario, ScenarioWarning, shipped_scenarios
 
 
@@ -163,7 +164,7 @@ def _read_each(sources, units):
 def check_physical_inertia(inertia, what: str) -> None:
     """Refuse (RecordingError) a result inertia (3, 3) kg·m² that no body can have: not finite,
     not symmetric positive definite, or principal moments breaking the triangle inequality
-    (each at most the sum of the others, to 1e-6 of the largest). what names it in the message.
+    (each at most the sum of the others, to REALIZABLE_TOLERANCE). what names it in the message.
     """
     j = np.asarray(inertia, dtype=float)
     fix = ("the recording does not determine a rigid body's inertia: too short or too little motion, "
@@ -171,7 +172,7 @@ def check_physical_inertia(inertia, what: str) -> None:
     if j.shape != (3, 3) or not np.all(np.isfinite(j)):
         raise RecordingError(f"{what}: the fitted inertia is not a finite 3x3 matrix; {fix}")
     moments = np.linalg.eigvalsh(0.5 * (j + j.T))
-    if moments[0] <= 0 or moments[2] > (moments[0] + moments[1]) * (1 + 1e-6):
+    if moments[0] <= 0 or moments[2] > (moments[0] + moments[1]) * (1 + REALIZABLE_TOLERANCE):
         raise RecordingError(f"{what}: the fitted inertia has principal moments "
                              f"{np.array2string(moments, precision=4)}, which no body has; {fix}")
 

@@ -748,7 +748,7 @@ def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
     folder = Path(folder)
     exports = sorted(raw.parent for raw in folder.rglob("Raw Data.csv"))
     files = sorted(f for f in folder.rglob("*") if f.is_file() and f.suffix.lower() in RECORDING_SUFFIXES
-                   and not any(export in f.parents or export == f.parent for export in exports))
+                   and not any(export in f.parents for export in exports))
     sources = [(export.relative_to(folder).as_posix(), export) for export in exports]
     sources += [(f.relative_to(folder).with_suffix("").as_posix(), f) for f in files]
     if not sources:

@@ -25,6 +25,11 @@ from inertia_gym.errors import ConfigError
 #: Upper bounds of |phi| a fit may reach (the log entries; the others are free): within them
 #: exp() and its squares stay finite, and no body's moments differ by e^30.
 PHI_BOUND = np.array([100.0, np.inf, 30.0, np.inf, np.inf, 30.0])
+#: An inertia whose largest principal moment exceeds the sum of the other two by at most this
+#: share counts as on the limit of the bodies that exist (a flat plate), not beyond it: one
+#: tolerance for the fits' face (realizable_face), a filter's projected estimate
+#: (identification.realizable_estimate) and the commands' check (check_physical_inertia).
+REALIZABLE_TOLERANCE = 1e-6
 
 
 @nb.njit(cache=True)
@@ -149,7 +154,7 @@ def realizable_phi(phi, keep_scale: bool = False) -> np.ndarray:
     return out
 
 
-def realizable_face(phi, tol: float = 1e-6) -> np.ndarray:
+def realizable_face(phi, tol: float = REALIZABLE_TOLERANCE) -> np.ndarray:
     """(m, 6) rows A (m = 1 where J(phi) is a flat plate's, at the limit nearest_realizable
     projects onto; else 0): steps d phi with A d phi = 0 keep the largest moment equal to the
     sum of the other two to first order, so a fit can move along the limit rather than creep
