@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
 from tqdm.auto import tqdm
 
@@ -86,9 +87,15 @@ class SB3Agent(Agent):
         self.model_ = None
 
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:
-        """Train with ``learn(total_timesteps=budget)``; SB3 resets the env itself (seeded)."""
+        """Train with ``learn(total_timesteps=budget)``; SB3 resets the env itself (seeded).
+
+        Without a ``tensorboard_log`` override nothing is logged: SB3's default logger would make
+        an empty SB3-<time> folder in the system's temporary folder on every learn().
+        """
         with _restore_global_rngs():
             self.model_ = self._CLASSES[self.name]("MlpPolicy", env, seed=self.seed,
                                                    device="cpu", verbose=0, **self.kwargs)
+            if self.kwargs.get("tensorboard_log") is None:
+                self.model_.set_logger(Logger(folder=None, output_formats=[]))
             self.model_.learn(total_timesteps=budget,
                               callback=_StopAtBudget(budget, self.name, progress))

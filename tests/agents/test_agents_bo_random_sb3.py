@@ -1,3 +1,5 @@
+import tempfile
+
 import numpy as np
 import pytest
 import torch
@@ -111,9 +113,13 @@ def test_make_agent_unknown_name():
 
 
 @pytest.mark.parametrize("name", ["sac", "td3", "ppo"])
-def test_sb3_agents_take_exactly_the_budget(name):
+def test_sb3_agents_take_exactly_the_budget(name, tmp_path, monkeypatch):
+    """... and leave nothing in the temporary folder (SB3's default logger made an empty
+    SB3-<time> folder there on every run)."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     sc = Scenario()
     r = optimize(name, sc, 12, seed=0)
+    assert not list(tmp_path.glob("SB3-*"))
     assert r.costs.shape == (12,) and r.xis.shape == (12, 3)
     lo, hi = sc.xi_bounds
     assert np.all(r.xis >= lo - 1e-9) and np.all(r.xis <= hi + 1e-9)
