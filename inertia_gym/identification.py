@@ -898,7 +898,7 @@ def _identify_filter(rec, prob, phi0, estimator, trace_ref):
     cov_phi = filt.P[7:13, 7:13].copy()
     notes = [f"{estimator.upper()} over {t.size} rows, final NIS {filt.nis:.3g}; its covariance is "
              "the filter's own (process noise included), not a likelihood bound"]
-    phi, beyond = realizable_estimate(filt.x[7:13], prob.fix_scale)
+    phi, cov_phi, beyond = realizable_estimate(filt.x[7:13], cov_phi, prob.fix_scale)
     if beyond is not None:
         notes.append(beyond)
     est = inertia_estimate(phi, cov_phi, prob.fix_scale, trace_ref)
@@ -911,28 +911,32 @@ def _identify_filter(rec, prob, phi0, estimator, trace_ref):
     return est, crlb, noise, e_w, None, True, notes
 
 
-def realizable_estimate(phi, scale_fixed: bool) -> tuple[np.ndarray, str | None]:
-    """A filter's final inertia phi (6,) (log-Cholesky) and, where no body has J(phi) (the
-    largest principal moment above the sum of the other two), the note that says so: phi is
-    then replaced by the nearest inertia a body can have (inertia_param.realizable_phi, the
-    principal axes kept; the scale coordinate kept where the data do not fix it). The filter
-    itself runs unconstrained, as in the paper; this is the estimate projection of constrained
-    Kalman filtering. On a nearly flat body (a racquet) the filter's mean crossed the limit on
-    4 of 12 real tosses, and the command then refused a usable estimate.
+def realizable_estimate(phi, cov, scale_fixed: bool) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """A filter's final inertia phi (6,) (log-Cholesky) with its covariance cov (6, 6), and,
+    where no body has J(phi) (the largest principal moment above the sum of the other two), the
+    note that says so: phi is then replaced by the nearest inertia a body can have
+    (inertia_param.realizable_phi, the principal axes kept; the scale coordinate kept where the
+    data do not fix it), and the shift s it moved is added to the covariance, cov + s s^T (the
+    mean square error about the projected estimate: its intervals reach back to the filter's
+    own). The filter itself runs unconstrained, as in the paper; this is the estimate projection
+    of constrained Kalman filtering. On a nearly flat body (a racquet) the filter's mean crossed
+    the limit on 4 of 12 real tosses, and the command then refused a usable estimate.
     """
-    phi = np.asarray(phi, dtype=float)
+    phi, cov = np.asarray(phi, dtype=float), np.asarray(cov, dtype=float)
     moments = np.linalg.eigvalsh(inertia_from_phi(phi))
     excess = (moments[2] - moments[0] - moments[1]) / moments[2]
     if not excess > REALIZABLE_TOLERANCE:
-        return phi, None
+        return phi, cov, None
     projected = realizable_phi(phi, keep_scale=scale_fixed)
+    shift = phi - projected
     moved = np.linalg.eigvalsh(inertia_from_phi(projected))
-    return projected, (
+    return projected, cov + np.outer(shift, shift), (
         f"the filter's estimate has principal moments {np.array2string(moments, precision=4)}: the "
         f"largest exceeds the sum of the other two by {100 * excess:.2g} % of it, which no body "
         f"does; reported is the nearest inertia a body can have (a flat plate's, axes kept: "
-        f"{np.array2string(moved, precision=4)}). A filter ending this far outside often means "
-        "the model leaves physics out: compare --method ml, or run diagnose on the recording")
+        f"{np.array2string(moved, precision=4)}), its intervals widened by the distance it moved. "
+        "A filter ending this far outside often means the model leaves physics out: compare "
+        "--method ml, or run diagnose on the recording")
 
 
 def markdown(summary: dict, plots=()) -> str:

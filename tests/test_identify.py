@@ -510,17 +510,22 @@ def test_a_filter_that_ends_beyond_the_triangle_inequality_reports_the_nearest_b
     check_physical_inertia(res.estimate.inertia, method)
     note = next(n for n in res.notes if "which no body does" in n)
     assert "nearest inertia a body can have" in note and "--method ml" in note
+    assert "intervals widened by the distance it moved" in note
     moments = np.sort(np.linalg.eigvalsh(res.estimate.inertia))
     assert moments[2] == pytest.approx(moments[0] + moments[1], rel=1e-9)  # on the limit: a plate
 
 
 def test_a_filter_estimate_is_projected_only_where_no_body_has_it():
+    cov = np.diag(np.arange(1.0, 7.0)) * 1e-4
     inside = phi_from_inertia(np.diag([1.0, 0.8, 0.3]))
-    phi, note = identification.realizable_estimate(inside, scale_fixed=False)
-    assert note is None and np.array_equal(phi, inside)
+    phi, same, note = identification.realizable_estimate(inside, cov, scale_fixed=False)
+    assert note is None and np.array_equal(phi, inside) and np.array_equal(same, cov)
     beyond = phi_from_inertia(np.diag([1.0, 0.45, 0.05]))
     for scale_fixed in (False, True):
-        phi, note = identification.realizable_estimate(beyond, scale_fixed)
+        phi, widened, note = identification.realizable_estimate(beyond, cov, scale_fixed)
+        # the mean square error about the projected estimate: covariance plus the shift's square
+        np.testing.assert_allclose(widened, cov + np.outer(beyond - phi, beyond - phi), rtol=1e-12)
+        assert np.all(np.abs(beyond - phi) <= np.sqrt(np.diag(widened)))
         moments = np.sort(np.linalg.eigvalsh(inertia_from_phi(phi)))[::-1]
         expected = np.array([5 / 6, 37 / 60, 13 / 60])  # the nearest plate's (inertia_param's test)
         if scale_fixed:  # the scale coordinate is kept: the nearest plate up to a factor
