@@ -1277,7 +1277,9 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     fitted (each effect in its best form), and, where that explanation holds an effect in a
     richer form than its simplest (internal_momentum varying), over the singles with every
     effect in its simplest form. A rich form can soak up a second effect and lead the greedy
-    search astray; the BIC of the final explanation, the same criterion, then decides.
+    search astray; the final explanations' BICs then decide, each effect an explanation claims
+    charged the significance margin, as the forward selection charges it: an explanation that
+    names one more effect must fit better by SIGNIFICANT_DELTA_BIC to be preferred.
     """
     first = _search(d, nominal, singles, max_effects)
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
@@ -1286,7 +1288,14 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     plain = ranked([f if f.forms[0] == simplest[f.name]
                      else fit_model((f.name,), (simplest[f.name],), d, nominal) for f in singles])
     second = _search(d, nominal, plain, max_effects)
-    return second if second.chain and second.fit.bic < first.fit.bic - TIE_BIC else first
+    if not second.chain:
+        return first
+    return second if _claims_cost(second.fit) < _claims_cost(first.fit) - TIE_BIC else first
+
+
+def _claims_cost(fit: Fit) -> float:
+    """A compound fit's BIC plus the significance margin per effect it names."""
+    return fit.bic + SIGNIFICANT_DELTA_BIC * len(fit.names)
 
 
 def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int) -> Explanation:
