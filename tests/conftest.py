@@ -9,6 +9,9 @@ from inertia_gym.scenario import Scenario
 #: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
 RACQUET = next((p / "shared/data/phyphox-racquet" for p in Path(__file__).resolve().parents
                 if (p / "shared/data/phyphox-racquet").is_dir()), None)
+#: The real rotor throws, found the same way.
+ROTOR_THROWS = next((p / "shared/data/rotor-throws" for p in Path(__file__).resolve().parents
+                     if (p / "shared/data/rotor-throws").is_dir()), None)
 
 
 @pytest.fixture(scope="session")
@@ -42,3 +45,12 @@ def racquet_toss():
         raise LookupError(f"no segment {segment} in {RACQUET / round_name}")
 
     return toss
+
+
+@pytest.fixture(scope="session")
+def rotor_throw():
+    """throw(stem) -> the Recording of a real rotor throw (its h columns as logged); the test
+    skips where ../shared/data is absent."""
+    if ROTOR_THROWS is None:
+        pytest.skip("development data (../shared/data) absent")
+    return lambda stem: read_recordings(ROTOR_THROWS / f"{stem}.csv")[0]
