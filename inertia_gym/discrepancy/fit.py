@@ -1300,9 +1300,10 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
 
 
 def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> Explanation:
-    """expl with the effect that explains most alone (its single-effect fit in expl's form) first,
-    the others in the order the search added them, as a search led by the best single effect
-    lists them; the chain's prefixes refitted to give what each adds, its compound fit kept.
+    """The explanation expl with the effect that explains most alone (its single-effect fit in
+    expl's form) first, the others in the order the search added them, as a search led by the
+    best single effect lists them; the chain's prefixes refitted to give what each adds, its
+    compound fit kept.
     """
     final = expl.fit
     by_name = {f.name: f for f in singles}
