@@ -1264,6 +1264,17 @@ class Explanation:
         return self.chain[-1] if self.chain else None
 
 
+def _alone(single: Fit, form: str, d: Data, nominal: Fit) -> Fit:
+    """The single-effect fit of single's effect in `form`: single itself where it has that form."""
+    return single if single.forms == (form,) else fit_model((single.name,), (form,), d, nominal)
+
+
+def _added(nominal: Fit, chain, names) -> tuple[tuple[str, float], ...]:
+    """(name, delta BIC) of each effect along chain (chain[i] holds names[:i + 1])."""
+    bics = [nominal.bic] + [f.bic for f in chain]
+    return tuple((n, float(bics[i] - bics[i + 1])) for i, n in enumerate(names))
+
+
 def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
     """Fits of the prefixes of names, each added to the previous one (singles reused)."""
     out = [singles[names[0]]]
@@ -1290,8 +1301,7 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
     if not first.chain or all(f == simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         return first
-    plain = ranked([f if f.forms[0] == simplest[f.name]
-                     else fit_model((f.name,), (simplest[f.name],), d, nominal) for f in singles])
+    plain = ranked([_alone(f, simplest[f.name], d, nominal) for f in singles])
     best = first
     for other in (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1)):
         if other.chain and _claims_cost(other.fit) < _claims_cost(best.fit) - TIE_BIC:
@@ -1307,20 +1317,14 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     """
     final = expl.fit
     by_name = {f.name: f for f in singles}
-    alone = {n: by_name[n] if by_name[n].forms == (form,) else fit_model((n,), (form,), d, nominal)
-             for n, form in zip(final.names, final.forms)}
+    alone = {n: _alone(by_name[n], form, d, nominal) for n, form in zip(final.names, final.forms)}
     lead = min(final.names, key=lambda n: alone[n].bic)
     if lead == final.names[0]:
         return expl
-    order = [final.names.index(lead)] + [i for i in range(len(final.names)) if final.names[i] != lead]
+    order = [final.names.index(lead)] + [i for i, n in enumerate(final.names) if n != lead]
     names, forms = [final.names[i] for i in order], [final.forms[i] for i in order]
-    chain = [alone[lead]]
-    for i in range(2, len(names)):
-        chain.append(fit_model(names[:i], forms[:i], d, chain[-1]))
-    chain.append(final)
-    bics = [nominal.bic] + [f.bic for f in chain]
-    added = tuple((n, float(bics[i] - bics[i + 1])) for i, n in enumerate(names))
-    return Explanation(tuple(chain), added, expl.dropped)
+    chain = [*_chain(names[:-1], forms[:-1], d, alone), final]
+    return Explanation(tuple(chain), _added(nominal, chain, names), expl.dropped)
 
 
 def _claims_cost(fit: Fit) -> float:
@@ -1398,9 +1402,7 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
         for i, name in enumerate(current.names):
             rest = tuple(n for n in current.names if n != name)
             rest_forms = tuple(f for j, f in enumerate(current.forms) if j != i)
-            if by_name[rest[0]].forms != rest_forms[:1]:
-                single = fit_model(rest[:1], rest_forms[:1], d, nominal)
-                by_name = {**by_name, rest[0]: single}
+            by_name = {**by_name, rest[0]: _alone(by_name[rest[0]], rest_forms[0], d, nominal)}
             rest_chain = _chain(rest, rest_forms, d, by_name)
             if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
                 dropped[name] = (f"removing it from the explanation costs only "
@@ -1413,9 +1415,7 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
             dropped[name] = (f"alone it improves the BIC by {nominal.bic - by_name[name].bic:.1f}, "
                              f"and it adds <= {SIGNIFICANT_DELTA_BIC:g} once "
                              f"{', '.join(chosen)} {'is' if len(chosen) == 1 else 'are'} in")
-    bics = [nominal.bic] + [f.bic for f in chain]
-    added = tuple((n, float(bics[i] - bics[i + 1])) for i, n in enumerate(chosen))
-    return Explanation(tuple(chain), added, dropped)
+    return Explanation(tuple(chain), _added(nominal, chain, chosen), dropped)
 
 
 def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:

@@ -434,4 +434,3 @@ def test_an_explanation_from_another_search_is_led_by_what_explains_most_alone(r
     assert names[0] == report["best_effect"] == "internal_momentum"
     assert "constant_body_torque" in names
     assert all(e["delta_bic"] > 0 for e in report["explanation"])
-
