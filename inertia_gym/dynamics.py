@@ -87,43 +87,65 @@ class Disturbance:
 
     def pack(self) -> np.ndarray:
         """Flat float64 vector of length DISTURBANCE_SIZE read by the compiled kernels."""
-        v = np.zeros(DISTURBANCE_SIZE)
-        v[_D_TAU] = _checked(self.constant_torque, (3,), "constant_torque")
-        v[_D_H] = _checked(self.internal_momentum, (3,), "internal_momentum")
-        v[_D_C] = _checked(self.damping, (3, 3), "damping").ravel()
-        aero = np.asarray(self.aero_drag, dtype=float)
-        if aero.ndim == 0:
-            aero = aero * np.eye(3)
-        elif aero.ndim == 1:
-            aero = np.diag(_checked(aero, (3,), "aero_drag"))
-        v[_D_AERO] = _checked(aero, (3, 3), "aero_drag").ravel()
-        v[_D_AERO_ON] = float(np.any(aero != 0.0))
-        v[_D_N] = float(_checked(self.orbit_rate, (), "orbit_rate"))
-        nadir = _checked(self.nadir_inertial, (3,), "nadir_inertial")
-        norm = np.linalg.norm(nadir)
-        if norm == 0:
-            raise ConfigError("nadir_inertial must be a non-zero vector")
-        v[_D_NADIR] = nadir / norm
-        v[_D_DISS] = float(_checked(self.dissipation, (), "dissipation"))
-        v[_D_FLEX] = np.r_[float(_checked(self.flex_omega, (), "flex_omega")),
-                           float(_checked(self.flex_zeta, (), "flex_zeta")),
-                           _checked(self.flex_coupling, (3,), "flex_coupling")]
-        v[_D_ETA0] = float(_checked(self.flex_eta0, (), "flex_eta0"))
-        v[_D_ETAD0] = float(_checked(self.flex_eta_dot0, (), "flex_eta_dot0"))
-        return v
+        return pack_fields({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
 
+#: Disturbance field -> (its place in the packed vector, its shape); aero_drag and
+#: nadir_inertial, which pack_fields converts, are not listed.
+_SLOTS = {"constant_torque": (_D_TAU, (3,)), "internal_momentum": (_D_H, (3,)),
+          "damping": (_D_C, (3, 3)), "orbit_rate": (_D_N, ()), "dissipation": (_D_DISS, ()),
+          "flex_omega": (_D_OMEGA, ()), "flex_zeta": (_D_ZETA, ()),
+          "flex_coupling": (slice(_D_DELTA, _D_DELTA + 3), (3,)), "flex_eta0": (_D_ETA0, ()),
+          "flex_eta_dot0": (_D_ETAD0, ())}
 
-def _checked(value, shape, name) -> np.ndarray:
+
+def _no_disturbance() -> np.ndarray:
+    v = np.zeros(DISTURBANCE_SIZE)
+    v[_D_NADIR] = (0.0, 0.0, -1.0)  # Disturbance's default nadir
+    return v
+
+
+def pack_fields(fields: dict) -> np.ndarray:
+    """Disturbance(**fields).pack(), the fields given as a dict (the others at their defaults),
+    without building the dataclass: the diagnosis packs one per model it evaluates.
+    """
+    v = _no_disturbance()
+    for name, value in fields.items():
+        if name == "aero_drag":
+            aero = np.asarray(value, dtype=float)
+            if aero.ndim == 0:
+                aero = aero * np.eye(3)
+            elif aero.ndim == 1:
+                aero = np.diag(_shaped(aero, (3,), name))
+            v[_D_AERO] = _shaped(aero, (3, 3), name).ravel()
+            v[_D_AERO_ON] = float(np.any(aero != 0.0))
+        elif name == "nadir_inertial":
+            nadir = _shaped(value, (3,), name)
+            norm = np.linalg.norm(nadir)
+            if norm == 0:
+                raise ConfigError("nadir_inertial must be a non-zero vector")
+            v[_D_NADIR] = nadir / norm
+        elif name in _SLOTS:
+            slot, shape = _SLOTS[name]
+            v[slot] = _shaped(value, shape, name).ravel() if shape else float(_shaped(value, shape, name))
+        else:
+            known = sorted([*_SLOTS, "aero_drag", "nadir_inertial"])
+            raise ConfigError(f"unknown disturbance term {name!r}; known: {known}")
+    if not np.isfinite(v).all():  # one test of the whole vector: it is on the fits' hot path
+        bad = next((name for name, value in fields.items()
+                    if not np.isfinite(np.asarray(value, float)).all()), "nadir_inertial")
+        raise ConfigError(f"{bad} must be finite, got {np.asarray(fields[bad], float).tolist()}")
+    return v
+
+
+def _shaped(value, shape, name) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape != shape:
         raise ConfigError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{name} must be finite, got {arr.tolist()}")
     return arr
 
 
-NO_DISTURBANCE = Disturbance().pack()
+NO_DISTURBANCE = _no_disturbance()
 
 
 # ------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from inertia_gym.dynamics import (
     DISTURBANCE_SIZE,
     Disturbance,
     euler_to_quat,
+    pack_fields,
     propagate,
     propagate_batch,
     propagate_model_batch,
@@ -134,6 +135,16 @@ def test_disturbance_validation():
         Disturbance(damping=(1.0, 2.0)).pack()
     with pytest.raises(ConfigError, match="nadir"):
         Disturbance(nadir_inertial=(0.0, 0.0, 0.0)).pack()
+    for field, value in [("flex_coupling", (0.0, np.nan, 0.0)), ("orbit_rate", np.inf),
+                         ("nadir_inertial", (0.0, np.inf, 1.0)), ("dissipation", np.nan)]:
+        with pytest.raises(ConfigError, match=f"{field} must be finite"):
+            Disturbance(**{field: value}).pack()
+    with pytest.raises(ConfigError, match="unknown disturbance term 'drag'"):
+        pack_fields({"drag": 1.0})
+    # the terms not given take the dataclass's defaults
+    fields = {"aero_drag": (1.0, 2.0, 3.0), "flex_coupling": (0.1, 0.2, 0.3)}
+    np.testing.assert_array_equal(pack_fields(fields), Disturbance(**fields).pack())
+    np.testing.assert_array_equal(pack_fields({}), Disturbance().pack())
 
 
 def test_gauss_keeps_invariants_to_round_off_at_fast_spin():

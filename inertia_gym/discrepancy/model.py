@@ -18,7 +18,7 @@ import functools
 import numpy as np
 
 from inertia_gym.discrepancy.effects import Cumulative, EffectModel
-from inertia_gym.dynamics import Disturbance, propagate_model_batch
+from inertia_gym.dynamics import pack_fields, propagate_model_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +129,7 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
     if h is None:
         h = _zeros(grid.t.size)
-    return Terms(inertia, inertia_after, change_t, tau, h, Disturbance(**fields).pack(), damping)
+    return Terms(inertia, inertia_after, change_t, tau, h, pack_fields(fields), damping)
 
 
 @functools.lru_cache(maxsize=8)
