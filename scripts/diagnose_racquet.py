@@ -30,8 +30,12 @@ def main() -> None:
     ap.add_argument("--out", default="runs/racquet")
     args = ap.parse_args()
     out = Path(args.out)
+    raws = sorted(Path(args.data).glob("round*/*/Raw Data.csv"))
+    if not raws:
+        print(f"no racquet recordings under {args.data}: nothing to do")
+        return
     rows = []
-    for raw in sorted(Path(args.data).glob("round*/*/Raw Data.csv")):
+    for raw in raws:
         for rec in read_recordings(raw.parent):
             sub = out / re.sub(r"[^\w.-]+", "_", f"{raw.parent.parent.name}_{rec.name}")
             sub.mkdir(parents=True, exist_ok=True)

@@ -47,6 +47,9 @@ def main() -> None:
     ap.add_argument("--throws", default="", help="comma-separated throw names (default all)")
     args = ap.parse_args()
     data, out = Path(args.data), Path(args.out)
+    if not (data / "truth.json").exists():
+        print(f"no rotor-throw data at {data} (truth.json missing): nothing to do")
+        return
     truth = json.loads((data / "truth.json").read_text())
     wanted = set(filter(None, args.throws.split(",")))
     rows = []

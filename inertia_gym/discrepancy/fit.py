@@ -1123,7 +1123,25 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, 
     from instead of the new effect's own starts (omega_max: the grid's fastest mode for it);
     extra_starts: joint xs tried beside them. Several starts each get START_ITER iterations and
     the best is run to convergence.
+
+    The fit's x is kept in d.cache: the same fit asked again on the same rows (by a second
+    search, or the selection repeated with the rows recounted) is only scored on d (finish, whose
+    BIC counts d.effective_share), not solved again. Nothing of the solve depends on that share.
     """
+    key = ("fit", tuple(names), tuple(forms), joint, omega_max, d.seg.tobytes(), base.layout,
+           base.x.tobytes(), None if start is None else np.asarray(start, float).tobytes(),
+           tuple(np.asarray(x0, float).tobytes() for x0 in extra_starts))
+    if key not in d.cache:
+        fit = _fit_model(names, forms, d, base, joint, start, extra_starts, omega_max)
+        d.cache[key] = (fit.layout, fit.x, fit.k)  # not its residuals: a long record has many fits
+        return fit
+    layout, x, k = d.cache[key]
+    return finish(layout, x, d, k)
+
+
+def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_starts,
+               omega_max: float | None) -> Fit:
+    """fit_model's solve, without its cache."""
     layout = Layout.of(names, forms, d, base.layout.omega_max if omega_max is None else omega_max)
     new, form = layout.models[-1], layout.forms[-1]
     probe = Probe(layout, d, base)

@@ -327,3 +327,31 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(rac
     assert worst_axis < 300.0  # 1604 before the fix
     ratios = np.sort(np.linalg.eigvalsh(nominal.inertia))[::-1]
     np.testing.assert_allclose(ratios / ratios[0], [1.0, 0.81, 0.20], atol=0.03)
+
+
+def test_a_fit_asked_again_is_reused_and_rescored_on_recounted_rows(monkeypatch):
+    """fit_model keeps its fits in d.cache: the same fit asked again on the same rows is not
+    solved again, on the rows recounted (effective_share) it is re-scored with their BIC, and on
+    the same data cut into other segments it is solved anew (its rates are other unknowns).
+    """
+    c_true = np.diag([0.1, 0.1, 0.0]) * np.diag(RACQUET)
+    d = F.prepare(_toss([0.3, 15.0, 0.4], seed=4, effects=Effect("viscous_damping", {"c": c_true.tolist()})))
+    nominal = F.fit_nominal(d)
+    first = F.fit_model(("viscous_damping",), ("",), d, nominal)
+    short = d.resegmented(4)
+    assert short.segments != d.segments
+    short_nominal = F.fit_nominal(short)
+
+    def solve_again(*args, **kwargs):
+        raise AssertionError("solved again")
+
+    monkeypatch.setattr(F, "solve", solve_again)
+    same = F.fit_model(("viscous_damping",), ("",), d, nominal)
+    np.testing.assert_array_equal(same.x, first.x)
+    assert same.bic == first.bic
+    again = F.fit_model(("viscous_damping",), ("",), dataclasses.replace(d, effective_share=0.25), nominal)
+    np.testing.assert_array_equal(again.x, first.x)
+    n = first.z.size * 0.25
+    assert again.bic == pytest.approx(n * np.log(np.mean(first.z ** 2)) + first.k * np.log(n), rel=1e-12)
+    with pytest.raises(AssertionError, match="solved again"):
+        F.fit_model(("viscous_damping",), ("",), short, short_nominal)
