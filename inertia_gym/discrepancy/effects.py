@@ -21,6 +21,7 @@ Fit-side hooks receive ``d``, a fit.Data (the recording prepared for fitting).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -431,14 +432,20 @@ class InternalMomentum(EffectModel):
                                np.asarray(params["profile_t"], float), np.asarray(params["profile"], float)])
 
     @staticmethod
-    def _basis(axis0):
-        u = axis0 / np.linalg.norm(axis0)
+    @functools.lru_cache(maxsize=64)
+    def _basis(axis0: tuple) -> np.ndarray:
+        """(3, 3) rows u (axis0 normalised), e1, e2 (perpendicular to u and each other); cached,
+        since axis0 is held in a fit and every evaluation of the model unpacks it.
+        """
+        u = np.asarray(axis0, float) / np.linalg.norm(axis0)
         e1 = np.cross(u, np.eye(3)[int(np.argmin(np.abs(u)))])
         e1 /= np.linalg.norm(e1)
-        return u, e1, np.cross(u, e1)
+        out = np.array([u, e1, np.cross(u, e1)])
+        out.flags.writeable = False
+        return out
 
     def _axis(self, p) -> np.ndarray:
-        u, e1, e2 = self._basis(p[3:6])
+        u, e1, e2 = self._basis(tuple(p[3:6]))
         v = u + p[6] * e1 + p[7] * e2
         return v / np.linalg.norm(v)
 
