@@ -877,9 +877,15 @@ class Probe:
         return np.concatenate([head, p, b.x[b.layout.n_global:]])
 
     def own_starts(self) -> list[np.ndarray]:
-        """The new effect's own starts (EffectModel.starts) as joint vectors x."""
-        model, form = self.layout.models[-1], self.layout.forms[-1]
-        return [s if s.size == self.layout.size else self.x(s) for s in model.starts(form, self.d, self)]
+        """The new effect's own starts (EffectModel.starts) as joint vectors x; kept in d.cache
+        for the same base on the same rows (a second search asks them again).
+        """
+        key = ("starts", self.layout, self.d.seg.tobytes(), self.base.layout, self.base.x.tobytes())
+        if key not in self.d.cache:
+            model, form = self.layout.models[-1], self.layout.forms[-1]
+            self.d.cache[key] = [s if s.size == self.layout.size else self.x(s)
+                                 for s in model.starts(form, self.d, self)]
+        return [x.copy() for x in self.d.cache[key]]
 
     @property
     def few_segments(self) -> bool:

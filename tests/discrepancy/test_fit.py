@@ -355,3 +355,21 @@ def test_a_fit_asked_again_is_reused_and_rescored_on_recounted_rows(monkeypatch)
     assert again.bic == pytest.approx(n * np.log(np.mean(first.z ** 2)) + first.k * np.log(n), rel=1e-12)
     with pytest.raises(AssertionError, match="solved again"):
         F.fit_model(("viscous_damping",), ("",), short, short_nominal)
+
+
+def test_an_effects_own_starts_are_found_once_per_base(monkeypatch):
+    """Probe.own_starts keeps an effect's starts for the same base on the same rows: a second
+    search asks them without the screen running again, and gets copies (a start moved by one
+    fit does not move the next one's).
+    """
+    d = F.prepare(_toss([0.3, 15.0, 0.4], seed=6))
+    nominal = F.fit_nominal(d)
+    layout = F.Layout.of(("flexible_mode",), ("",), d)
+    first = F.Probe(layout, d, nominal).own_starts()
+    assert first
+    monkeypatch.setattr(F.Probe, "mode_starts", lambda self: pytest.fail("screened again"))
+    again = F.Probe(layout, d, nominal).own_starts()
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+    again[0][:] = np.nan
+    assert np.all(np.isfinite(F.Probe(layout, d, nominal).own_starts()[0]))
