@@ -28,7 +28,9 @@ from inertia_gym.discrepancy.fit import (
 )
 from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import (
+    BEYOND_CATALOGUE,
     RATIO_SPREAD,
+    _beyond_words,
     _explanation_words,
     _shape_words,
     diagnose,
@@ -74,6 +76,7 @@ def test_concealed_effect_is_found(name):
     assert REPORT_KEYS <= set(report)
     assert report["best_effect"] == name
     assert max(report["fit_after"]["rms_over_noise"]) < 1.2
+    assert not report["beyond_catalogue"]
     if name is not None:
         truth = side["effect"]["params"]
         fitted = next(e for e in report["effects"] if e["name"] == name)["params"]
@@ -342,6 +345,21 @@ def test_shape_words_warn_where_the_explanation_or_the_record_leaves_the_shape_o
     assert "already for the rigid fit" in _shape_words(report(wide, 0.05))[-1]
 
 
+def test_beyond_catalogue_words_say_what_is_left_and_what_the_effects_named_are():
+    def report(rms, valid=True, explanation=({"name": "viscous_damping"},)):
+        return {"beyond_catalogue": not valid or max(rms) > BEYOND_CATALOGUE,
+                "fit_after": {"valid": valid, "rms_over_noise": rms if valid else None},
+                "explanation": list(explanation)}
+
+    assert _beyond_words(report([1.1, 4.9, 2.0])) == []
+    (words,) = _beyond_words(report([1.1, 45.6, 2.0]))
+    assert "leaves [1.1, 45.6, 2.0] times the noise" in words and "closest approximation" in words
+    (words,) = _beyond_words(report([9.0, 9.0, 9.0], explanation=()))
+    assert "none of its effects accounts for it" in words
+    (words,) = _beyond_words(report(None, valid=False))
+    assert "is not a valid fit" in words
+
+
 def test_a_real_toss_whose_explanation_trades_with_the_inertia_is_flagged(racquet_toss):
     """Racquet round 1 segment 2, a spin about the handle: the explanation's momentum along the
     spin takes the second ratio to 0.53 with a 95 % interval 0.18-0.83, where the rigid fit and
@@ -352,6 +370,9 @@ def test_a_real_toss_whose_explanation_trades_with_the_inertia_is_flagged(racque
     assert np.ptp(ci, axis=1).max() > RATIO_SPREAD
     text = markdown(report, [])
     assert "do not read the body's shape from this fit" in text
+    # nothing in the catalogue explains the handle spin (measured: 45.6x the noise left)
+    assert report["beyond_catalogue"] and max(report["fit_after"]["rms_over_noise"]) > 5
+    assert "**beyond the catalogue**" in text and "closest approximation" in text
 
 
 def test_a_nearly_flat_real_toss_is_fitted_as_a_body_that_exists(racquet_toss):
@@ -398,6 +419,7 @@ def test_real_intermediate_axis_flips_lead_with_a_drag_that_changes_in_flight(ra
     first = report["explanation"][0]
     assert (first["name"], first["form"]) == ("viscous_damping", "varying")
     assert max(report["fit_after"]["rms_over_noise"]) < 4.0
+    assert not report["beyond_catalogue"] and "beyond the catalogue" not in markdown(report, [])
 
 
 def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss):
