@@ -26,6 +26,7 @@ ends (a throw's release, a catch) are located from the nominal fit, trimmed and 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from scipy import signal, stats
@@ -348,10 +349,15 @@ class Layout:
                    tuple(REGISTRY[n].form_size(f, d) for n, f in zip(names, forms)), d.segments,
                    float(omega_max))
 
-    @property
+    @functools.cached_property
     def models(self) -> list[EffectModel]:
-        """The effects' registered models."""
+        """The effects' registered models (cached: every evaluation of the model asks them)."""
         return [REGISTRY[n] for n in self.names]
+
+    @functools.cached_property
+    def has_penalty(self) -> bool:
+        """Some effect has constraint rows (EffectModel.penalty)."""
+        return any(type(m).penalty is not EffectModel.penalty for m in self.models)
 
     @property
     def n_global(self) -> int:
@@ -365,6 +371,10 @@ class Layout:
 
     def slices(self) -> list[slice]:
         """Each effect's slice of x."""
+        return self._slices
+
+    @functools.cached_property
+    def _slices(self) -> list[slice]:
         out, i = [], 6
         for s in self.sizes:
             out.append(slice(i, i + s))
@@ -447,14 +457,16 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     grid = d.grid_for(layout.omega_max if "flexible_mode" in layout.names else 0.0)
     cumulative, commanded, h_known = d.inputs(grid)
     seg_pos = np.append(grid.sample_pos[d.seg[:-1]], grid.steps)
+    xs = np.asarray(xs, float)
     q0 = d.q0()
-    terms, y0, parts = [], [], []
+    terms, parts = [], []
     for x in xs:
         p = layout.parts(x, d)
         parts.append(p)
         terms.append(model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded))
-        y0.append(np.hstack([q0, layout.w0(x)]))
-    out = simulate(grid, seg_pos, np.stack(y0), terms)[..., 4:]
+    w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
+    y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)
+    out = simulate(grid, seg_pos, y0, terms)[..., 4:]
     return np.stack([gyro_output(p, w) for p, w in zip(parts, out)])
 
 
@@ -492,6 +504,8 @@ def objective(xs, layout: Layout, d: Data) -> np.ndarray:
     """(B, N) the least-squares vector: whitened residual rows, then any constraint rows."""
     z = whitened(xs, layout, d).reshape(len(xs), -1)
     z = np.clip(np.nan_to_num(z, nan=1e6), -1e6, 1e6)  # a model that blew up costs a lot, finitely
+    if not layout.has_penalty:
+        return z
     pen = [_penalty_rows(x, layout, d, z.shape[1]) for x in xs]
     return np.hstack([z, np.stack(pen)]) if pen[0].size else z
 
