@@ -348,14 +348,16 @@ def test_shape_words_warn_where_the_explanation_or_the_record_leaves_the_shape_o
 def test_beyond_catalogue_words_say_what_is_left_and_what_the_effects_named_are():
     def report(rms, valid=True, explanation=({"name": "viscous_damping"},)):
         return {"beyond_catalogue": not valid or max(rms) > BEYOND_CATALOGUE,
+                "fit_before": {"valid": True, "rms_over_noise": [30.0, 120.0, 40.0]},
                 "fit_after": {"valid": valid, "rms_over_noise": rms if valid else None},
                 "explanation": list(explanation)}
 
     assert _beyond_words(report([1.1, 4.9, 2.0])) == []
     (words,) = _beyond_words(report([1.1, 45.6, 2.0]))
-    assert "leaves [1.1, 45.6, 2.0] times the noise" in words and "closest approximation" in words
+    assert "still leaves [1.1, 45.6, 2.0] times the noise" in words
+    assert "from 120 to 45.6 times the noise" in words and "closest approximation" in words
     (words,) = _beyond_words(report([9.0, 9.0, 9.0], explanation=()))
-    assert "none of its effects accounts for it" in words
+    assert "none of its effects accounts for any of it" in words
     (words,) = _beyond_words(report(None, valid=False))
     assert "is not a valid fit" in words
 
