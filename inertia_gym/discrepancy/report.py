@@ -493,7 +493,7 @@ def _shape_words(report: dict) -> list[str]:
 
 def _beyond_words(report: dict) -> list[str]:
     """A warning where the explanation leaves the residual over BEYOND_CATALOGUE times the noise."""
-    if not report["beyond_catalogue"]:
+    if not report.get("beyond_catalogue"):  # (a report written before the key existed: none)
         return []
     before, after = report["fit_before"], report["fit_after"]
     if not after["valid"]:
