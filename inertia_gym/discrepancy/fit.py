@@ -894,7 +894,7 @@ class Probe:
         """The new effect's own starts (EffectModel.starts) as joint vectors x; kept in d.cache
         for the same base on the same rows (a second search asks them again).
         """
-        key = ("starts", self.layout, self.d.seg.tobytes(), self.base.layout, self.base.x.tobytes())
+        key = ("starts", self.layout, *_rows_and_base(self.d, self.base))
         if key not in self.d.cache:
             model, form = self.layout.models[-1], self.layout.forms[-1]
             self.d.cache[key] = [s if s.size == self.layout.size else self.x(s)
@@ -1133,6 +1133,13 @@ class Probe:
         return self.best_x(starts, keep=len(starts))  # ranked: an estimate can be worse than none
 
 
+def _rows_and_base(d: Data, base: "Fit") -> tuple:
+    """What a cached fit or start (in d.cache) depends on beyond its own arguments: the rows'
+    segments (resegmented data share the cache) and the fit it is added to.
+    """
+    return d.seg.tobytes(), base.layout, base.x.tobytes()
+
+
 def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, extra_starts=(),
               omega_max: float | None = None) -> Fit:
     """Fit the effects `names` (in `forms`) jointly with the inertia and the segments' rates,
@@ -1148,8 +1155,8 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, 
     search, or the selection repeated with the rows recounted) is only scored on d (finish, whose
     BIC counts d.effective_share), not solved again. Nothing of the solve depends on that share.
     """
-    key = ("fit", tuple(names), tuple(forms), joint, omega_max, d.seg.tobytes(), base.layout,
-           base.x.tobytes(), None if start is None else np.asarray(start, float).tobytes(),
+    key = ("fit", tuple(names), tuple(forms), joint, omega_max, *_rows_and_base(d, base),
+           None if start is None else np.asarray(start, float).tobytes(),
            tuple(np.asarray(x0, float).tobytes() for x0 in extra_starts))
     if key not in d.cache:
         fit = _fit_model(names, forms, d, base, joint, start, extra_starts, omega_max)
