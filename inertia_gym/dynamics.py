@@ -124,7 +124,8 @@ def pack_fields(fields: dict) -> np.ndarray:
             norm = np.linalg.norm(nadir)
             if norm == 0:
                 raise ConfigError("nadir_inertial must be a non-zero vector")
-            v[_D_NADIR] = nadir / norm
+            with np.errstate(invalid="ignore"):  # a non-finite nadir: reported below
+                v[_D_NADIR] = nadir / norm
         elif name in _SLOTS:
             slot, shape = _SLOTS[name]
             v[slot] = _shaped(value, shape, name).ravel() if shape else float(_shaped(value, shape, name))

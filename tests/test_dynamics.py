@@ -130,6 +130,7 @@ def test_bad_inputs_raise_config_error(kwargs, field):
         propagate(args["q0"], args["w0"], J, args["torque"], args["dt"])
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # bad input: one ConfigError, no warning
 def test_disturbance_validation():
     with pytest.raises(ConfigError, match="damping"):
         Disturbance(damping=(1.0, 2.0)).pack()
