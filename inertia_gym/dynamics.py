@@ -547,13 +547,14 @@ def propagate(q0, omega0, inertia, torque, dt, disturbance=None, method="rk4"):
 
 
 @nb.njit(cache=True, inline="always")
-def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv, jd, denom, tx, ty, tz,
+def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz,
                     hx, hy, hz, dist):
     """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): body_rate with the momentum
     (hx, hy, hz) + delta eta_dot added to its hook's and the torque (tx, ty, tz) (N·m, known h_dot
     already subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta
     eta_ddot = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot
-    in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). Scalars in and out.
+    in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). Scalars in and out: j and
+    j_inv row-major 9-tuples, dist the packed disturbance as a tuple (disturbance_entries).
     """
     cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
     sx = dist[3] + hx + cx * etad
@@ -561,9 +562,9 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
     sz = dist[5] + hz + cz * etad
     diss = dist[_D_DISS]
     if diss != 0.0:
-        lx = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2 + sx
-        ly = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2 + sy
-        lz = inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2 + sz
+        lx = j[0] * w0 + j[1] * w1 + j[2] * w2 + sx
+        ly = j[3] * w0 + j[4] * w1 + j[5] * w2 + sy
+        lz = j[6] * w0 + j[7] * w1 + j[8] * w2 + sz
         nl = math.sqrt(lx * lx + ly * ly + lz * lz)
         if nl > 0.0:
             ux, uy, uz = lx / nl, ly / nl, lz / nl
@@ -571,67 +572,91 @@ def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, inertia, inertia_inv,
             tx -= diss * (w0 - ux * uw)
             ty -= diss * (w1 - uy * uw)
             tz -= diss * (w2 - uz * uw)
-    r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, mat3_entries(inertia), mat3_entries(inertia_inv),
-                       tx, ty, tz, sx, sy, sz, dist)
+    r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, j, j_inv, tx, ty, tz, sx, sy, sz, dist)
     ax, ay, az = r[4], r[5], r[6]
     eta_dd = 0.0
     if cx != 0.0 or cy != 0.0 or cz != 0.0:
         om = dist[_D_OMEGA]
         eta_dd = (-2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
-        ax -= jd[0] * eta_dd
-        ay -= jd[1] * eta_dd
-        az -= jd[2] * eta_dd
+        ax -= jd0 * eta_dd
+        ay -= jd1 * eta_dd
+        az -= jd2 * eta_dd
     return r[0], r[1], r[2], r[3], ax, ay, az, etad, eta_dd
 
 
-@nb.njit(cache=True)
-def _modal_coupling(inertia_inv, dist, jd):
-    """Write J^-1 delta into jd (3,); return 1 - delta . J^-1 delta."""
+@nb.njit(cache=True, inline="always")
+def _modal_coupling(j_inv, dist):
+    """(J^-1 delta (3 scalars), 1 - delta . J^-1 delta) of j_inv (9-tuple) and dist (tuple)."""
     cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
-    for i in range(3):
-        jd[i] = inertia_inv[i, 0] * cx + inertia_inv[i, 1] * cy + inertia_inv[i, 2] * cz
-    return 1.0 - (cx * jd[0] + cy * jd[1] + cz * jd[2])
+    jd0 = j_inv[0] * cx + j_inv[1] * cy + j_inv[2] * cz
+    jd1 = j_inv[3] * cx + j_inv[4] * cy + j_inv[5] * cz
+    jd2 = j_inv[6] * cx + j_inv[7] * cy + j_inv[8] * cz
+    return jd0, jd1, jd2, 1.0 - (cx * jd0 + cy * jd1 + cz * jd2)
 
 
 @nb.njit(cache=True, inline="always")
-def _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, ha0, ha1, ha2, hb0, hb1, hb2,
-                        dist):
-    """One RK4 step of y (9,) in place over dt, the known momentum linear from (ha) to (hb) and
-    the torque (tx, ty, tz) (its rate already subtracted) held.
+def _augmented_rk4(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, ha0, ha1, ha2, hb0, hb1, hb2,
+                   dist):
+    """One RK4 step of y (9-tuple) over dt, the known momentum linear from (ha) to (hb) and
+    the torque (tx, ty, tz) (its rate already subtracted) held; returns the new 9-tuple with
+    the quaternion renormalised. The state stays in registers: carried in an array, every
+    store to it could alias the inputs and forced their loads again (2.2x slower).
     """
     hdt = 0.5 * dt
     hm0, hm1, hm2 = 0.5 * (ha0 + hb0), 0.5 * (ha1 + hb1), 0.5 * (ha2 + hb2)
-    y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_ = y[0], y[1], y[2], y[3], y[4], y[5], y[6], y[7], y[8]
-    k1 = _augmented_rate(y0_, y1_, y2_, y3_, y4_, y5_, y6_, y7_, y8_, j_now, j_inv, jd, denom,
+    y0, y1, y2, y3, y4, y5, y6, y7, y8 = y
+    k1 = _augmented_rate(y0, y1, y2, y3, y4, y5, y6, y7, y8, j, j_inv, jd0, jd1, jd2, denom,
                          tx, ty, tz, ha0, ha1, ha2, dist)
-    k2 = _augmented_rate(y0_ + hdt * k1[0], y1_ + hdt * k1[1], y2_ + hdt * k1[2], y3_ + hdt * k1[3],
-                         y4_ + hdt * k1[4], y5_ + hdt * k1[5], y6_ + hdt * k1[6], y7_ + hdt * k1[7],
-                         y8_ + hdt * k1[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
+    k2 = _augmented_rate(y0 + hdt * k1[0], y1 + hdt * k1[1], y2 + hdt * k1[2], y3 + hdt * k1[3],
+                         y4 + hdt * k1[4], y5 + hdt * k1[5], y6 + hdt * k1[6], y7 + hdt * k1[7],
+                         y8 + hdt * k1[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hm0, hm1, hm2,
                          dist)
-    k3 = _augmented_rate(y0_ + hdt * k2[0], y1_ + hdt * k2[1], y2_ + hdt * k2[2], y3_ + hdt * k2[3],
-                         y4_ + hdt * k2[4], y5_ + hdt * k2[5], y6_ + hdt * k2[6], y7_ + hdt * k2[7],
-                         y8_ + hdt * k2[8], j_now, j_inv, jd, denom, tx, ty, tz, hm0, hm1, hm2,
+    k3 = _augmented_rate(y0 + hdt * k2[0], y1 + hdt * k2[1], y2 + hdt * k2[2], y3 + hdt * k2[3],
+                         y4 + hdt * k2[4], y5 + hdt * k2[5], y6 + hdt * k2[6], y7 + hdt * k2[7],
+                         y8 + hdt * k2[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hm0, hm1, hm2,
                          dist)
-    k4 = _augmented_rate(y0_ + dt * k3[0], y1_ + dt * k3[1], y2_ + dt * k3[2], y3_ + dt * k3[3],
-                         y4_ + dt * k3[4], y5_ + dt * k3[5], y6_ + dt * k3[6], y7_ + dt * k3[7],
-                         y8_ + dt * k3[8], j_now, j_inv, jd, denom, tx, ty, tz, hb0, hb1, hb2,
+    k4 = _augmented_rate(y0 + dt * k3[0], y1 + dt * k3[1], y2 + dt * k3[2], y3 + dt * k3[3],
+                         y4 + dt * k3[4], y5 + dt * k3[5], y6 + dt * k3[6], y7 + dt * k3[7],
+                         y8 + dt * k3[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hb0, hb1, hb2,
                          dist)
     c6 = dt / 6.0
-    for c in range(9):
-        y[c] += c6 * (k1[c] + 2.0 * k2[c] + 2.0 * k3[c] + k4[c])
-    _normalize_quat(y)
+    o0 = y0 + c6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+    o1 = y1 + c6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+    o2 = y2 + c6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+    o3 = y3 + c6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+    s = 1.0 / math.sqrt(o0 ** 2 + o1 ** 2 + o2 ** 2 + o3 ** 2)
+    return (o0 * s, o1 * s, o2 * s, o3 * s,
+            y4 + c6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
+            y5 + c6 * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),
+            y6 + c6 * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]),
+            y7 + c6 * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]),
+            y8 + c6 * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]))
 
 
-@nb.njit(cache=True)
-def _change_inertia(y, j_now, j_new):
-    """W <- J_new^-1 J_now w in y (the momentum J w is kept across an inertia change)."""
-    m0 = j_now[0, 0] * y[4] + j_now[0, 1] * y[5] + j_now[0, 2] * y[6]
-    m1 = j_now[1, 0] * y[4] + j_now[1, 1] * y[5] + j_now[1, 2] * y[6]
-    m2 = j_now[2, 0] * y[4] + j_now[2, 1] * y[5] + j_now[2, 2] * y[6]
-    j_inv = inv3(j_new)
-    for c in range(3):
-        y[4 + c] = j_inv[c, 0] * m0 + j_inv[c, 1] * m1 + j_inv[c, 2] * m2
-    return j_inv
+@nb.njit(cache=True, inline="always")
+def _momentum_kept(y, j_now, j_new_inv):
+    """The state y (9-tuple) with w <- J_new^-1 J_now w (the momentum J w is kept across an inertia
+    change); j_now and j_new_inv row-major 9-tuples.
+    """
+    m0 = j_now[0] * y[4] + j_now[1] * y[5] + j_now[2] * y[6]
+    m1 = j_now[3] * y[4] + j_now[4] * y[5] + j_now[5] * y[6]
+    m2 = j_now[6] * y[4] + j_now[7] * y[5] + j_now[8] * y[6]
+    ji = j_new_inv
+    return (y[0], y[1], y[2], y[3], ji[0] * m0 + ji[1] * m1 + ji[2] * m2,
+            ji[3] * m0 + ji[4] * m1 + ji[5] * m2, ji[6] * m0 + ji[7] * m1 + ji[8] * m2, y[7], y[8])
+
+
+@nb.njit(cache=True, inline="always")
+def _damping_scaled(d, f):
+    """The disturbance tuple d with its viscous damping matrix (slots _D_C) times f."""
+    return (d[0], d[1], d[2], d[3], d[4], d[5], d[6] * f, d[7] * f, d[8] * f, d[9] * f, d[10] * f,
+            d[11] * f, d[12] * f, d[13] * f, d[14] * f, d[15], d[16], d[17], d[18], d[19], d[20],
+            d[21], d[22], d[23], d[24], d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32],
+            d[33], d[34], d[35], d[36])
+
+
+# _damping_scaled spells out every slot, the damping matrix at 6..14.
+assert (_D_C0, _D_C1) == (6, 15), "update _damping_scaled to the new damping slots"
 
 
 @nb.njit(cache=True)
@@ -649,16 +674,12 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     """
     n_samples = sample_pos.size
     changed = grid_t[a] >= change_t  # the segment starts after the change
-    j_now = inertia_after.copy() if changed else inertia.copy()
-    j_inv = inv3(j_now)
-    jd = np.empty(3)
-    denom = _modal_coupling(j_inv, dist, jd)
-    y = np.zeros(9)
-    for c in range(7):
-        y[c] = y0[c]
-    _normalize_quat(y)
-    y[7], y[8] = eta, etad
-    scaled = dist.copy()  # dist with the damping matrix times the interval's factor
+    j_after, j_after_inv = mat3_entries(inertia_after), mat3_entries(inv3(inertia_after))
+    j, j_inv = (j_after, j_after_inv) if changed else (mat3_entries(inertia), mat3_entries(inv3(inertia)))
+    entries = disturbance_entries(dist)
+    jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
+    s = 1.0 / math.sqrt(y0[0] ** 2 + y0[1] ** 2 + y0[2] ** 2 + y0[3] ** 2)
+    y = (y0[0] * s, y0[1] * s, y0[2] * s, y0[3] * s, y0[4], y0[5], y0[6], eta, etad)
     for k in range(a, b + 1):
         while i < n_samples and sample_pos[i] == k and (k < b or last):
             for c in range(7):
@@ -668,15 +689,11 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
             break
         t0, t1 = grid_t[k], grid_t[k + 1]
         dt = t1 - t0
-        step_dist = dist
-        if damping[k] != 1.0:
-            for c in range(_D_C0, _D_C1):
-                scaled[c] = dist[c] * damping[k]
-            step_dist = scaled
+        step_dist = entries if damping[k] == 1.0 else _damping_scaled(entries, damping[k])
         if not changed and t0 >= change_t:
-            j_inv = _change_inertia(y, j_now, inertia_after)
-            j_now = inertia_after.copy()
-            denom = _modal_coupling(j_inv, dist, jd)
+            y = _momentum_kept(y, j, j_after_inv)
+            j, j_inv = j_after, j_after_inv
+            jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
             changed = True
         # h linear over the step: its rate is the step's slope, subtracted from the torque
         r0 = (h[k + 1, 0] - h[k, 0]) / dt
@@ -686,17 +703,17 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
         if not changed and t1 > change_t:  # the change falls inside this step: split it
             f = change_t - t0
             hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
-            _augmented_rk4_into(y, f, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                hc0, hc1, hc2, step_dist)
-            j_inv = _change_inertia(y, j_now, inertia_after)
-            j_now = inertia_after.copy()
-            denom = _modal_coupling(j_inv, dist, jd)
+            y = _augmented_rk4(y, f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
+                               h[k, 2], hc0, hc1, hc2, step_dist)
+            y = _momentum_kept(y, j, j_after_inv)
+            j, j_inv = j_after, j_after_inv
+            jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
             changed = True
-            _augmented_rk4_into(y, dt - f, j_now, j_inv, jd, denom, tx, ty, tz, hc0, hc1, hc2,
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
+            y = _augmented_rk4(y, dt - f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hc0, hc1, hc2,
+                               h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
         else:
-            _augmented_rk4_into(y, dt, j_now, j_inv, jd, denom, tx, ty, tz, h[k, 0], h[k, 1], h[k, 2],
-                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
+            y = _augmented_rk4(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
+                               h[k, 2], h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
     return y[7], y[8]
 
 
