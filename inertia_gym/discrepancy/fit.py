@@ -459,11 +459,13 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     seg_pos = np.append(grid.sample_pos[d.seg[:-1]], grid.steps)
     xs = np.asarray(xs, float)
     q0 = d.q0()
-    terms, parts = [], []
+    built: dict = {}  # the model of each distinct global part: the segments' rates are not in it
     for x in xs:
-        p = layout.parts(x, d)
-        parts.append(p)
-        terms.append(model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded))
+        key = x[:layout.n_global].tobytes()
+        if key not in built:
+            p = layout.parts(x, d)
+            built[key] = p, model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded)
+    parts, terms = zip(*(built[x[:layout.n_global].tobytes()] for x in xs))
     w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
     y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)
     out = simulate(grid, seg_pos, y0, terms)[..., 4:]
