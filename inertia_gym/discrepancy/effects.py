@@ -371,7 +371,7 @@ class ConstantBodyTorque(EffectModel):
 
     @override
     def disturbance(self, params):
-        return {"constant_torque": tuple(np.asarray(params["torque"], float))}
+        return {"constant_torque": np.asarray(params["torque"], float)}
 
 
 @register
@@ -488,7 +488,7 @@ class InternalMomentum(EffectModel):
 
     @override
     def disturbance(self, params):
-        return {"internal_momentum": tuple(np.asarray(params["h"], float))}
+        return {"internal_momentum": np.asarray(params["h"], float)}
 
     @override
     def momentum(self, params, t):
@@ -672,7 +672,7 @@ class ViscousDamping(_Drag):
 
     @override
     def disturbance(self, params):
-        return {"damping": tuple(map(tuple, _drag_matrix(params["c"])))}
+        return {"damping": _drag_matrix(params["c"])}
 
     @override
     def damping_factor(self, params, t):
@@ -700,7 +700,7 @@ class AeroDrag(_Drag):
 
     @override
     def disturbance(self, params):
-        return {"aero_drag": tuple(map(tuple, _drag_matrix(params["c"])))}
+        return {"aero_drag": _drag_matrix(params["c"])}
 
 
 @register
@@ -877,7 +877,7 @@ class GravityGradient(EffectModel):
     @override
     def disturbance(self, params):
         return {"orbit_rate": float(params["orbit_rate"]),
-                "nadir_inertial": tuple(np.asarray(params["nadir_inertial"], float))
+                "nadir_inertial": np.asarray(params["nadir_inertial"], float)
                 if np.linalg.norm(params["nadir_inertial"]) > 0 else (0.0, 0.0, -1.0)}
 
 
@@ -945,7 +945,7 @@ class FlexibleMode(EffectModel):
     def disturbance(self, params):
         params = {**self.optional, **params}
         return {"flex_omega": float(params["omega_n"]), "flex_zeta": float(params["zeta"]),
-                "flex_coupling": tuple(np.asarray(params["coupling"], float)),
+                "flex_coupling": np.asarray(params["coupling"], float),
                 "flex_eta0": float(params["eta0"]), "flex_eta_dot0": float(params["eta_dot0"])}
 
 
