@@ -570,9 +570,10 @@ class NormalBlocks:
     """The damping-free blocks of the arrow system's normal equations, formed once per Jacobian
     and reused for every damping tried.
 
-    n_seg: the segments S; col (P,): the global columns' norms (the columns are scaled to unit
-    norm); a (P, P) and rhs (P,): the scaled global block and its right side; with the segments
-    free, dmat (S, 3, 3) and bvec (S, 3): each segment's rate block and right side, bmat
+    n_seg: the segments S; col (P,): the global columns' norms, inf for a zero column (the
+    columns are scaled to unit norm; no step along a zero one); a (P, P) and rhs (P,): the
+    scaled global block and its right side; with the segments free, dmat (S, 3, 3) and bvec
+    (S, 3): each segment's rate block and right side, bmat
     (S, P, 3): the coupling of the globals with each segment's rates; None with the segments'
     rates held.
     """
@@ -591,7 +592,11 @@ class NormalBlocks:
         with respect to its own segment's rates; seg_of (N,) that segment, -1 for none),
         residual r (N,), over n_seg segments.
         """
-        col = np.linalg.norm(g, axis=0) + 1e-300
+        norm = np.linalg.norm(g, axis=0)
+        # a column the residual does not see at all (an inertia change at the record's very end)
+        # takes no step: scaled by 1e-300 instead, the pseudo-inverse's round-off along it
+        # became a step of 1e280
+        col = np.where(norm > 0, norm, np.inf)
         gsc = g / col
         a, rhs = gsc.T @ gsc, -(gsc.T @ r)
         if not seg_free:

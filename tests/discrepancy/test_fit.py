@@ -117,6 +117,27 @@ def test_normal_blocks_step_equals_the_dense_damped_least_squares():
     assert ds.shape == (n_seg, 3) and not ds.any()
 
 
+@pytest.mark.parametrize("seg_free", [True, False])
+def test_a_parameter_the_residual_does_not_see_takes_no_step(seg_free):
+    # a flexible mode's frequency while its coupling is zero, an inertia change's time while the
+    # change is zero: the column is exactly zero, and the step along it must be too (it was the
+    # pseudo-inverse's round-off divided by 1e-300), the other entries the step without it
+    rng = np.random.default_rng(1)
+    n_seg, rows, p = 3, 20, 4
+    seg_of = np.repeat(np.arange(n_seg), rows)
+    g = rng.normal(size=(n_seg * rows, p)) * np.array([1e-3, 1.0, 1e3, 1.0])
+    js = rng.normal(size=(n_seg * rows, 3))
+    r = rng.normal(size=n_seg * rows)
+    dead = g.copy()
+    dead[:, 1] = 0.0
+    for lam in (1e-9, 1e-3, 0.3):
+        dg, ds = F.NormalBlocks.of(dead, js, r, seg_of, n_seg, seg_free).step(lam)
+        alive, ds_alive = F.NormalBlocks.of(g[:, [0, 2, 3]], js, r, seg_of, n_seg, seg_free).step(lam)
+        assert dg[1] == 0.0
+        np.testing.assert_allclose(dg[[0, 2, 3]], alive, rtol=1e-9, atol=0)
+        np.testing.assert_allclose(ds, ds_alive, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("w0", [(0.3, 15.0, 0.4), (0.5, 0.5, 25.0)])
 def test_a_fast_toss_at_100_hz_is_fitted_to_its_noise(w0):
     """A racquet flipping at 15-25 rad/s sampled at 100 Hz (0.15-0.25 rad per sample): the
