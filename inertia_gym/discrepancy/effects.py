@@ -32,6 +32,7 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import (
     PHI_BOUND,
     inertia_from_phi,
+    nearest_realizable,
     phi_from_inertia,
     realizable_face,
     realizable_phi,
@@ -42,6 +43,9 @@ from inertia_gym.estimation.inertia_param import (
 FLEX_BAND = (0.05, 0.25)
 #: Cycles a mode must complete within the record for flex_floor_hz to screen it.
 MODE_MIN_CYCLES = 2.0
+#: Least principal moment, as a share of the mean, of an inertia_change's after-inertia that
+#: feasible() had to project (a body's, with no moment near zero: its rates stay finite).
+AFTER_MOMENT_FLOOR = 0.01
 
 
 def flex_floor_hz(d) -> float:
@@ -995,6 +999,25 @@ class InertiaChange(EffectModel):
     def penalty(self, p, d):
         # where the scale is not seen, a redistribution at fixed trace
         return [(p[1] + p[4] + p[6]) / d.trace0] if d.scale_fixed else []
+
+    @override
+    def feasible(self, p, inertia):
+        # the inertia after the change is a body's too, never indefinite: where J + delta_J is
+        # not, it is projected onto the nearest a body can have (nearest_realizable; fits had
+        # left delta_J of 2 kg·m² on a body of trace 1), moved toward the isotropic inertia of
+        # its trace where that left its least moment below AFTER_MOMENT_FLOOR of the mean (a
+        # rod's zero moment: a convex mix of two bodies' inertias is a body's), and delta_J
+        # follows
+        after = np.asarray(inertia, float) + matrix6(p[1:7])
+        moments = np.linalg.eigvalsh(after)
+        if not np.all(np.isfinite(moments)) or (moments[0] > 0 and moments[2] <= moments[0] + moments[1]):
+            return p
+        near = nearest_realizable(after)
+        least, mean = np.linalg.eigvalsh(near)[0], np.trace(near) / 3
+        if least < AFTER_MOMENT_FLOOR * mean:
+            share = (AFTER_MOMENT_FLOOR * mean - least) / (mean - least)
+            near = (1 - share) * near + share * mean * np.eye(3)
+        return np.r_[p[0], inertia6(near - inertia)]
 
     @override
     def inertia_change(self, params):

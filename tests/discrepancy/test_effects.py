@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from inertia_gym.discrepancy.effects import EFFECTS, REGISTRY, Body, Effect, random_params, rotvec_matrix
+from inertia_gym.discrepancy.effects import (
+    EFFECTS,
+    REGISTRY,
+    Body,
+    Effect,
+    matrix6,
+    random_params,
+    rotvec_matrix,
+)
 from inertia_gym.discrepancy.synthetic import gyro_reading, simulate_truth
 from inertia_gym.dynamics import Disturbance, propagate, quat_to_rotation
 
@@ -281,6 +289,24 @@ def test_drag_that_feeds_energy_in_is_projected_out(name):
     c_bad = rot @ np.diag([2.0, -1.0, 0.5]) @ rot.T
     projected = model.unpack(model.feasible(model.pack({"c": c_bad}), np.eye(3)))["c"]
     np.testing.assert_allclose(projected, rot @ np.diag([2.0, 0.0, 0.5]) @ rot.T, atol=1e-12)
+
+
+def test_the_inertia_after_a_change_is_always_a_bodys():
+    """feasible() leaves a change whose J + delta_J a body can have as it is, bit for bit, and
+    projects one that no body can have (here indefinite, as fits on the rotor throws had left
+    it) onto the nearest that one can: positive definite, each principal moment at most the
+    sum of the other two, and a fixed point of the projection; the change time is kept."""
+    model = REGISTRY["inertia_change"]
+    inertia = np.array([[0.45, 0.02, 0.0], [0.02, 0.35, 0.01], [0.0, 0.01, 0.2]])  # kg·m²
+    small = np.r_[0.3, 0.02, 0.01, 0.0, -0.03, 0.0, 0.01]
+    np.testing.assert_array_equal(model.feasible(small, inertia), small)
+    wild = np.r_[0.28, -1.665, 1.578, -0.341, -0.35, 2.445, 2.02]
+    assert np.linalg.eigvalsh(inertia + matrix6(wild[1:]))[0] < 0
+    fixed = model.feasible(wild, inertia)
+    assert fixed[0] == wild[0]
+    moments = np.linalg.eigvalsh(inertia + matrix6(fixed[1:]))
+    assert moments[0] > 0 and moments[2] <= moments[0] + moments[1] + 1e-12
+    np.testing.assert_allclose(model.feasible(fixed, inertia), fixed, rtol=0, atol=1e-12)
 
 
 def test_a_flexible_mode_heavier_than_the_body_allows_is_scaled_back():
