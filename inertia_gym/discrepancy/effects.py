@@ -1014,6 +1014,8 @@ class InertiaChange(EffectModel):
             return p
         near = nearest_realizable(after)
         least, mean = np.linalg.eigvalsh(near)[0], np.trace(near) / 3
+        if not mean > 0:  # J + delta_J negative definite: no body is near it, no change is
+            return np.r_[p[0], np.zeros(6)]
         if least < AFTER_MOMENT_FLOOR * mean:
             share = (AFTER_MOMENT_FLOOR * mean - least) / (mean - least)
             near = (1 - share) * near + share * mean * np.eye(3)

@@ -12,6 +12,7 @@ from inertia_gym.discrepancy.effects import (
     REGISTRY,
     Body,
     Effect,
+    inertia6,
     matrix6,
     random_params,
     rotvec_matrix,
@@ -307,6 +308,9 @@ def test_the_inertia_after_a_change_is_always_a_bodys():
     moments = np.linalg.eigvalsh(inertia + matrix6(fixed[1:]))
     assert moments[0] > 0 and moments[2] <= moments[0] + moments[1] + 1e-12
     np.testing.assert_allclose(model.feasible(fixed, inertia), fixed, rtol=0, atol=1e-12)
+    # a change that leaves no body near (J + delta_J negative definite) is no change
+    gone = np.r_[0.28, inertia6(-3 * inertia)]
+    np.testing.assert_array_equal(model.feasible(gone, inertia), np.r_[0.28, np.zeros(6)])
 
 
 def test_a_flexible_mode_heavier_than_the_body_allows_is_scaled_back():
