@@ -10,7 +10,8 @@ its threads (diagnose without executors.kernels_own_the_cores), whose idle worke
 cores numba's kernels need.
 
 Where the real racquet tosses are at hand (--racquet, default ../shared/data/phyphox-racquet),
-each kept free-flight window (about 1 s at 100 Hz) is diagnosed once too: median and max wall.
+each kept free-flight window (about 1 s at 100 Hz) is diagnosed once too: median and max wall,
+within the limit only if every toss is.
 
 Usage: PYTHONPATH=. python scripts/bench_diagnose.py [--repeat 3] [--json OUT.json] [--racquet DIR]
 Limits asked by the issue on this 2-core machine: 600-s 10-Hz <= 10 s, 1-s toss <= 5 s.
@@ -120,7 +121,7 @@ def main() -> None:
                 walls.append(time.perf_counter() - t0)
         out["racquet_tosses"] = {"tosses": len(walls), "median_s": float(np.median(walls)),
                                  "max_s": float(np.max(walls)), "limit_s": 5.0,
-                                 "within_limit": float(np.median(walls)) <= 5.0}
+                                 "within_limit": float(np.max(walls)) <= 5.0}  # every toss
         print(json.dumps({"racquet_tosses": out["racquet_tosses"]}), flush=True)
     else:
         print(f"no racquet recordings under {args.racquet}: real tosses not timed")

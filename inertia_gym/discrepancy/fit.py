@@ -422,10 +422,6 @@ class Layout:
                 rows.append(full)
         return np.vstack(rows)
 
-    def w0(self, x) -> np.ndarray:
-        """(S, 3) segments' initial rates."""
-        return np.asarray(x[self.n_global:], float).reshape(-1, 3)
-
 
 def _pinned(j, d: Data) -> np.ndarray:
     """Inertia j scaled to trace d.trace0."""
@@ -459,13 +455,13 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     seg_pos = np.append(grid.sample_pos[d.seg[:-1]], grid.steps)
     xs = np.asarray(xs, float)
     q0 = d.q0()
-    built: dict = {}  # the model of each distinct global part: the segments' rates are not in it
-    for x in xs:
-        key = x[:layout.n_global].tobytes()
+    keys = [x[:layout.n_global].tobytes() for x in xs]  # the segments' rates are not in the model
+    built: dict = {}
+    for key, x in zip(keys, xs):
         if key not in built:
             p = layout.parts(x, d)
             built[key] = p, model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded)
-    parts, terms = zip(*(built[x[:layout.n_global].tobytes()] for x in xs))
+    parts, terms = zip(*(built[key] for key in keys))
     w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
     y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)
     out = simulate(grid, seg_pos, y0, terms)[..., 4:]
