@@ -801,11 +801,11 @@ class ActuatorDelay(EffectModel):
 
     @override
     def typical(self, form, d):
-        return np.array([max(d.dt, 1e-3)])
+        return np.array([d.dt])
 
     @override
     def starts(self, form, d, probe):
-        grid = np.geomspace(max(d.dt, 1e-3), 0.25 * d.duration, 16)
+        grid = np.geomspace(d.dt, 0.25 * d.duration, 16)
         return probe.best_of([np.array([v]) for v in grid], keep=2)
 
     @override
@@ -871,7 +871,7 @@ class GravityGradient(EffectModel):
 
     @override
     def typical(self, form, d):
-        return np.full(3, 0.01 * max(d.omega_ref, 1e-3))
+        return np.full(3, 0.01 * d.omega_ref)
 
     @override
     def starts(self, form, d, probe):
@@ -925,8 +925,8 @@ class FlexibleMode(EffectModel):
     @override
     def typical(self, form, d):
         lb, ub = self.bounds(form, d)
-        eta = 0.01 * np.sqrt(d.j_ref)
-        return np.r_[1.0, 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0])]
+        eta = 0.01 * np.sqrt(d.j_ref)  # the frequency's floor: its step is relative to it alone
+        return np.r_[lb[0], 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0])]
 
     @override
     def starts(self, form, d, probe):

@@ -311,11 +311,12 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     has_momentum = rec.has_momentum
     excited = rec.has_torque or has_momentum
     trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
-    omega_ref = max(float(np.median(np.linalg.norm(w, axis=1))), 1e-3)
+    # the body's rate, at least the gyro's noise (a body at rest: the rate the gyro can resolve)
+    omega_ref = max(float(np.median(np.linalg.norm(w, axis=1))), float(sigma.mean()))
     tau = rec.tau if rec.tau is not None else np.zeros_like(w)
     duration = float(t[-1] - t[0])
     tau_max = float(np.abs(tau).max())
-    tau_ref = tau_max if tau_max > 0 else trace0 / 3 * max(omega_ref, float(sigma.mean())) / max(duration, dt)
+    tau_ref = tau_max if tau_max > 0 else trace0 / 3 * omega_ref / max(duration, dt)
     grid = Grid.of(t, _substeps(t, w, float(sigma.min() / np.sqrt(block))))
     return Data(t, w, None if rec.q is None else np.asarray(rec.q, float), tau,
                 None if rec.h is None else np.asarray(rec.h, float), grid, seg, row,
@@ -516,7 +517,7 @@ def objective(xs, layout: Layout, d: Data) -> np.ndarray:
 def _steps(x, layout: Layout, d: Data) -> np.ndarray:
     """Finite-difference steps of every x entry: 1e-6 of its size or of its typical size."""
     typical = [np.ones(6)] + [m.typical(f, d) for m, f in zip(layout.models, layout.forms)]
-    typical.append(np.full(3 * layout.segments, max(d.omega_ref, float(d.sigma.mean()))))
+    typical.append(np.full(3 * layout.segments, d.omega_ref))
     return 1e-6 * np.maximum(np.abs(x), np.concatenate(typical))
 
 
@@ -929,8 +930,10 @@ class Probe:
         (a symmetric 3x3; what the body's motion excites) and in a = delta eta0, b = delta
         eta_dot0 / omega (what the mode's state at the start sets swinging): integrations with
         small couplings along e_i and e_i + e_j give M's six columns (polarization), three more
-        with a unit modal displacement and three with a unit modal velocity a's and b's, and one
-        least-squares solve the twelve that explain most at that frequency. Over a geometric
+        with a modal displacement and three with a modal velocity (eta0 = eps, eta_dot0 = eps
+        omega: as small as the coupling eps, which is sized to the body, so the probe stays
+        linear on a body of any mass) a's and b's, and one least-squares solve the twelve that
+        explain most at that frequency. Over a geometric
         grid of frequencies (MODE_GRID apart) in the band, then finer around the best, the `keep`
         best frequencies give delta = sqrt(lambda) v from M's leading eigenpair (size within the
         room J leaves: J - delta delta^T stays positive) or, where M has none, along a and b's
@@ -949,13 +952,13 @@ class Probe:
         def screen(omega):
             layout = dataclasses.replace(self.layout, omega_max=omega)
             xs = [self.x(np.r_[omega, zeta, eps * v, 0.0, 0.0]) for v in directions]
-            xs += [self.x(np.r_[omega, zeta, eps * e, 1.0, 0.0]) for e in np.eye(3)]
-            xs += [self.x(np.r_[omega, zeta, eps * e, 0.0, omega]) for e in np.eye(3)]
+            xs += [self.x(np.r_[omega, zeta, eps * e, eps, 0.0]) for e in np.eye(3)]
+            xs += [self.x(np.r_[omega, zeta, eps * e, 0.0, eps * omega]) for e in np.eye(3)]
             resp = objective(np.stack(xs), layout, d) - r0
             excite = resp[:6] / eps ** 2
             cols = np.stack([excite[0], excite[1], excite[2], excite[3] - excite[0] - excite[1],
                              excite[4] - excite[0] - excite[2], excite[5] - excite[1] - excite[2]]
-                            + [(resp[6 + i] - eps ** 2 * excite[i % 3]) / eps for i in range(6)], 1)
+                            + [(resp[6 + i] - eps ** 2 * excite[i % 3]) / eps ** 2 for i in range(6)], 1)
             m = np.linalg.lstsq(cols, -r0, rcond=None)[0]
             gain = float(r0 @ r0 - np.sum((r0 + cols @ m) ** 2))
             return gain, omega, m
