@@ -18,8 +18,12 @@ from inertia_gym.commands.common import check_physical_inertia
 from inertia_gym.discrepancy.effects import REGISTRY, random_params
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
+    MAX_EFFECTS,
     SIGNIFICANT_DELTA_BIC,
+    TIE_BIC,
     Layout,
+    _claims_cost,
+    _search,
     fit_effect,
     fit_nominal,
     initial_rates,
@@ -32,6 +36,7 @@ from inertia_gym.discrepancy.report import (
     RATIO_SPREAD,
     _beyond_words,
     _explanation_words,
+    _fits,
     _shape_words,
     diagnose,
     inertia_comparison,
@@ -484,15 +489,18 @@ def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss
 
 
 def test_the_search_led_by_the_runner_up_finds_a_better_explanation(racquet_toss):
-    """Racquet round 1 segment 3 (a spin about the major axis): the greedy search led by the
-    best single effect, the time-varying momentum, stopped there; led by the runner-up, the
-    varying drag, it adds a flexible mode, which fits better by more than the margin the second
-    effect is charged (every row counted: 1065 against 980 over the rigid fit). measured: worst
-    axis 13.6 -> 1.97x the noise (2.14x with the momentum)."""
-    report, _ = diagnose(racquet_toss("round1", 3))
-    assert [e["name"] for e in report["explanation"]] == ["viscous_damping", "flexible_mode"]
-    assert report["best_effect"] == "internal_momentum"  # the single-effect ranking is unchanged
-    assert max(report["fit_after"]["rms_over_noise"]) < 2.1
+    """Racquet round 2 segment 3: the greedy search led by the best single effect, the varying
+    drag, ends where one led by the runner-up ends better, by more than the tie (measured, the
+    rows recounted: 483.1 against 516.1 in BIC with each named effect's margin); select keeps
+    the better explanation. (Round 1 segment 3 had shown it until the modal screen's probes were
+    sized to the body, 8c7c3a1: its momentum alone now beats both searches' pairs.)"""
+    d, nominal, singles, _, chosen = _fits(racquet_toss("round2", 3))
+    first = _search(d, nominal, singles, MAX_EFFECTS)
+    runner_up = _search(d, nominal, singles, MAX_EFFECTS, lead=1)
+    assert first.fit.names[0] == singles[0].name
+    assert _claims_cost(runner_up.fit) < _claims_cost(first.fit) - TIE_BIC
+    assert _claims_cost(chosen.fit) <= _claims_cost(runner_up.fit) + TIE_BIC
+    assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
 
 
 def test_an_explanation_from_another_search_is_led_by_what_explains_most_alone(rotor_throw):
