@@ -26,6 +26,26 @@ def rng() -> np.random.Generator:
 
 
 @pytest.fixture(scope="session")
+def in_other_units():
+    """other(rec, mass, rate) -> the same recording of a body `mass` times heavier whose motion
+    runs `rate` times faster: t / rate, w * rate, torque * mass rate^2, momentum * mass rate, the
+    sidecar's nominal inertia * mass and gyro noise * rate (the attitude is the same). Physics
+    without a hidden scale reads it as the same recording, its results in the new units."""
+
+    def other(rec: Recording, mass: float, rate: float) -> Recording:
+        meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects", "rotor")}
+        if "inertia_nominal" in meta:
+            meta["inertia_nominal"] = (np.asarray(meta["inertia_nominal"]) * mass).tolist()
+        if "gyro_sigma" in meta:
+            meta["gyro_sigma"] = meta["gyro_sigma"] * rate
+        return Recording(rec.t / rate, rec.w * rate, rec.q,
+                         None if rec.tau is None else rec.tau * mass * rate ** 2, meta, rec.name,
+                         h=None if rec.h is None else rec.h * mass * rate)
+
+    return other
+
+
+@pytest.fixture(scope="session")
 def racquet_toss():
     """toss(round_name, segment, shift=(0, 0)) -> the Recording of a real racquet toss's kept
     free-flight window with its start and end moved by shift (s), cut from the raw file (so it

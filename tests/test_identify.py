@@ -533,3 +533,22 @@ def test_a_filter_estimate_is_projected_only_where_no_body_has_it():
             moments *= expected[0] / moments[0]
         np.testing.assert_allclose(moments, expected, rtol=1e-9)
         assert "exceeds the sum of the other two by 50 %" in note
+
+
+@pytest.mark.parametrize("method", ["ml", "ekf"])
+@pytest.mark.parametrize("torque", [True, False])
+def test_identification_does_not_depend_on_the_units_of_mass_and_time(method, torque, in_other_units):
+    """The paper's recording as a 1e-3 kg·m² device spun 3x faster and as a 2.5e4 kg·m² stage
+    100x slower: the same inertia in the new units (the same shape where the scale is not seen),
+    the same intervals relative to it, the same fit relative to the noise. Without torque the
+    trace is the sidecar's nominal's, which the new units carry too."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, None, seed=5, torque=torque)
+    paper = identify(rec, method).summary()
+    for mass, rate in [(4e-6, 3.0), (1e2, 0.01)]:
+        other = identify(in_other_units(rec, mass, rate), method).summary()
+        assert other["scale_identified"] is paper["scale_identified"] is torque
+        np.testing.assert_allclose(np.divide(other["principal_moments"], mass), paper["principal_moments"],
+                                   rtol=1e-6)
+        np.testing.assert_allclose(np.divide(other["principal_moments_ci95"], mass),
+                                   paper["principal_moments_ci95"], rtol=1e-5)
+        assert other["rms_over_noise"] == pytest.approx(paper["rms_over_noise"], rel=1e-6)

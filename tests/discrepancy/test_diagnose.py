@@ -287,20 +287,7 @@ def test_compound_effects_are_both_explained():
         assert np.linalg.norm(a - b) <= 0.3 * np.linalg.norm(a)
 
 
-def _in_other_units(rec, mass: float, rate: float):
-    """The same recording of a body `mass` times heavier whose motion runs `rate` times faster:
-    t / rate, w * rate, torque * mass rate^2, momentum * mass rate, the nominal inertia * mass,
-    the gyro noise * rate (the attitude is the same). Physics without a hidden scale diagnoses
-    it as the same recording.
-    """
-    meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects", "rotor")}
-    meta["inertia_nominal"] = (np.asarray(meta["inertia_nominal"]) * mass).tolist()
-    meta["gyro_sigma"] = meta["gyro_sigma"] * rate
-    return type(rec)(rec.t / rate, rec.w * rate, rec.q, rec.tau * mass * rate ** 2, meta, rec.name,
-                     h=None if rec.h is None else rec.h * mass * rate)
-
-
-def test_the_diagnosis_does_not_depend_on_the_units_of_mass_and_time():
+def test_the_diagnosis_does_not_depend_on_the_units_of_mass_and_time(in_other_units):
     """No constant of the diagnosis may assume the paper's body: a 1e-3 kg·m² thrown device
     spun 3x faster (its 10 rad/s spin at 30 rad/s) and a 2.5e4 kg·m² stage tumbling 100x slower
     (0.1 rad/s, 1 sample a second) are the paper's recording in other units. Each gives the
@@ -308,7 +295,7 @@ def test_the_diagnosis_does_not_depend_on_the_units_of_mass_and_time():
     mode's frequency x rate, a body torque x mass rate^2)."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, ["flexible_mode", "constant_body_torque"],
                                 seed=1003)
-    reports = {units: diagnose(_in_other_units(rec, *units))[0] for units in [(1.0, 1.0), (4e-6, 3.0),
+    reports = {units: diagnose(in_other_units(rec, *units))[0] for units in [(1.0, 1.0), (4e-6, 3.0),
                                                                               (1e2, 0.01)]}
     paper = reports[(1.0, 1.0)]
     names = [e["name"] for e in paper["explanation"]]
