@@ -49,14 +49,16 @@ AFTER_MOMENT_FLOOR = 0.01
 
 
 def flex_floor_hz(d) -> float:
-    """The lowest modal frequency (Hz) screened for flexible_mode on the data d: FLEX_BAND[0],
-    or lower where the record is long and the body slow, down to whichever is higher of two
-    cycles in the record's length and the body's own rotation rate (a slower mode follows the
-    rotation quasi-statically, as an inertia would). A 1e4 kg·m² stage tumbling at 0.02 rad/s
-    for 20 min with its propellant sloshing at 0.02 Hz had the slosh out of reach of a fixed
-    0.05 Hz floor (left 6x the noise); a body turning faster than 0.3 rad/s is screened as before.
+    """The lowest modal frequency (Hz) screened for flexible_mode on the data d: two cycles in
+    the record's length, and no lower than FLEX_BAND[0] or the body's own rotation rate,
+    whichever is lower (a slower mode follows the rotation quasi-statically, as an inertia
+    would). A 1e4 kg·m² stage tumbling at 0.02 rad/s for 20 min with its propellant sloshing at
+    0.02 Hz had the slosh out of reach of a fixed 0.05 Hz floor (left 6x the noise). On a record
+    shorter than MODE_MIN_CYCLES / FLEX_BAND[0] (40 s) the floor is two cycles in the record:
+    a 1-s toss had been screened down to 0.05 Hz, where a "mode" is a drift of a twentieth of a
+    cycle (the fit's bounds keep half the floor: at least one cycle).
     """
-    return min(FLEX_BAND[0], max(MODE_MIN_CYCLES / max(d.duration, 1e-9), d.omega_ref / (2 * np.pi)))
+    return max(MODE_MIN_CYCLES / max(d.duration, 1e-9), min(FLEX_BAND[0], d.omega_ref / (2 * np.pi)))
 #: The largest modal mass fraction delta^T J^-1 delta a fitted flexible_mode may take (1 makes
 #: the body and mode's joint mass matrix singular; drawn modes take up to about 0.1).
 MODE_MASS_LIMIT = 0.9
