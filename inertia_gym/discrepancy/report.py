@@ -43,7 +43,7 @@ RATIO_SPREAD = 0.1
 #: recording: physics the catalogue lacks is at work, and the effects named are at best part of
 #: what is missing. The own and Basilisk harnesses end at most at 3.6 and the racquet tosses the
 #: catalogue explains at 2.1-4.3 (coloured noise); racquet round 1's spins about the handle stay
-#: at 17-45 whatever is added, and the real rotor throws, their rotor named, at 12-90 (a 4-kHz
+#: at 17-45 whatever is added, and the real rotor throws, their rotor named, at 12-123 (a 4-kHz
 #: gyro whose noise is far below what the model leaves).
 BEYOND_CATALOGUE = 5.0
 #: Seeded draws of a fit's parameters behind the ratios' intervals.
