@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.cli import main
@@ -162,9 +162,19 @@ def test_identify_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else 'identify'}")
 
 
+#: Found by the fuzzer in a fresh clone (2026-11-26): the rotor's momentum logged 1000x too large.
+#: The explanation's inertia_offset had a covariance so wide that draws from it overflowed, and
+#: the principal ratios' intervals became NaN, which the JSON writer refused (an internal error).
+LOGGED_MOMENTUM_1000X = {
+    "n": ROWS, "time_unit": "s", "rate_unit": "rad/s", "stated": "none",
+    "scales": {"t": 1.0, "w": 1.0, "tau": 1.0, "h": 1000.0}, "constant_time": False,
+    "keep": list(COLUMN_NAMES), "renamed": {}, "map_back": "yes", "cells": [], "sidecar": "keep"}
+
+
 @pytest.mark.slow
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(plan=damaged())
+@example(plan=LOGGED_MOMENTUM_1000X)
 def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, tmp_path_factory, capsys):
     folder = tmp_path_factory.mktemp("fuzz")
     code, err = _check_outcome("diagnose", folder, _write(folder, plan, base), capsys)

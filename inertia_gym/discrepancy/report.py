@@ -113,12 +113,15 @@ def invariants(d: Data, fit: Fit) -> dict:
 
 def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     """The fit's principal moments over the largest (3,), descending, and their 95 % intervals
-    ((3, 2) [lo, hi], None where the fit's covariance is not finite): the inertia's shape, which
-    gyro-only data fix without its scale. The intervals come from RATIO_DRAWS seeded draws of the
-    parameters from covariance() (the fit's own, widened by its misfit), each turned into the
-    model's inertia, so an effect that trades with the inertia widens them.
+    ((3, 2) [lo, hi], None where the fit's covariance is not finite or so wide that a draw from
+    it is no inertia at all, its moments overflowing): the inertia's shape, which gyro-only data
+    fix without its scale. The intervals come from RATIO_DRAWS seeded draws of the parameters
+    from covariance() (the fit's own, widened by its misfit), each turned into the model's
+    inertia, so an effect that trades with the inertia widens them.
     """
     def ratios(inertia):
+        if not np.all(np.isfinite(inertia)):
+            return np.full(3, np.nan)
         moments = np.sort(np.linalg.eigvalsh(inertia))[::-1]
         return moments / moments[0]
 
@@ -129,7 +132,10 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     draws = np.random.default_rng(0).standard_normal((RATIO_DRAWS, values.size))
     xs = np.repeat(fit.x[None], RATIO_DRAWS, axis=0)
     xs[:, idx] += (draws * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
-    drawn = np.array([ratios(model_inertia(fit.layout, x, d)) for x in xs])
+    with np.errstate(over="ignore", invalid="ignore"):  # a draw far out overflows: said below
+        drawn = np.array([ratios(model_inertia(fit.layout, x, d)) for x in xs])
+    if not np.all(np.isfinite(drawn)):
+        return ratios(fit.inertia).tolist(), None
     return ratios(fit.inertia).tolist(), np.percentile(drawn, [2.5, 97.5], axis=0).T.tolist()
 
 
