@@ -539,9 +539,9 @@ def test_a_filter_estimate_is_projected_only_where_no_body_has_it():
 @pytest.mark.parametrize("torque", [True, False])
 def test_identification_does_not_depend_on_the_units_of_mass_and_time(method, torque, in_other_units):
     """The paper's recording as a 1e-3 kg·m² device spun 3x faster and as a 2.5e4 kg·m² stage
-    100x slower: the same inertia in the new units (the same shape where the scale is not seen),
-    the same intervals relative to it, the same fit relative to the noise. Without torque the
-    trace is the sidecar's nominal's, which the new units carry too."""
+    100x slower: the same inertia in the new units, the same intervals relative to it, the same
+    fit relative to the noise. Without torque the scale is not seen and the trace is the
+    sidecar's nominal's, which the new units carry too."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, None, seed=5, torque=torque)
     paper = identify(rec, method).summary()
     for mass, rate in [(4e-6, 3.0), (1e2, 0.01)]:

@@ -927,7 +927,9 @@ class FlexibleMode(EffectModel):
     @override
     def typical(self, form, d):
         lb, ub = self.bounds(form, d)
-        eta = 0.01 * np.sqrt(d.j_ref)  # the frequency's floor: its step is relative to it alone
+        eta = 0.01 * np.sqrt(d.j_ref)
+        # the frequency's typical size is the band's floor, which no fitted frequency is below:
+        # its finite-difference step is then always relative to the frequency itself
         return np.r_[lb[0], 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0])]
 
     @override
