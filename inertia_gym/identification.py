@@ -39,7 +39,14 @@ import time
 import numpy as np
 
 from inertia_gym.discrepancy.fit import end_impulses, saturated_samples
-from inertia_gym.discrepancy.recordings import Recording, check_input_gaps, retimed, retimed_note
+from inertia_gym.discrepancy.recordings import (
+    WINDOW_FOUND,
+    Recording,
+    check_input_gaps,
+    retimed,
+    retimed_note,
+    window_note,
+)
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import filter_error, ml
 from inertia_gym.estimation.config import FilterConfig
@@ -722,6 +729,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                      "momentum; each piece is identified on its own")
     if "retimed" in rec.meta:
         notes.append(retimed_note(rec.meta["retimed"]))
+    if rec.meta.get("window_source") == WINDOW_FOUND:
+        notes.append(window_note(*rec.meta["window"]))
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

@@ -74,3 +74,59 @@ def rotor_throw():
     if ROTOR_THROWS is None:
         pytest.skip("development data (../shared/data) absent")
     return lambda stem: read_recordings(ROTOR_THROWS / f"{stem}.csv")[0]
+
+
+PHYPHOX_HEADER = ('"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)",'
+                  '"Absolute (rad/s)"')
+
+
+@pytest.fixture(scope="session")
+def write_phyphox():
+    """write(folder, t (n,) s, w (n, 3) rad/s) -> folder: a phyphox gyro export there, its
+    "Raw Data.csv" only (phyphox writes no meta/segments.csv)."""
+
+    def write(folder: Path, t, w) -> Path:
+        folder.mkdir(parents=True, exist_ok=True)
+        rows = [",".join(f"{v:.9E}" for v in (ti, *wi, np.linalg.norm(wi))) for ti, wi in zip(t, w)]
+        (folder / "Raw Data.csv").write_text("\n".join([PHYPHOX_HEADER, *rows]) + "\n")
+        return folder
+
+    return write
+
+
+@pytest.fixture(scope="session")
+def hand_tosses():
+    """tosses(rate=1) -> (t (n,) s, w (n, 3) rad/s, flights): a phone's gyro through three tosses
+    of a racquet-like body (moments 20.7, 19.5, 1.39 g·m², 100 Hz, noise 2e-3 rad/s): a hand
+    turning it at 1-4 Hz, a 0.1-s throw up to a spin near one principal axis, 1 s of torque-free
+    flight, a 0.05-s catch, and so on; flights [(t_start, t_end)] of the free flights. rate
+    runs the whole motion that many times faster (t / rate, w * rate, noise * rate)."""
+    from inertia_gym.dynamics import propagate
+
+    def tosses(rate: float = 1.0):
+        rng = np.random.default_rng(7)
+        dt, inertia = 0.01, np.diag([20.7e-3, 19.5e-3, 1.39e-3])
+        spins = ([0.3, 10.0, 0.2], [0.2, 0.4, 25.0], [12.0, 0.5, 0.3])  # rad/s: near each axis
+        pieces, flights, now = [], [], 0.0
+
+        def add(w):
+            nonlocal now
+            pieces.append(w)
+            now += dt * len(w)
+
+        for spin in spins:
+            hand_t = np.arange(150) * dt
+            phases = rng.uniform(0, 2 * np.pi, (3, 3))
+            add(sum(0.6 * np.sin(2 * np.pi * f * hand_t[:, None] + phases[k])
+                    for k, f in enumerate((1.0, 2.3, 3.7))))
+            add(np.linspace(pieces[-1][-1], spin, 11)[1:])  # the throw: 0.1 s
+            _, w = propagate([1, 0, 0, 0], spin, inertia, np.zeros((100, 3)), dt)
+            flights.append((now, now + dt * 100))
+            add(w)
+            add(np.linspace(w[-1], 0.0, 6)[1:])  # the catch: 0.05 s
+        add(np.zeros((100, 3)))  # put down
+        w = np.concatenate(pieces) + rng.normal(0, 2e-3, (sum(map(len, pieces)), 3))
+        t = np.arange(w.shape[0]) * dt
+        return t / rate, w * rate, [(a / rate, b / rate) for a, b in flights]
+
+    return tosses

@@ -41,6 +41,7 @@ import numpy as np
 
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.ml import attitude_error
+from inertia_gym.sensors import estimate_white_noise
 
 GYRO = ("wx", "wy", "wz")
 QUAT = ("qw", "qx", "qy", "qz")
@@ -65,6 +66,11 @@ CUBIC_NODES = np.array([-2, -1, 1, 2])
 GAP_FACTOR = 5.0
 #: Largest magnitude accepted in any column: squares and products of such values stay finite.
 MAX_MAGNITUDE = 1e100
+#: Free flight found from the gyro alone (free_flight_windows): the rates' local slope is a
+#: least-squares line through FLIGHT_SLOPE_ROWS samples; it may exceed the torque-free bound by
+#: FLIGHT_NOISE_Z times its own noise; a flight holds at least FLIGHT_MIN_ROWS samples (what
+#: identify and diagnose need) and turns the body at least FLIGHT_MIN_TURN rad (half a turn).
+FLIGHT_SLOPE_ROWS, FLIGHT_NOISE_Z, FLIGHT_MIN_ROWS, FLIGHT_MIN_TURN = 5, 5.0, 20, np.pi
 #: Seconds per unit of the time column, and rad/s per unit of the gyro columns.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 RATE_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
@@ -664,10 +670,13 @@ def read_parquet_recording(path: str | Path, columns: dict | None = None, time_u
     return _from_columns(path, header, data, read_sidecar(path), columns, time_unit, rate_unit)
 
 
-def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]]:
+def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]] | None:
+    """(segment, start, end) of each kept window of the export's meta/segments.csv; None where
+    it has no such file.
+    """
     seg_path = folder / "meta" / "segments.csv"
     if not seg_path.exists():
-        return []
+        return None
     with seg_path.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     out = []
@@ -679,14 +688,65 @@ def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]]:
             out.append((int(row["segment"]), float(row["start"]), float(row["end"])))
         except (KeyError, TypeError, ValueError):
             raise _fail(seg_path, "segment, start and end must be numbers", i) from None
+    if not out:
+        raise _fail(seg_path, f"keeps no segment ({len(rows)} row(s), each with keep false): "
+                    "nothing to read; keep one, or remove the file to have the free flights found")
     return out
+
+
+def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
+    """Rows [start, stop) of each free flight in gyro rows w (n, 3) rad/s at times t (n,) s,
+    found from the gyro alone (a phone's export of tosses between which a hand holds it);
+    None where no row breaks the torque-free bound (the whole record may be one flight).
+
+    Torque-free, a rigid body's principal rates obey I_i w_i' = (I_j - I_k) w_j w_k, and every
+    body's moments satisfy |I_j - I_k| <= I_i, so |w'|^2 <= sum w_j^2 w_k^2 <= |w|^4 / 3 in
+    any body frame: the rates cannot change faster than |w|^2 / sqrt(3) (a free body moves no
+    faster than it spins). A hand holding, throwing or catching the body breaks the bound. A row
+    passes where the rates' local slope (a least-squares line through FLIGHT_SLOPE_ROWS samples)
+    is within the bound plus FLIGHT_NOISE_Z times the slope's noise (third differences' level
+    over the record). A flight is a run of passing rows, less the slope's half-width at each end
+    (the rows an impulse there reaches), of at least FLIGHT_MIN_ROWS rows, turning the body at
+    least FLIGHT_MIN_TURN rad, where the bound exceeds the noise allowance on most rows (a body
+    at rest or turned slowly in the hand passes on noise alone). Free of the units of time: the
+    bound, the turn and the allowance scale alike.
+    """
+    t, w = np.asarray(t, float), np.asarray(w, float)
+    half = FLIGHT_SLOPE_ROWS // 2
+    if t.size < FLIGHT_SLOPE_ROWS:
+        return None
+    times = np.lib.stride_tricks.sliding_window_view(t, FLIGHT_SLOPE_ROWS)
+    times = times - times.mean(axis=1, keepdims=True)
+    spread = np.sum(times ** 2, axis=1)  # (n - 2 half,) s^2
+    rates = np.lib.stride_tricks.sliding_window_view(w, FLIGHT_SLOPE_ROWS, axis=0)  # (m, 3, rows)
+    slope = np.linalg.norm(np.einsum("kir,kr->ki", rates, times), axis=1) / spread
+    speed2 = np.sum(w[half:t.size - half] ** 2, axis=1)
+    bound = speed2 / np.sqrt(3.0)
+    allowance = FLIGHT_NOISE_Z * np.linalg.norm(estimate_white_noise(w)) / np.sqrt(spread)
+    passed = slope <= bound + allowance
+    if passed.all():
+        return None
+    edges = np.flatnonzero(np.diff(np.r_[0, passed.astype(np.int8), 0]))
+    flights = []
+    for a, b in zip(edges[::2] + 2 * half, edges[1::2]):  # rows of the run, less half at each end
+        if b - a < FLIGHT_MIN_ROWS:
+            continue
+        turn = np.sum(np.sqrt(np.sum(w[a:b] ** 2, axis=1))[:-1] * np.diff(t[a:b]))
+        spins = bound[a - half:b - half] > allowance[a - half:b - half]  # beyond the noise's allowance
+        if turn >= FLIGHT_MIN_TURN and spins.mean() > 0.5:
+            flights.append((int(a), int(b)))
+    return flights
 
 
 def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                  rate_unit: str | None = None) -> list[Recording]:
     """A phyphox export: "Raw Data.csv" (or its folder). With meta/segments.csv, each kept
-    free-flight window [start, end] becomes its own recording; otherwise the whole file.
-    columns (t, wx, wy, wz only) replace phyphox's own names; units as for read_recordings.
+    free-flight window [start, end] becomes its own recording (meta "window",
+    "window_source": "meta/segments.csv"). Without it, each free flight the gyro shows
+    (free_flight_windows) does, named "NAME flight K" (meta "window_source": "found from the
+    gyro"); the whole file is one recording where no row breaks the torque-free bound, or no
+    flight is found. columns (t, wx, wy, wz only) replace phyphox's own names; units as for
+    read_recordings.
     """
     path = Path(path)
     csv_path = path / "Raw Data.csv" if path.is_dir() else path
@@ -701,8 +761,13 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
     t, w = rec.t, rec.w
     label = folder.name
     segments = _phyphox_segments(folder)
-    if not segments:
-        return [Recording(t, w, meta=rec.meta, name=label)]
+    if segments is None:
+        flights = free_flight_windows(t, w)
+        if not flights:
+            return [Recording(t, w, meta=rec.meta, name=label)]
+        return [Recording(t[a:b], w[a:b], name=f"{label} flight {k}", meta={
+            "source": str(csv_path), "flight": k, "window": [float(t[a]), float(t[b - 1])],
+            "window_source": WINDOW_FOUND}) for k, (a, b) in enumerate(flights, start=1)]
     recs = []
     for seg, start, end in segments:
         mask = (t >= start) & (t <= end)
@@ -710,9 +775,22 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
             raise _fail(folder / "meta" / "segments.csv",
                         f"segment {seg} [{start}, {end}] s holds {mask.sum()} samples", column="start")
         recs.append(Recording(t[mask], w[mask], meta={"source": str(csv_path), "segment": seg,
-                                                      "window": [start, end]},
+                                                      "window": [start, end],
+                                                      "window_source": "meta/segments.csv"},
                               name=f"{label} segment {seg}"))
     return recs
+
+
+#: meta["window_source"] of a free flight read_phyphox found from the gyro.
+WINDOW_FOUND = "found from the gyro (the export has no meta/segments.csv)"
+
+
+def window_note(start: float, end: float) -> str:
+    """A sentence on a free flight from start to end (s) that read_phyphox found from the gyro."""
+    return (f"free flight from t = {start:.6g} to {end:.6g} s, found from the gyro: the export has no "
+            "meta/segments.csv, and there the rates stay within what a free body's own motion "
+            "allows (|dw/dt| <= |w|^2/sqrt(3)); write meta/segments.csv (segment,start,end) to "
+            "choose the windows yourself")
 
 
 def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,

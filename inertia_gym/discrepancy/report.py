@@ -31,7 +31,14 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
-from inertia_gym.discrepancy.recordings import Recording, check_input_gaps, retimed, retimed_note
+from inertia_gym.discrepancy.recordings import (
+    WINDOW_FOUND,
+    Recording,
+    check_input_gaps,
+    retimed,
+    retimed_note,
+    window_note,
+)
 from inertia_gym.errors import RecordingError
 from inertia_gym.executors import kernels_own_the_cores
 
@@ -269,6 +276,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
+        "free_flight_window": None if "window" not in rec.meta else {
+            "t_start": rec.meta["window"][0], "t_end": rec.meta["window"][1],
+            "source": rec.meta["window_source"]},
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
         "scale_identified": d.excited,
@@ -530,6 +540,9 @@ def markdown(report: dict, plots: list[str]) -> str:
              *_shape_words(report), ""]
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
+    window = report["free_flight_window"]
+    if window and window["source"] == WINDOW_FOUND:
+        lines[-1:-1] = [f"- {window_note(window['t_start'], window['t_end'])}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
     for e in report["effects"]:
         params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}

@@ -5,34 +5,26 @@ of the batch."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.recordings import write_recording
+from inertia_gym.discrepancy.recordings import WINDOW_FOUND, write_recording
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.scenario import Scenario
 
-HEADER = '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)","Absolute (rad/s)"'
-
-
-def _export(folder: Path, t, w) -> None:
-    """A phyphox gyro export (no segments file: the whole file is one recording)."""
-    folder.mkdir(parents=True)
-    rows = [",".join(f"{v:.9E}" for v in (ti, *wi, np.linalg.norm(wi))) for ti, wi in zip(t, w)]
-    (folder / "Raw Data.csv").write_text("\n".join([HEADER, *rows]) + "\n")
-
 
 @pytest.fixture(scope="module")
-def tosses(tmp_path_factory) -> Path:
-    """round1/<export>: a 2-s torque-free tumble of the paper's body, gyro only; round2/<export>
-    of the same name: 15 rows, too few for either command."""
+def tosses(tmp_path_factory, write_phyphox) -> Path:
+    """round1/<export>: a 2-s torque-free tumble of the paper's body, gyro only (no segments
+    file, and free throughout: the whole file is one recording); round2/<export> of the same
+    name: 15 rows, too few for either command."""
     root = tmp_path_factory.mktemp("tosses")
     rec, _ = simulate_recording(Scenario(), 2.0, seed=3, torque=False, sample_dt=0.01)
-    _export(root / "round1" / "Gyroscope rotation rate 1", rec.t, rec.w)
-    _export(root / "round2" / "Gyroscope rotation rate 1", rec.t[:15], rec.w[:15])
+    write_phyphox(root / "round1" / "Gyroscope rotation rate 1", rec.t, rec.w)
+    write_phyphox(root / "round2" / "Gyroscope rotation rate 1", rec.t[:15], rec.w[:15])
     return root
 
 
@@ -68,3 +60,24 @@ def test_a_folder_of_recording_files_with_an_unreadable_one(tmp_path, capsys, co
     assert "notes.csv" in (out / "notes" / "refused.txt").read_text()
     assert len(err) == 2 and err[0].startswith("notes: refused: ")
     assert "1 of 2 recordings refused" in err[1]
+
+
+def test_the_free_flights_of_a_phone_export_are_diagnosed_and_identified_each(tmp_path, hand_tosses,
+                                                                            write_phyphox):
+    """A phyphox export as the phone writes it (no segments file) of three tosses between
+    which a hand holds the phone: one report per free flight, each saying where the flight was
+    found, all rigid (the flights are torque-free); identify's notes say it too."""
+    t, w, flights = hand_tosses()
+    export = write_phyphox(tmp_path / "Gyroscope rotation rate 1", t, w)
+    assert main(["diagnose", str(export), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    for k, (start, end) in enumerate(flights, start=1):
+        folder = tmp_path / "out" / f"Gyroscope_rotation_rate_1_flight_{k}"
+        report = json.loads((folder / "report.json").read_text())
+        window = report["free_flight_window"]
+        assert start <= window["t_start"] < window["t_end"] <= end and window["source"] == WINDOW_FOUND
+        assert max(report["fit_after"]["rms_over_noise"]) < 1.5 and not report["explanation"]
+        assert "found from the gyro" in (folder / "summary.md").read_text()
+    assert main(["identify", str(export), "--out", str(tmp_path / "id"), "--no-plots"]) == 0
+    result = tmp_path / "id" / "Gyroscope_rotation_rate_1_flight_2" / "identify.json"
+    notes = json.loads(result.read_text())["notes"]
+    assert any(n.startswith("free flight from t = 4.2") and "found from the gyro" in n for n in notes)

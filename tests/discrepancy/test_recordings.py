@@ -12,7 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.discrepancy.recordings import (
+    WINDOW_FOUND,
     Recording,
+    free_flight_windows,
     read_recordings,
     read_sidecar,
     recording_sources,
@@ -20,6 +22,7 @@ from inertia_gym.discrepancy.recordings import (
     retimed,
     write_recording,
 )
+from inertia_gym.dynamics import propagate
 from inertia_gym.errors import ConfigError, RecordingError
 
 GOOD = "t,wx,wy,wz\n" + "".join(f"{0.1 * i},0.1,0.2,{0.01 * i}\n" for i in range(20))
@@ -218,6 +221,45 @@ def test_phyphox_bad_segment(tmp_path):
     folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n0,x,1.0,,a\n")
     with pytest.raises(RecordingError, match="segments.csv, row 2"):
         read_recordings(folder)
+
+
+def test_a_segments_file_that_keeps_nothing_is_refused(tmp_path):
+    folder = _phyphox(tmp_path, "segment,start,end,keep\n0,0.2,1.0,false\n1,1.2,2.0,no\n")
+    with pytest.raises(RecordingError, match="keeps no segment .* have the free flights found"):
+        read_recordings(folder)
+
+
+def test_a_phyphox_export_without_segments_is_read_as_its_free_flights(tmp_path, hand_tosses, write_phyphox):
+    """phyphox writes no meta/segments.csv: a user's export holds the hand, the throws and the
+    catches. Each free flight is its own recording, holding none of them and nearly all of it."""
+    t, w, flights = hand_tosses()
+    recs = read_recordings(write_phyphox(tmp_path / "Gyroscope rotation rate 1", t, w))
+    assert [r.name for r in recs] == [f"Gyroscope rotation rate 1 flight {k}" for k in (1, 2, 3)]
+    for rec, (start, end) in zip(recs, flights):
+        assert start <= rec.t[0] and rec.t[-1] <= end
+        assert rec.t[-1] - rec.t[0] >= 0.9 * (end - start)
+        assert rec.meta["window"] == [rec.t[0], rec.t[-1]] and rec.meta["window_source"] == WINDOW_FOUND
+
+
+@pytest.mark.parametrize("rate", [25.0, 0.04])
+def test_free_flights_are_found_alike_in_any_units_of_time(hand_tosses, rate):
+    """The same tosses run `rate` times faster (a smaller body, or time in other units) have
+    their flights on the same rows: the bound |dw/dt| <= |w|^2/sqrt(3) has no scale."""
+    t, w, _ = hand_tosses()
+    fast_t, fast_w, _ = hand_tosses(rate)
+    assert free_flight_windows(fast_t, fast_w) == free_flight_windows(t, w) != []
+
+
+def test_a_phyphox_export_with_no_flight_found_is_read_whole(tmp_path, hand_tosses, write_phyphox):
+    """A tumble free from end to end breaks the bound nowhere, and a hand's turning holds no
+    flight: either export is one recording, the whole file, as with no flights to find."""
+    inertia = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
+    _, w = propagate([1, 0, 0, 0], [0.3, 10.0, 0.2], inertia, np.zeros((300, 3)), 0.01)
+    t_hand, w_hand, flights = hand_tosses()
+    hand = (t_hand < flights[0][0] - 0.1)  # before the first throw
+    for name, t, rates in (("tumble", np.arange(301) * 0.01, w), ("hand", t_hand[hand], w_hand[hand])):
+        (rec,) = read_recordings(write_phyphox(tmp_path / name, t, rates))
+        assert rec.name == name and rec.t.size == t.size and "window" not in rec.meta
 
 
 @settings(max_examples=60, deadline=None)
@@ -526,3 +568,25 @@ def test_real_recordings_keep_their_time_stamps():
         p.parent for p in (DATA / "phyphox-racquet").rglob("Raw Data.csv"))
     recs = [r for path in paths for r in read_recordings(path)]
     assert all(retimed(r) is r for r in recs)
+
+
+@pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
+def test_the_real_tosses_are_found_without_their_segments_file(tmp_path):
+    """The racquet exports without meta/segments.csv: every window its authors kept is found,
+    covering at least 90 % of it, and nothing where they marked no toss (their one window not
+    kept, a free flight that was "not a trial", is found too)."""
+    found_count = 0
+    for raw in sorted((DATA / "phyphox-racquet").rglob("Raw Data.csv")):
+        export = tmp_path / raw.parent.parent.name / raw.parent.name
+        export.mkdir(parents=True)
+        (export / "Raw Data.csv").write_bytes(raw.read_bytes())
+        found = [r.meta["window"] for r in read_recordings(export)]
+        found_count += len(found)
+        lines = (raw.parent / "meta" / "segments.csv").read_text().splitlines()[1:]
+        curated = [(float(c[1]), float(c[2]), c[3].strip().lower() != "false")
+                   for c in (line.split(",") for line in lines)]
+        for start, end, kept in curated:
+            overlaps = [min(end, b) - max(start, a) for a, b in found if min(end, b) > max(start, a)]
+            assert len(overlaps) == 1 and (not kept or overlaps[0] >= 0.9 * (end - start)), (raw, start)
+        assert all(any(min(end, b) > max(start, a) for start, end, _ in curated) for a, b in found)
+    assert found_count == 13
