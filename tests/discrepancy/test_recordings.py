@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.discrepancy.recordings import (
+    FLIGHT_MIN_ROWS,
     WINDOW_FOUND,
     Recording,
     free_flight_windows,
@@ -248,6 +250,22 @@ def test_free_flights_are_found_alike_in_any_units_of_time(hand_tosses, rate):
     t, w, _ = hand_tosses()
     fast_t, fast_w, _ = hand_tosses(rate)
     assert free_flight_windows(fast_t, fast_w) == free_flight_windows(t, w) != []
+
+
+@settings(max_examples=80, deadline=None)
+@given(rows=st.integers(1, 80), seed=st.integers(0, 2 ** 16), decade=st.integers(-150, 95),
+       still=st.booleans())
+def test_free_flight_windows_of_any_rates_are_spans_or_none(rows, seed, decade, still):
+    """Any finite rates at any increasing times (scattered steps, magnitudes over 250 decades,
+    a still gyro): spans of at least FLIGHT_MIN_ROWS rows inside the record, or None, and no
+    warning."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(1e-3, 1.0, rows))
+    w = np.zeros((rows, 3)) if still else rng.normal(size=(rows, 3)) * 10.0 ** decade
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        spans = free_flight_windows(t, w)
+    assert spans is None or all(0 <= a < b <= rows and b - a >= FLIGHT_MIN_ROWS for a, b in spans)
 
 
 def test_a_phyphox_export_with_no_flight_found_is_read_whole(tmp_path, hand_tosses, write_phyphox):
