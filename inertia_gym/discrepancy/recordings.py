@@ -536,15 +536,29 @@ def _apply_column_map(path, header: list[str], columns: dict | None) -> tuple[li
     return out, labels
 
 
+#: Field delimiters a CSV file may use: phyphox's five CSV exports separate by comma, tab or
+#: semicolon, the last two with a decimal point or a decimal comma.
+DELIMITERS = (",", "\t", ";")
+
+
+def _delimiter(header: str) -> str:
+    """The delimiter (DELIMITERS) that splits a header line into the most fields (comma on a tie)."""
+    return max(DELIMITERS, key=lambda d: len(next(csv.reader([header], delimiter=d), [])))
+
+
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    """Header and float rows of a CSV file; errors name the row and column."""
+    """Header and float rows of a CSV file separated by comma, tab or semicolon (a decimal comma
+    is read where the fields are not comma separated); errors name the row and column.
+    """
     try:
         text = path.read_text()
     except OSError as exc:
         raise _fail(path, f"cannot read: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise _fail(path, "not a text file") from exc
-    lines = [row for row in csv.reader(text.splitlines())]
+    text_lines = text.splitlines()
+    delimiter = _delimiter(text_lines[0] if text_lines else "")
+    lines = [row for row in csv.reader(text_lines, delimiter=delimiter)]
     if not lines or not any(cell.strip() for cell in lines[0]):
         raise _fail(path, "empty file (a header row is required)", 1)
     header = [cell.strip() for cell in lines[0]]
@@ -557,7 +571,7 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
         values = []
         for name, cell in zip(header, row):
             try:
-                values.append(float(cell))
+                values.append(float(cell if delimiter == "," else cell.replace(",", ".", 1)))
             except ValueError:
                 raise _fail(path, f"not a number: {cell!r}", i, name) from None
         rows.append(values)

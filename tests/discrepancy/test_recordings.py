@@ -231,6 +231,22 @@ def test_a_segments_file_that_keeps_nothing_is_refused(tmp_path):
         read_recordings(folder)
 
 
+@pytest.mark.parametrize("separator, decimal", [("\t", "."), (";", "."), ("\t", ","), (";", ",")])
+def test_phyphox_exports_in_each_of_its_csv_formats_read_alike(tmp_path, separator, decimal):
+    """phyphox exports CSV with a comma, tab or semicolon between fields and a decimal point or
+    comma (its export dialog's five CSV formats): each reads as the comma one does."""
+    comma = _phyphox(tmp_path / "comma", "segment,start,end,keep\n0,0.2,1.0,\n")
+    other = tmp_path / "other" / comma.name
+    (other / "meta").mkdir(parents=True)
+    (other / "meta" / "segments.csv").write_text((comma / "meta" / "segments.csv").read_text())
+    header, *rows = (comma / "Raw Data.csv").read_text().splitlines()
+    lines = [header.replace(",", separator)] + [
+        separator.join(cell.replace(".", decimal) for cell in row.split(",")) for row in rows]
+    (other / "Raw Data.csv").write_text("\n".join(lines) + "\n")
+    (expected,), (got,) = read_recordings(comma), read_recordings(other)
+    assert np.array_equal(got.t, expected.t) and np.array_equal(got.w, expected.w)
+
+
 def test_a_phyphox_export_without_segments_is_read_as_its_free_flights(tmp_path, hand_tosses, write_phyphox):
     """phyphox writes no meta/segments.csv: a user's export holds the hand, the throws and the
     catches. Each free flight is its own recording, holding none of them and nearly all of it."""
