@@ -540,7 +540,7 @@ def markdown(report: dict, plots: list[str]) -> str:
              *_shape_words(report), ""]
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
-    window = report["free_flight_window"]
+    window = report.get("free_flight_window")
     if window and window["source"] == WINDOW_FOUND:
         lines[-1:-1] = [f"- {window_note(window['t_start'], window['t_end'])}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
