@@ -72,8 +72,9 @@ def add_recording_argument(parser: argparse.ArgumentParser) -> None:
     from inertia_gym.discrepancy.recordings import RATE_UNITS, TIME_UNITS
 
     parser.add_argument("rec", metavar="REC",
-                        help="project CSV/Parquet (+ sidecar JSON) or a phyphox export "
-                             "folder/'Raw Data.csv'")
+                        help="project CSV/Parquet (+ sidecar JSON), a phyphox export (its "
+                             "folder or 'Raw Data.csv', or the .zip or .xlsx phyphox writes), "
+                             "or a folder holding recordings at any depth")
     parser.add_argument("--columns", metavar="MAP", default=None,
                         help="the file's own column names, e.g. t=time,wx=gx,wy=gy,wz=gz "
                              "(format name=file name, comma separated)")

@@ -1,4 +1,4 @@
-"""Recordings: the project's CSV (+ sidecar JSON), phyphox exports, Parquet.
+"""Recordings: the project's CSV (+ sidecar JSON), Parquet, phyphox exports (folder, .zip, .xlsx).
 
 A recording holds gyro samples and, optionally, attitude, commanded torque and known internal
 angular momentum (README.md, "Recording format"; docs/contracts.md). Columns (one row per gyro sample):
@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -556,6 +557,11 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
         raise _fail(path, f"cannot read: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise _fail(path, "not a text file") from exc
+    return _parse_table(text, path)
+
+
+def _parse_table(text: str, path) -> tuple[list[str], np.ndarray]:
+    """_read_table on the text of a CSV file; path names it in errors."""
     text_lines = text.splitlines()
     delimiter = _delimiter(text_lines[0] if text_lines else "")
     lines = [row for row in csv.reader(text_lines, delimiter=delimiter)]
@@ -684,15 +690,13 @@ def read_parquet_recording(path: str | Path, columns: dict | None = None, time_u
     return _from_columns(path, header, data, read_sidecar(path), columns, time_unit, rate_unit)
 
 
-def _phyphox_segments(folder: Path) -> list[tuple[int, float, float]] | None:
-    """(segment, start, end) of each kept window of the export's meta/segments.csv; None where
-    it has no such file.
+def _phyphox_segments(text: str | None, seg_path) -> list[tuple[int, float, float]] | None:
+    """(segment, start, end) of each kept window of an export's meta/segments.csv, given its
+    text (None: the export has no such file, and neither has the result); seg_path names it.
     """
-    seg_path = folder / "meta" / "segments.csv"
-    if not seg_path.exists():
+    if text is None:
         return None
-    with seg_path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    rows = list(csv.DictReader(text.splitlines()))
     out = []
     for i, row in enumerate(rows, start=2):
         keep = (row.get("keep") or "").strip().lower()
@@ -754,45 +758,109 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
 
 def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                  rate_unit: str | None = None) -> list[Recording]:
-    """A phyphox export: "Raw Data.csv" (or its folder). With meta/segments.csv, each kept
-    free-flight window [start, end] becomes its own recording (meta "window",
-    "window_source": "meta/segments.csv"). Without it, each free flight the gyro shows
-    (free_flight_windows) does, named "NAME flight K" (meta "window_source": "found from the
-    gyro"); the whole file is one recording where no row breaks the torque-free bound, or no
-    flight is found. columns (t, wx, wy, wz only) replace phyphox's own names; units as for
-    read_recordings.
+    """A phyphox export: its folder or "Raw Data.csv", the .zip its CSV export writes (the same
+    files) or the .xlsx its Excel export writes (sheet "Raw Data"; optional dependency openpyxl).
+    With meta/segments.csv (not written by phyphox: a user's own), each kept free-flight window
+    [start, end] becomes its own recording (meta "window", "window_source":
+    "meta/segments.csv"). Without it, each free flight the gyro shows (free_flight_windows)
+    does, named "NAME flight K" (meta "window_source": WINDOW_FOUND); the whole file is one
+    recording where no row breaks the torque-free bound, or no flight is found. columns (t, wx,
+    wy, wz only) replace phyphox's own names; units as for read_recordings.
     """
     path = Path(path)
-    csv_path = path / "Raw Data.csv" if path.is_dir() else path
-    folder = csv_path.parent
-    header, data = _read_table(csv_path)
+    if path.suffix.lower() == ".zip":
+        label, source, seg_path = path.stem, path, f"{path}: meta/segments.csv"
+        (header, data), segments = _zipped_export(path)
+    elif path.suffix.lower() == ".xlsx":
+        label, source, seg_path = path.stem, path, None
+        (header, data), segments = _xlsx_table(path), None
+    else:
+        source = path / "Raw Data.csv" if path.is_dir() else path
+        label, seg_path = source.parent.name, source.parent / "meta" / "segments.csv"
+        header, data = _read_table(source)
+        segments = _phyphox_segments(seg_path.read_text() if seg_path.exists() else None, seg_path)
     mapping = dict(zip(("t",) + GYRO, PHYPHOX_COLUMNS)) | dict(columns or {})
-    missing = [source for target, source in mapping.items()
-               if source not in header and target not in (columns or {})]
+    missing = [name for target, name in mapping.items()
+               if name not in header and target not in (columns or {})]
     if missing:
-        raise _fail(csv_path, f"missing phyphox column(s) {missing}", 1, missing[0])
-    rec = _from_columns(csv_path, header, data, {"source": str(csv_path)}, mapping, time_unit, rate_unit)
+        raise _fail(source, f"missing phyphox column(s) {missing}", 1, missing[0])
+    rec = _from_columns(source, header, data, {"source": str(source)}, mapping, time_unit, rate_unit)
     t, w = rec.t, rec.w
-    label = folder.name
-    segments = _phyphox_segments(folder)
     if segments is None:
         flights = free_flight_windows(t, w)
         if not flights:
             return [Recording(t, w, meta=rec.meta, name=label)]
         return [Recording(t[a:b], w[a:b], name=f"{label} flight {k}", meta={
-            "source": str(csv_path), "flight": k, "window": [float(t[a]), float(t[b - 1])],
+            "source": str(source), "flight": k, "window": [float(t[a]), float(t[b - 1])],
             "window_source": WINDOW_FOUND}) for k, (a, b) in enumerate(flights, start=1)]
     recs = []
     for seg, start, end in segments:
         mask = (t >= start) & (t <= end)
         if mask.sum() < MIN_SAMPLES:
-            raise _fail(folder / "meta" / "segments.csv",
-                        f"segment {seg} [{start}, {end}] s holds {mask.sum()} samples", column="start")
-        recs.append(Recording(t[mask], w[mask], meta={"source": str(csv_path), "segment": seg,
+            raise _fail(seg_path, f"segment {seg} [{start}, {end}] s holds {mask.sum()} samples",
+                        column="start")
+        recs.append(Recording(t[mask], w[mask], meta={"source": str(source), "segment": seg,
                                                       "window": [start, end],
                                                       "window_source": "meta/segments.csv"},
                               name=f"{label} segment {seg}"))
     return recs
+
+
+def _zipped_export(path: Path) -> tuple[tuple[list[str], np.ndarray], list | None]:
+    """(header, rows) of the "Raw Data.csv" in a zipped phyphox export, and the kept windows of
+    its meta/segments.csv (None without one): the files at the archive's top or in one folder.
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = [n for n in archive.namelist() if n.rsplit("/", 1)[-1] == "Raw Data.csv"]
+            if len(names) != 1:
+                raise _fail(path, f"a phyphox export holds one 'Raw Data.csv'; this archive holds "
+                            f"{len(names)}")
+            top = names[0][: -len("Raw Data.csv")]
+            table = _parse_table(archive.read(names[0]).decode(), f"{path}: {names[0]}")
+            seg_name = top + "meta/segments.csv"
+            text = archive.read(seg_name).decode() if seg_name in archive.namelist() else None
+    except (zipfile.BadZipFile, OSError, UnicodeDecodeError) as exc:
+        raise _fail(path, f"cannot read as a zipped phyphox export: {exc}") from exc
+    return table, _phyphox_segments(text, f"{path}: {seg_name}")
+
+
+#: The sheet of a phyphox Excel export that holds the gyro (its "Raw Data" set).
+PHYPHOX_SHEET = "Raw Data"
+
+
+def _xlsx_table(path: Path) -> tuple[list[str], np.ndarray]:
+    """(header, rows) of the "Raw Data" sheet of a phyphox Excel export (openpyxl reads it)."""
+    try:
+        import openpyxl
+    except ImportError:
+        raise _fail(path, "reading a phyphox Excel export needs openpyxl: pip install "
+                    "'inertia-gym[xlsx]' (or export CSV from phyphox)") from None
+    try:
+        book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except Exception as exc:  # openpyxl raises several unrelated types for a bad file
+        raise _fail(path, f"cannot read as an Excel workbook: {exc}") from exc
+    try:
+        if PHYPHOX_SHEET not in book.sheetnames:
+            raise _fail(path, f"no sheet {PHYPHOX_SHEET!r} (the sheets are {book.sheetnames}): not a "
+                        "phyphox gyro export")
+        rows = [[cell for cell in row] for row in book[PHYPHOX_SHEET].iter_rows(values_only=True)]
+    finally:
+        book.close()
+    if not rows or not any(rows[0]):
+        raise _fail(path, "empty sheet (a header row is required)", 1)
+    header = [str(cell).strip() if cell is not None else "" for cell in rows[0]]
+    data = []
+    for i, row in enumerate(rows[1:], start=2):
+        if all(cell is None for cell in row):
+            continue
+        try:
+            data.append([float(cell) for cell in row[: len(header)]])
+        except (TypeError, ValueError):
+            raise _fail(path, f"not a number in {list(row)}", i) from None
+    if not data:
+        raise _fail(path, "no data rows after the header", 2)
+    return header, np.asarray(data, dtype=float)
 
 
 #: meta["window_source"] of a free flight read_phyphox found from the gyro.
@@ -809,10 +877,11 @@ def window_note(start: float, end: float) -> str:
 
 def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                     rate_unit: str | None = None) -> list[Recording]:
-    """Any supported input: project CSV, Parquet, phyphox file or folder, or a folder holding
-    recordings at any depth (recording_sources: phyphox exports, and project CSV or Parquet
-    files, each then named by its path below that folder, e.g. "round1/Gyroscope rotation rate
-    ... segment 0" or "throws/LOG00186"). Returns one or more.
+    """Any supported input: project CSV, Parquet, a phyphox export (its folder or "Raw Data.csv",
+    or the .zip or .xlsx phyphox writes), or a folder holding recordings at any depth
+    (recording_sources: phyphox exports, and such files, each then named by its path below that
+    folder, e.g. "round1/Gyroscope rotation rate ... segment 0" or "throws/LOG00186"). Returns
+    one or more.
 
     columns: {format name: the file's column name}, e.g. {"t": "time", "wx": "gx"}: format names
         as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
@@ -827,25 +896,32 @@ def read_recordings(path: str | Path, columns: dict | None = None, time_unit: st
             for rec in read_source(source, name, columns, time_unit, rate_unit)]
 
 
-#: Suffixes of the project's recording files that a folder is searched for.
-RECORDING_SUFFIXES = (".csv", ".parquet")
+#: Suffixes of the recording files a folder is searched for: the project's CSV and Parquet, and
+#: phyphox's zipped CSV export and Excel export.
+RECORDING_SUFFIXES = (".csv", ".parquet", ".zip", ".xlsx")
 
 
 def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
     """(name, path) of every recording a folder holds at any depth, sorted: each phyphox export
-    (a folder holding 'Raw Data.csv'; its own meta/ files are not recordings) and each project
-    CSV or Parquet file outside the exports, named by its path below folder (a file without its
-    suffix). RecordingError where it holds none.
+    (a folder holding 'Raw Data.csv'; its own meta/ files are not recordings) and each file
+    outside the exports with a suffix of RECORDING_SUFFIXES (project CSV or Parquet, a zipped
+    or Excel phyphox export), named by its path below folder (a file without its suffix, but
+    with it where another source would have the same name: X.zip beside the export X/, X.csv
+    beside X.parquet). RecordingError where it holds none.
     """
     folder = Path(folder)
     exports = sorted(raw.parent for raw in folder.rglob("Raw Data.csv"))
     files = sorted(f for f in folder.rglob("*") if f.is_file() and f.suffix.lower() in RECORDING_SUFFIXES
                    and not any(export in f.parents for export in exports))
     sources = [(export.relative_to(folder).as_posix(), export) for export in exports]
-    sources += [(f.relative_to(folder).with_suffix("").as_posix(), f) for f in files]
+    exported = {name for name, _ in sources}
+    for f in files:  # a file named as an export or another file (X.zip beside X/) keeps its suffix
+        name = f.relative_to(folder).with_suffix("").as_posix()
+        clash = name in exported or sum(g.with_suffix("") == f.with_suffix("") for g in files) > 1
+        sources.append((f.relative_to(folder).as_posix() if clash else name, f))
     if not sources:
         raise RecordingError(f"{folder}: a folder must be a phyphox export holding 'Raw Data.csv', or hold "
-                             "such exports or recordings (.csv, .parquet) at any depth")
+                             "such exports or recordings (.csv, .parquet, .zip, .xlsx) at any depth")
     return sorted(sources)
 
 
@@ -867,6 +943,8 @@ def _read_any(path: Path, units: dict) -> tuple[str, list[Recording]]:
         return path.name, read_phyphox(path, **units)
     if path.suffix.lower() == ".parquet":
         return path.stem, [read_parquet_recording(path, **units)]
+    if path.suffix.lower() in (".zip", ".xlsx"):
+        return path.stem, read_phyphox(path, **units)
     with path.open(errors="replace") as fh:
         first = fh.readline()
     if "Gyroscope x" in first:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +94,8 @@ def test_parquet(tmp_path):
     pq.write_table(pa.table({"t": t, "wx": np.sin(t), "wy": t, "wz": t}), tmp_path / "r.parquet")
     (rec,) = read_recordings(tmp_path / "r.parquet")
     assert rec.w.shape == (30, 3)
+    write_recording(tmp_path / "r.csv", rec)  # the same stem: in a folder each keeps its suffix
+    assert [name for name, _ in recording_sources(tmp_path)] == ["r.csv", "r.parquet"]
 
 
 def _momentum_recording(n=20):
@@ -197,7 +200,7 @@ def test_a_folder_of_phyphox_exports_is_read_whole_each_named_by_its_path(tmp_pa
                                       for p in ("round1", "round2/more") for k in (0, 2)]
     assert all(r.t[0] >= r.meta["window"][0] for r in recs)
     (tmp_path / "empty").mkdir()
-    with pytest.raises(RecordingError, match=r"or hold such exports or recordings \(.csv, .parquet\)"):
+    with pytest.raises(RecordingError, match=r"or recordings \(.csv, .parquet, .zip, .xlsx\) at any depth"):
         read_recordings(tmp_path / "empty")
 
 
@@ -245,6 +248,62 @@ def test_phyphox_exports_in_each_of_its_csv_formats_read_alike(tmp_path, separat
     (other / "Raw Data.csv").write_text("\n".join(lines) + "\n")
     (expected,), (got,) = read_recordings(comma), read_recordings(other)
     assert np.array_equal(got.t, expected.t) and np.array_equal(got.w, expected.w)
+
+
+def _zip(folder: Path) -> Path:
+    """folder's files zipped as phyphox's CSV export writes them ("Raw Data.csv", "meta/...")."""
+    path = folder.parent / f"{folder.name}.zip"
+    with zipfile.ZipFile(path, "w") as archive:
+        for f in sorted(p for p in folder.rglob("*") if p.is_file()):
+            archive.write(f, f.relative_to(folder).as_posix())
+    return path
+
+
+def test_a_zipped_phyphox_export_reads_as_its_folder(tmp_path, hand_tosses, write_phyphox):
+    """phyphox's CSV export is a .zip of the files a folder export holds: its kept windows, or
+    where it has no meta/segments.csv the free flights found, are the folder's, named after the
+    archive; a folder holding such archives reads each."""
+    folder = _phyphox(tmp_path / "a", "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,false\n2,2.1,2.9,\n")
+    kept, zipped = read_recordings(folder), read_recordings(_zip(folder))
+    assert [r.name for r in zipped] == [r.name for r in kept]
+    assert [r.meta["segment"] for r in zipped] == [0, 2]
+    assert all(np.array_equal(a.w, b.w) for a, b in zip(kept, zipped))
+    t, w, _ = hand_tosses()
+    tosses = _zip(write_phyphox(tmp_path / "b" / "Gyroscope rotation rate 2", t, w))
+    flights = [f"Gyroscope rotation rate 2 flight {k}" for k in (1, 2, 3)]
+    assert [r.name for r in read_recordings(tosses)] == flights
+    # the export beside its own archive, as a user unzips it: the archive keeps its suffix
+    assert [r.name for r in read_recordings(tmp_path / "b")] == flights + [
+        f"Gyroscope rotation rate 2.zip flight {k}" for k in (1, 2, 3)]
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "notes.zip").write_bytes(b"PK not an archive")
+    with pytest.raises(RecordingError, match="notes.zip: cannot read as a zipped phyphox export"):
+        read_recordings(tmp_path / "c" / "notes.zip")
+
+
+def test_phyphox_excel_export_reads_as_its_csv(tmp_path, hand_tosses, write_phyphox):
+    """phyphox's default export is Excel: sheet "Raw Data" (header and rows), then its metadata
+    sheets. It reads as the same rows in CSV do; a workbook without that sheet is refused."""
+    openpyxl = pytest.importorskip("openpyxl")
+    t, w, _ = hand_tosses()
+    csv_export = write_phyphox(tmp_path / "Gyroscope rotation rate 3", t, w)
+    header, *rows = (csv_export / "Raw Data.csv").read_text().splitlines()
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = "Raw Data"
+    sheet.append([name.strip('"') for name in header.split(",")])
+    for row in rows:
+        sheet.append([float(cell) for cell in row.split(",")])
+    book.create_sheet("Metadata Device").append(["property", "value"])
+    book.save(tmp_path / "Gyroscope rotation rate 3.xlsx")
+    from_csv = read_recordings(csv_export)
+    from_excel = read_recordings(tmp_path / "Gyroscope rotation rate 3.xlsx")
+    assert [r.name for r in from_excel] == [r.name for r in from_csv] and len(from_excel) == 3
+    assert all(np.array_equal(a.t, b.t) and np.array_equal(a.w, b.w) for a, b in zip(from_csv, from_excel))
+    book.remove(book["Raw Data"])
+    book.save(tmp_path / "other.xlsx")
+    with pytest.raises(RecordingError, match="no sheet 'Raw Data'"):
+        read_recordings(tmp_path / "other.xlsx")
 
 
 def test_a_phyphox_export_without_segments_is_read_as_its_free_flights(tmp_path, hand_tosses, write_phyphox):
