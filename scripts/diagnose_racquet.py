@@ -1,15 +1,22 @@
-"""Diagnose every kept free-flight window of the phyphox racquet tosses (data never copied).
+"""Diagnose every kept free-flight window of the phyphox racquet tosses (data never copied
+into the repository).
 
 Usage: PYTHONPATH=. python scripts/diagnose_racquet.py [--data ../shared/data/phyphox-racquet]
-       [--out runs/racquet]
-Writes per toss report.json, summary.md and plots under OUT, and prints one line per toss.
+       [--out runs/racquet] [--without-segments]
+Writes per toss report.json, summary.md and plots under OUT, prints one line per toss, then the
+count of the leading effects. --without-segments reads each export as phyphox writes it, without
+its authors' meta/segments.csv (its "Raw Data.csv" copied to a temporary folder, deleted after):
+the tosses are then the free flights found from the gyro.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import re
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +35,8 @@ def main() -> None:
     data = Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"
     ap.add_argument("--data", default=str(data))
     ap.add_argument("--out", default="runs/racquet")
+    ap.add_argument("--without-segments", action="store_true",
+                    help="ignore meta/segments.csv: diagnose the free flights found from the gyro")
     args = ap.parse_args()
     out = Path(args.out)
     raws = sorted(Path(args.data).glob("round*/*/Raw Data.csv"))
@@ -35,29 +44,45 @@ def main() -> None:
         print(f"no racquet recordings under {args.data}: nothing to do")
         return
     rows = []
-    for raw in raws:
-        for rec in read_recordings(raw.parent):
-            sub = out / re.sub(r"[^\w.-]+", "_", f"{raw.parent.parent.name}_{rec.name}")
-            sub.mkdir(parents=True, exist_ok=True)
-            report, arrays = diagnose(rec)
-            plots = write_plots(sub, report, arrays)
-            write_json(sub / "report.json", report)
-            (sub / "summary.md").write_text(markdown(report, plots))
-            top = [f"{e['name']}({e['delta_bic']:.0f})" for e in report["effects"][:3]
-                   if e["delta_bic"] is not None]
-            inertia = np.array(report["fit_after"]["inertia"])
-            eig = np.sort(np.linalg.eigvalsh(inertia))[::-1]
-            rows.append({"toss": sub.name, "best": report["best_effect"], "top3": top,
-                         "explanation": [e["name"] for e in report["explanation"]],
-                         "before": _round(report["fit_before"]["rms_over_noise"]),
-                         "after": _round(report["fit_after"]["rms_over_noise"]),
-                         "max_abs_rate": float(np.abs(rec.w).max()),
-                         "principal_ratios": np.round(eig / eig[0], 3).tolist(),
-                         "invariants": report["invariants"].get("verdict"),
-                         "locations": len(report["locations"]),
-                         "sigma": np.round(report["gyro_sigma"], 4).tolist()})
-            print(json.dumps(rows[-1]))
+    with tempfile.TemporaryDirectory() as scratch:
+        for raw in raws:
+            source = raw.parent
+            if args.without_segments:  # the export as phyphox writes it: no segments file
+                source = Path(scratch) / raw.parent.parent.name / raw.parent.name
+                source.mkdir(parents=True)
+                shutil.copy(raw, source / raw.name)
+            rows += _diagnose_each(read_recordings(source), raw.parent.parent.name, out)
     write_json(out / "summary.json", {"tosses": rows})
+    leads = collections.Counter(row["explanation"][0] if row["explanation"] else None for row in rows)
+    print(f"{len(rows)} tosses; leading effect: {dict(leads.most_common())}")
+
+
+def _diagnose_each(recs, round_name: str, out: Path) -> list[dict]:
+    """Diagnose each recording of one export, write its outputs under out, one row per toss."""
+    rows = []
+    for rec in recs:
+        sub = out / re.sub(r"[^\w.-]+", "_", f"{round_name}_{rec.name}")
+        sub.mkdir(parents=True, exist_ok=True)
+        report, arrays = diagnose(rec)
+        plots = write_plots(sub, report, arrays)
+        write_json(sub / "report.json", report)
+        (sub / "summary.md").write_text(markdown(report, plots))
+        top = [f"{e['name']}({e['delta_bic']:.0f})" for e in report["effects"][:3]
+               if e["delta_bic"] is not None]
+        inertia = np.array(report["fit_after"]["inertia"])
+        eig = np.sort(np.linalg.eigvalsh(inertia))[::-1]
+        rows.append({"toss": sub.name, "window": rec.meta.get("window"),
+                     "best": report["best_effect"], "top3": top,
+                     "explanation": [e["name"] for e in report["explanation"]],
+                     "before": _round(report["fit_before"]["rms_over_noise"]),
+                     "after": _round(report["fit_after"]["rms_over_noise"]),
+                     "max_abs_rate": float(np.abs(rec.w).max()),
+                     "principal_ratios": np.round(eig / eig[0], 3).tolist(),
+                     "invariants": report["invariants"].get("verdict"),
+                     "locations": len(report["locations"]),
+                     "sigma": np.round(report["gyro_sigma"], 4).tolist()})
+        print(json.dumps(rows[-1]), flush=True)
+    return rows
 
 
 if __name__ == "__main__":
