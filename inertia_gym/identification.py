@@ -40,7 +40,6 @@ import numpy as np
 
 from inertia_gym.discrepancy.fit import end_impulses, saturated_samples
 from inertia_gym.discrepancy.recordings import (
-    WINDOW_FOUND,
     Recording,
     check_input_gaps,
     retimed,
@@ -729,8 +728,9 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                      "momentum; each piece is identified on its own")
     if "retimed" in rec.meta:
         notes.append(retimed_note(rec.meta["retimed"]))
-    if rec.meta.get("window_source") == WINDOW_FOUND:
-        notes.append(window_note(*rec.meta["window"]))
+    if "window_source" in rec.meta:
+        window = window_note(*rec.meta["window"], rec.meta["window_source"])
+        notes += [window] if window else []
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

@@ -2,7 +2,7 @@
 into the repository).
 
 Usage: PYTHONPATH=. python scripts/diagnose_racquet.py [--data ../shared/data/phyphox-racquet]
-       [--out runs/racquet] [--without-segments]
+       [--out DIR] [--without-segments]
 Writes per toss report.json, summary.md and plots under OUT, prints one line per toss, then the
 count of the leading effects. --without-segments reads each export as phyphox writes it, without
 its authors' meta/segments.csv (its "Raw Data.csv" copied to a temporary folder, deleted after):
@@ -34,11 +34,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     data = Path(__file__).resolve().parents[2] / "shared/data/phyphox-racquet"
     ap.add_argument("--data", default=str(data))
-    ap.add_argument("--out", default="runs/racquet")
+    ap.add_argument("--out", default=None, help="default runs/racquet, or runs/racquet-found "
+                    "with --without-segments")
     ap.add_argument("--without-segments", action="store_true",
                     help="ignore meta/segments.csv: diagnose the free flights found from the gyro")
     args = ap.parse_args()
-    out = Path(args.out)
+    out = Path(args.out or ("runs/racquet-found" if args.without_segments else "runs/racquet"))
     raws = sorted(Path(args.data).glob("round*/*/Raw Data.csv"))
     if not raws:
         print(f"no racquet recordings under {args.data}: nothing to do")

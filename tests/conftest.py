@@ -3,7 +3,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy.recordings import Recording, read_recordings
+from inertia_gym.discrepancy.recordings import PHYPHOX_COLUMNS, Recording, read_recordings
 from inertia_gym.scenario import Scenario
 
 #: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
@@ -76,19 +76,23 @@ def rotor_throw():
     return lambda stem: read_recordings(ROTOR_THROWS / f"{stem}.csv")[0]
 
 
-PHYPHOX_HEADER = ('"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)",'
-                  '"Absolute (rad/s)"')
+#: The header of phyphox's gyro export (its "Absolute" column after the recordings' own).
+PHYPHOX_HEADER = ",".join(f'"{name}"' for name in (*PHYPHOX_COLUMNS, "Absolute (rad/s)"))
 
 
 @pytest.fixture(scope="session")
 def write_phyphox():
-    """write(folder, t (n,) s, w (n, 3) rad/s) -> folder: a phyphox gyro export there, its
-    "Raw Data.csv" only (phyphox writes no meta/segments.csv)."""
+    """write(folder, t (n,) s, w (n, 3) rad/s, segments=None) -> folder: a phyphox gyro export
+    there, its "Raw Data.csv" and, where segments (the text of a meta/segments.csv) is given,
+    that file (phyphox itself writes none)."""
 
-    def write(folder: Path, t, w) -> Path:
+    def write(folder: Path, t, w, segments: str | None = None) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
         rows = [",".join(f"{v:.9E}" for v in (ti, *wi, np.linalg.norm(wi))) for ti, wi in zip(t, w)]
         (folder / "Raw Data.csv").write_text("\n".join([PHYPHOX_HEADER, *rows]) + "\n")
+        if segments is not None:
+            (folder / "meta").mkdir(exist_ok=True)
+            (folder / "meta" / "segments.csv").write_text(segments)
         return folder
 
     return write

@@ -218,17 +218,6 @@ def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path,
         assert code == 2 and expected in err
 
 
-def _phyphox_with_empty_segment(folder: Path) -> Path:
-    export = folder / "Gyroscope rotation rate 1"
-    (export / "meta").mkdir(parents=True)
-    t = np.arange(300) * 0.01
-    rows = [f"{x:.5E},{np.sin(x):.5E},1.0E0,{np.cos(x):.5E},1.0E0" for x in t]
-    header = '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)","Absolute (rad/s)"'
-    (export / "Raw Data.csv").write_text("\n".join([header, *rows]) + "\n")
-    (export / "meta" / "segments.csv").write_text("segment,start,end,keep\n0,0.5,2.5,\n1,5.0,6.0,\n")
-    return export
-
-
 @pytest.mark.parametrize("command", ["diagnose", "identify"])
 @pytest.mark.parametrize("case, message", [
     ("single row", "only 1 samples"),
@@ -239,10 +228,13 @@ def _phyphox_with_empty_segment(folder: Path) -> Path:
     ("empty segment", "segment 1 .* holds 0 samples"),
     ("clipped", r"the gyro clipped at its full scale in \d+ of 101 (samples|rows)"),
 ])
-def test_odd_inputs_end_in_one_line(base, tmp_path, capsys, command, case, message):
+def test_odd_inputs_end_in_one_line(base, tmp_path, capsys, write_phyphox, command, case, message):
     columns, _ = base
     if case == "empty segment":
-        path = _phyphox_with_empty_segment(tmp_path)
+        t = np.arange(300) * 0.01
+        w = np.stack([np.sin(t), np.ones_like(t), np.cos(t)], axis=1)
+        path = write_phyphox(tmp_path / "Gyroscope rotation rate 1", t, w,
+                             "segment,start,end,keep\n0,0.5,2.5,\n1,5.0,6.0,\n")
     else:
         data = {name: columns[name].copy() for name in ("t", "wx", "wy", "wz")}
         rows = {"single row": 1, "short": 15}.get(case, ROWS)

@@ -36,6 +36,7 @@ import csv
 import dataclasses
 import json
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -542,9 +543,18 @@ def _apply_column_map(path, header: list[str], columns: dict | None) -> tuple[li
 DELIMITERS = (",", "\t", ";")
 
 
-def _delimiter(header: str) -> str:
-    """The delimiter (DELIMITERS) that splits a header line into the most fields (comma on a tie)."""
-    return max(DELIMITERS, key=lambda d: len(next(csv.reader([header], delimiter=d), [])))
+def _delimiter(lines: list[str]) -> str:
+    """The delimiter (DELIMITERS) of a CSV file's lines: the one that splits the header into the
+    most fields, among those that split the first data line into as many (any, where none
+    does); comma on a tie.
+    """
+    def fields(line: str, d: str) -> int:
+        return len(next(csv.reader([line], delimiter=d), []))
+
+    header = lines[0] if lines else ""
+    data = next((line for line in lines[1:] if line.strip()), None)
+    agree = [d for d in DELIMITERS if data is None or fields(header, d) == fields(data, d)]
+    return max(agree or DELIMITERS, key=lambda d: fields(header, d))
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
@@ -562,8 +572,8 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
 
 def _parse_table(text: str, path) -> tuple[list[str], np.ndarray]:
     """_read_table on the text of a CSV file; path names it in errors."""
-    text_lines = text.splitlines()
-    delimiter = _delimiter(text_lines[0] if text_lines else "")
+    text_lines = text.removeprefix("\ufeff").splitlines()  # a byte-order mark (Excel writes one)
+    delimiter = _delimiter(text_lines)
     lines = [row for row in csv.reader(text_lines, delimiter=delimiter)]
     if not lines or not any(cell.strip() for cell in lines[0]):
         raise _fail(path, "empty file (a header row is required)", 1)
@@ -707,8 +717,9 @@ def _phyphox_segments(text: str | None, seg_path) -> list[tuple[int, float, floa
         except (KeyError, TypeError, ValueError):
             raise _fail(seg_path, "segment, start and end must be numbers", i) from None
     if not out:
-        raise _fail(seg_path, f"keeps no segment ({len(rows)} row(s), each with keep false): "
-                    "nothing to read; keep one, or remove the file to have the free flights found")
+        why = f"{len(rows)} row(s), each with keep false" if rows else "no row under its header"
+        raise _fail(seg_path, f"keeps no segment ({why}): nothing to read; keep one, or remove the "
+                    "file to have the free flights found")
     return out
 
 
@@ -726,8 +737,9 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
     over the record). A flight is a run of passing rows, less the slope's half-width at each end
     (the rows an impulse there reaches), of at least FLIGHT_MIN_ROWS rows, turning the body at
     least FLIGHT_MIN_TURN rad, where the bound exceeds the noise allowance on most rows (a body
-    at rest or turned slowly in the hand passes on noise alone). Free of the units of time: the
-    bound, the turn and the allowance scale alike.
+    at rest or turned slowly in the hand passes on noise alone): [] where the bound is broken
+    and no span qualifies; None also for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the
+    same motion run k times faster (t / k, w k, its noise k) gives the same rows.
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
     half = FLIGHT_SLOPE_ROWS // 2
@@ -764,8 +776,9 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
     [start, end] becomes its own recording (meta "window", "window_source":
     "meta/segments.csv"). Without it, each free flight the gyro shows (free_flight_windows)
     does, named "NAME flight K" (meta "window_source": WINDOW_FOUND); the whole file is one
-    recording where no row breaks the torque-free bound, or no flight is found. columns (t, wx,
-    wy, wz only) replace phyphox's own names; units as for read_recordings.
+    recording where no row breaks the torque-free bound, or, said in its meta (WINDOW_NONE_FOUND),
+    where no flight is found. columns (t, wx, wy, wz only) replace phyphox's own names; units as
+    for read_recordings.
     """
     path = Path(path)
     if path.suffix.lower() == ".zip":
@@ -788,8 +801,11 @@ def read_phyphox(path: str | Path, columns: dict | None = None, time_unit: str |
     t, w = rec.t, rec.w
     if segments is None:
         flights = free_flight_windows(t, w)
-        if not flights:
+        if flights is None:
             return [Recording(t, w, meta=rec.meta, name=label)]
+        if not flights:  # the gyro shows torques and no free flight: the whole file, said so
+            return [Recording(t, w, name=label, meta={**rec.meta, "window": [float(t[0]), float(t[-1])],
+                                                       "window_source": WINDOW_NONE_FOUND})]
         return [Recording(t[a:b], w[a:b], name=f"{label} flight {k}", meta={
             "source": str(source), "flight": k, "window": [float(t[a]), float(t[b - 1])],
             "window_source": WINDOW_FOUND}) for k, (a, b) in enumerate(flights, start=1)]
@@ -812,17 +828,28 @@ def _zipped_export(path: Path) -> tuple[tuple[list[str], np.ndarray], list | Non
     """
     try:
         with zipfile.ZipFile(path) as archive:
-            names = [n for n in archive.namelist() if n.rsplit("/", 1)[-1] == "Raw Data.csv"]
+            members = archive.namelist()
+            names = [n for n in members if n.rsplit("/", 1)[-1] == "Raw Data.csv"]
             if len(names) != 1:
                 raise _fail(path, f"a phyphox export holds one 'Raw Data.csv'; this archive holds "
                             f"{len(names)}")
-            top = names[0][: -len("Raw Data.csv")]
-            table = _parse_table(archive.read(names[0]).decode(), f"{path}: {names[0]}")
-            seg_name = top + "meta/segments.csv"
-            text = archive.read(seg_name).decode() if seg_name in archive.namelist() else None
-    except (zipfile.BadZipFile, OSError, UnicodeDecodeError) as exc:
+            seg_name = names[0][: -len("Raw Data.csv")] + "meta/segments.csv"
+            astray = [n for n in members if n.endswith("segments.csv") and n != seg_name]
+            if astray:
+                raise _fail(path, f"{astray[0]} is not beside {names[0]} (expected {seg_name})")
+            table = _parse_table(_text(archive.read(names[0]), path, names[0]), f"{path}: {names[0]}")
+            text = _text(archive.read(seg_name), path, seg_name) if seg_name in members else None
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, RuntimeError, NotImplementedError) as exc:
         raise _fail(path, f"cannot read as a zipped phyphox export: {exc}") from exc
     return table, _phyphox_segments(text, f"{path}: {seg_name}")
+
+
+def _text(data: bytes, path: Path, member: str) -> str:
+    """A zip member's bytes as text (UTF-8, a byte-order mark dropped)."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise _fail(path, f"{member} is not a text file") from None
 
 
 #: The sheet of a phyphox Excel export that holds the gyro (its "Raw Data" set).
@@ -830,7 +857,10 @@ PHYPHOX_SHEET = "Raw Data"
 
 
 def _xlsx_table(path: Path) -> tuple[list[str], np.ndarray]:
-    """(header, rows) of the "Raw Data" sheet of a phyphox Excel export (openpyxl reads it)."""
+    """(header, rows) of the "Raw Data" sheet of a phyphox Excel export (openpyxl reads it):
+    the columns under a header cell; an empty or non-numeric cell is refused, naming its row
+    and column.
+    """
     try:
         import openpyxl
     except ImportError:
@@ -838,50 +868,64 @@ def _xlsx_table(path: Path) -> tuple[list[str], np.ndarray]:
                     "'inertia-gym[xlsx]' (or export CSV from phyphox)") from None
     try:
         book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+        try:
+            if PHYPHOX_SHEET not in book.sheetnames:
+                raise _fail(path, f"no sheet {PHYPHOX_SHEET!r} (the sheets are {book.sheetnames}): "
+                            "not a phyphox gyro export")
+            rows = list(book[PHYPHOX_SHEET].iter_rows(values_only=True))
+        finally:
+            book.close()
+    except RecordingError:
+        raise
     except Exception as exc:  # openpyxl raises several unrelated types for a bad file
         raise _fail(path, f"cannot read as an Excel workbook: {exc}") from exc
-    try:
-        if PHYPHOX_SHEET not in book.sheetnames:
-            raise _fail(path, f"no sheet {PHYPHOX_SHEET!r} (the sheets are {book.sheetnames}): not a "
-                        "phyphox gyro export")
-        rows = [[cell for cell in row] for row in book[PHYPHOX_SHEET].iter_rows(values_only=True)]
-    finally:
-        book.close()
-    if not rows or not any(rows[0]):
-        raise _fail(path, "empty sheet (a header row is required)", 1)
-    header = [str(cell).strip() if cell is not None else "" for cell in rows[0]]
+    named = [i for i, cell in enumerate(rows[0] if rows else ()) if cell is not None and str(cell).strip()]
+    if not named:
+        raise _fail(path, f"sheet {PHYPHOX_SHEET!r} is empty (a header row is required)", 1)
+    header = [str(rows[0][i]).strip() for i in named]
     data = []
-    for i, row in enumerate(rows[1:], start=2):
-        if all(cell is None for cell in row):
+    for r, row in enumerate(rows[1:], start=2):
+        cells = [row[i] if i < len(row) else None for i in named]
+        if all(cell is None for cell in cells):
             continue
-        try:
-            data.append([float(cell) for cell in row[: len(header)]])
-        except (TypeError, ValueError):
-            raise _fail(path, f"not a number in {list(row)}", i) from None
+        for name, cell in zip(header, cells):
+            if not isinstance(cell, (int, float)) or isinstance(cell, bool):
+                raise _fail(path, "an empty cell" if cell is None else f"not a number: {cell!r}", r, name)
+        data.append([float(cell) for cell in cells])
     if not data:
         raise _fail(path, "no data rows after the header", 2)
     return header, np.asarray(data, dtype=float)
 
 
-#: meta["window_source"] of a free flight read_phyphox found from the gyro.
+#: meta["window_source"] of a free flight read_phyphox found from the gyro, and of an export
+#: without meta/segments.csv where it found none.
 WINDOW_FOUND = "found from the gyro (the export has no meta/segments.csv)"
+WINDOW_NONE_FOUND = ("the whole export: it has no meta/segments.csv, and the gyro shows no free flight "
+                     f"(the rates break the torque-free bound, and no span within it holds "
+                     f"{FLIGHT_MIN_ROWS} samples turning half a turn)")
 
 
-def window_note(start: float, end: float) -> str:
-    """A sentence on a free flight from start to end (s) that read_phyphox found from the gyro."""
+def window_note(start: float, end: float, source: str) -> str | None:
+    """A sentence on the window from start to end (s) of a phyphox export without
+    meta/segments.csv (source: WINDOW_FOUND or WINDOW_NONE_FOUND); None for any other source.
+    """
+    how = "write meta/segments.csv (segment,start,end) to choose the windows yourself"
+    if source == WINDOW_NONE_FOUND:
+        return f"{source}: its free flights, if any, were not found; {how}"
+    if source != WINDOW_FOUND:
+        return None
     return (f"free flight from t = {start:.6g} to {end:.6g} s, found from the gyro: the export has no "
             "meta/segments.csv, and there the rates stay within what a free body's own motion "
-            "allows (|dw/dt| <= |w|^2/sqrt(3)); write meta/segments.csv (segment,start,end) to "
-            "choose the windows yourself")
+            f"allows (|dw/dt| <= |w|^2/sqrt(3)); {how}")
 
 
 def read_recordings(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                     rate_unit: str | None = None) -> list[Recording]:
     """Any supported input: project CSV, Parquet, a phyphox export (its folder or "Raw Data.csv",
     or the .zip or .xlsx phyphox writes), or a folder holding recordings at any depth
-    (recording_sources: phyphox exports, and such files, each then named by its path below that
-    folder, e.g. "round1/Gyroscope rotation rate ... segment 0" or "throws/LOG00186"). Returns
-    one or more.
+    (recording_sources: phyphox export folders, project CSV and Parquet files, each then named
+    by its path below that folder, e.g. "round1/Gyroscope rotation rate ... segment 0" or
+    "throws/LOG00186"). Returns one or more.
 
     columns: {format name: the file's column name}, e.g. {"t": "time", "wx": "gx"}: format names
         as in COLUMN_NAMES; an unknown one, or a file column not in the header, is refused.
@@ -896,18 +940,19 @@ def read_recordings(path: str | Path, columns: dict | None = None, time_unit: st
             for rec in read_source(source, name, columns, time_unit, rate_unit)]
 
 
-#: Suffixes of the recording files a folder is searched for: the project's CSV and Parquet, and
-#: phyphox's zipped CSV export and Excel export.
-RECORDING_SUFFIXES = (".csv", ".parquet", ".zip", ".xlsx")
+#: Suffixes of the recording files a folder is searched for: the project's CSV and Parquet (a
+#: phyphox .zip or .xlsx is read when given itself: in a data folder such files are as often an
+#: export's copy beside it unzipped, or a spreadsheet of results).
+RECORDING_SUFFIXES = (".csv", ".parquet")
 
 
 def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
     """(name, path) of every recording a folder holds at any depth, sorted: each phyphox export
     (a folder holding 'Raw Data.csv'; its own meta/ files are not recordings) and each file
-    outside the exports with a suffix of RECORDING_SUFFIXES (project CSV or Parquet, a zipped
-    or Excel phyphox export), named by its path below folder (a file without its suffix, but
-    with it where another source would have the same name: X.zip beside the export X/, X.csv
-    beside X.parquet). RecordingError where it holds none.
+    outside the exports with a suffix of RECORDING_SUFFIXES (project CSV or Parquet), named by
+    its path below folder (a file without its suffix, but with it where another source would
+    have the same name: X.csv beside X.parquet or beside the export X/). RecordingError where
+    it holds none.
     """
     folder = Path(folder)
     exports = sorted(raw.parent for raw in folder.rglob("Raw Data.csv"))
@@ -921,7 +966,7 @@ def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
         sources.append((f.relative_to(folder).as_posix() if clash else name, f))
     if not sources:
         raise RecordingError(f"{folder}: a folder must be a phyphox export holding 'Raw Data.csv', or hold "
-                             "such exports or recordings (.csv, .parquet, .zip, .xlsx) at any depth")
+                             "such exports or recordings (.csv, .parquet) at any depth")
     return sorted(sources)
 
 

@@ -32,7 +32,6 @@ from inertia_gym.discrepancy.fit import (
     sparse_terms,
 )
 from inertia_gym.discrepancy.recordings import (
-    WINDOW_FOUND,
     Recording,
     check_input_gaps,
     retimed,
@@ -276,7 +275,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
-        "free_flight_window": None if "window" not in rec.meta else {
+        "free_flight_window": None if "window_source" not in rec.meta else {
             "t_start": rec.meta["window"][0], "t_end": rec.meta["window"][1],
             "source": rec.meta["window_source"]},
         "saturated_samples": d.notes["saturated_samples"],
@@ -541,8 +540,9 @@ def markdown(report: dict, plots: list[str]) -> str:
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
     window = report.get("free_flight_window")
-    if window and window["source"] == WINDOW_FOUND:
-        lines[-1:-1] = [f"- {window_note(window['t_start'], window['t_end'])}"]
+    note = window and window_note(window["t_start"], window["t_end"], window["source"])
+    if note:
+        lines[-1:-1] = [f"- {note}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
     for e in report["effects"]:
         params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}

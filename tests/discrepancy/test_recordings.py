@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from inertia_gym.discrepancy.recordings import (
     FLIGHT_MIN_ROWS,
     WINDOW_FOUND,
+    WINDOW_NONE_FOUND,
     Recording,
     free_flight_windows,
     read_recordings,
@@ -23,6 +24,7 @@ from inertia_gym.discrepancy.recordings import (
     recording_sources,
     regular_clock,
     retimed,
+    window_note,
     write_recording,
 )
 from inertia_gym.dynamics import propagate
@@ -169,20 +171,19 @@ def test_unknown_sidecar_keys_are_kept(tmp_path):
     assert read_sidecar(path) == rec.meta
 
 
-def _phyphox(tmp_path, segments):
-    folder = tmp_path / "Gyroscope rotation rate 1"
-    (folder / "meta").mkdir(parents=True)
-    t = np.arange(300) * 0.01
-    lines = ['"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)",'
-             '"Absolute (rad/s)"']
-    lines += [f"{x:.5E},{np.sin(x):.5E},1.0E0,0.0E0,1.0E0" for x in t]
-    (folder / "Raw Data.csv").write_text("\n".join(lines) + "\n")
-    (folder / "meta" / "segments.csv").write_text(segments)
-    return folder
+@pytest.fixture
+def sine_export(write_phyphox):
+    """export(parent, segments) -> folder: 3 s of a phyphox gyro (x a sine, y 1 rad/s) at
+    parent/"Gyroscope rotation rate 1", with segments as its meta/segments.csv."""
+    def export(parent: Path, segments: str) -> Path:
+        t = np.arange(300) * 0.01
+        w = np.stack([np.sin(t), np.ones_like(t), np.zeros_like(t)], axis=1)
+        return write_phyphox(parent / "Gyroscope rotation rate 1", t, w, segments)
+    return export
 
 
-def test_phyphox_segments_kept_windows_only(tmp_path):
-    folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n"
+def test_phyphox_segments_kept_windows_only(tmp_path, sine_export):
+    folder = sine_export(tmp_path, "segment,start,end,keep,comment\n"
                                 "0,0.2,1.0,,a\n1,1.2,2.0,false,b\n2,2.1,2.9,,c\n")
     recs = read_recordings(folder)
     assert [r.meta["segment"] for r in recs] == [0, 2]
@@ -190,21 +191,21 @@ def test_phyphox_segments_kept_windows_only(tmp_path):
     assert len(read_recordings(folder / "Raw Data.csv")) == 2
 
 
-def test_a_folder_of_phyphox_exports_is_read_whole_each_named_by_its_path(tmp_path):
+def test_a_folder_of_phyphox_exports_is_read_whole_each_named_by_its_path(tmp_path, sine_export):
     """A user's tosses as exported (round1/<export>, round2/<export>, names that may repeat):
     every kept window of every export below the folder, named by the export's path below it."""
     for parent in ("round1", "round2/more"):
-        _phyphox(tmp_path / parent, "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,0\n2,2.1,2.9,\n")
+        sine_export(tmp_path / parent, "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,0\n2,2.1,2.9,\n")
     recs = read_recordings(tmp_path)
     assert [r.name for r in recs] == [f"{p}/Gyroscope rotation rate 1 segment {k}"
                                       for p in ("round1", "round2/more") for k in (0, 2)]
     assert all(r.t[0] >= r.meta["window"][0] for r in recs)
     (tmp_path / "empty").mkdir()
-    with pytest.raises(RecordingError, match=r"or recordings \(.csv, .parquet, .zip, .xlsx\) at any depth"):
+    with pytest.raises(RecordingError, match=r"or recordings \(.csv, .parquet\) at any depth"):
         read_recordings(tmp_path / "empty")
 
 
-def test_a_folder_of_project_recordings_is_read_whole_each_named_by_its_path(tmp_path):
+def test_a_folder_of_project_recordings_is_read_whole_each_named_by_its_path(tmp_path, sine_export):
     """A user's throws as logged (LOG01.csv + LOG01.json sidecar, ... in sub-folders, next to a
     phyphox export whose own meta/*.csv are not recordings): every file, named by its path below
     the folder without its suffix, its sidecar read with it."""
@@ -213,7 +214,7 @@ def test_a_folder_of_project_recordings_is_read_whole_each_named_by_its_path(tmp
         (tmp_path / day).mkdir()
     write_recording(tmp_path / "day1" / "LOG01.csv", rec, {"gyro_sigma": 0.002})
     write_recording(tmp_path / "day2" / "LOG01.csv", rec, {})
-    _phyphox(tmp_path / "phone", "segment,start,end,keep\n0,0.2,1.0,\n")
+    sine_export(tmp_path / "phone", "segment,start,end,keep\n0,0.2,1.0,\n")
     recs = read_recordings(tmp_path)
     assert [r.name for r in recs] == ["day1/LOG01", "day2/LOG01", "phone/Gyroscope rotation rate 1 segment 0"]
     assert recs[0].meta["gyro_sigma"] == 0.002 and "gyro_sigma" not in recs[1].meta
@@ -222,23 +223,23 @@ def test_a_folder_of_project_recordings_is_read_whole_each_named_by_its_path(tmp
     assert read_recordings(tmp_path / "day1" / "LOG01.csv")[0].name == "LOG01"  # a file keeps its own
 
 
-def test_phyphox_bad_segment(tmp_path):
-    folder = _phyphox(tmp_path, "segment,start,end,keep,comment\n0,x,1.0,,a\n")
+def test_phyphox_bad_segment(tmp_path, sine_export):
+    folder = sine_export(tmp_path, "segment,start,end,keep,comment\n0,x,1.0,,a\n")
     with pytest.raises(RecordingError, match="segments.csv, row 2"):
         read_recordings(folder)
 
 
-def test_a_segments_file_that_keeps_nothing_is_refused(tmp_path):
-    folder = _phyphox(tmp_path, "segment,start,end,keep\n0,0.2,1.0,false\n1,1.2,2.0,no\n")
+def test_a_segments_file_that_keeps_nothing_is_refused(tmp_path, sine_export):
+    folder = sine_export(tmp_path, "segment,start,end,keep\n0,0.2,1.0,false\n1,1.2,2.0,no\n")
     with pytest.raises(RecordingError, match="keeps no segment .* have the free flights found"):
         read_recordings(folder)
 
 
 @pytest.mark.parametrize("separator, decimal", [("\t", "."), (";", "."), ("\t", ","), (";", ",")])
-def test_phyphox_exports_in_each_of_its_csv_formats_read_alike(tmp_path, separator, decimal):
+def test_phyphox_exports_in_each_of_its_csv_formats_read_alike(tmp_path, sine_export, separator, decimal):
     """phyphox exports CSV with a comma, tab or semicolon between fields and a decimal point or
     comma (its export dialog's five CSV formats): each reads as the comma one does."""
-    comma = _phyphox(tmp_path / "comma", "segment,start,end,keep\n0,0.2,1.0,\n")
+    comma = sine_export(tmp_path / "comma", "segment,start,end,keep\n0,0.2,1.0,\n")
     other = tmp_path / "other" / comma.name
     (other / "meta").mkdir(parents=True)
     (other / "meta" / "segments.csv").write_text((comma / "meta" / "segments.csv").read_text())
@@ -259,11 +260,23 @@ def _zip(folder: Path) -> Path:
     return path
 
 
-def test_a_zipped_phyphox_export_reads_as_its_folder(tmp_path, hand_tosses, write_phyphox):
+@pytest.mark.parametrize("header, prefix", [
+    ('t,wx,wy,wz,"note; a; b; c; d; e"', ""),  # semicolons inside a quoted comma-separated name
+    ("t,wx,wy,wz,extra", "\ufeff"),  # a byte-order mark, as Excel writes
+])
+def test_the_delimiter_agrees_with_the_data_and_a_byte_order_mark_is_dropped(tmp_path, header, prefix):
+    rows = "".join(f"{0.1 * i},0.1,0.2,{0.01 * i},5\n" for i in range(20))
+    (tmp_path / "rec.csv").write_text(prefix + header + "\n" + rows, encoding="utf-8")
+    (rec,) = read_recordings(tmp_path / "rec.csv")
+    assert rec.w.shape == (20, 3) and rec.w[-1, 2] == pytest.approx(0.19)
+
+
+def test_a_zipped_phyphox_export_reads_as_its_folder(tmp_path, hand_tosses, write_phyphox,
+                                                    sine_export):
     """phyphox's CSV export is a .zip of the files a folder export holds: its kept windows, or
     where it has no meta/segments.csv the free flights found, are the folder's, named after the
-    archive; a folder holding such archives reads each."""
-    folder = _phyphox(tmp_path / "a", "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,false\n2,2.1,2.9,\n")
+    archive. A folder read whole leaves archives alone (often the export's copy beside it)."""
+    folder = sine_export(tmp_path / "a", "segment,start,end,keep\n0,0.2,1.0,\n1,1.2,2.0,false\n2,2.1,2.9,\n")
     kept, zipped = read_recordings(folder), read_recordings(_zip(folder))
     assert [r.name for r in zipped] == [r.name for r in kept]
     assert [r.meta["segment"] for r in zipped] == [0, 2]
@@ -272,18 +285,36 @@ def test_a_zipped_phyphox_export_reads_as_its_folder(tmp_path, hand_tosses, writ
     tosses = _zip(write_phyphox(tmp_path / "b" / "Gyroscope rotation rate 2", t, w))
     flights = [f"Gyroscope rotation rate 2 flight {k}" for k in (1, 2, 3)]
     assert [r.name for r in read_recordings(tosses)] == flights
-    # the export beside its own archive, as a user unzips it: the archive keeps its suffix
-    assert [r.name for r in read_recordings(tmp_path / "b")] == flights + [
-        f"Gyroscope rotation rate 2.zip flight {k}" for k in (1, 2, 3)]
-    (tmp_path / "c").mkdir()
-    (tmp_path / "c" / "notes.zip").write_bytes(b"PK not an archive")
-    with pytest.raises(RecordingError, match="notes.zip: cannot read as a zipped phyphox export"):
-        read_recordings(tmp_path / "c" / "notes.zip")
+    assert [r.name for r in read_recordings(tmp_path / "b")] == flights  # the folder, not its copy
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"PK not an archive", "cannot read as a zipped phyphox export"),
+    ("empty", "this archive holds 0"),
+    ("segments astray", "meta/segments.csv is not beside export/Raw Data.csv"),
+    ("latin-1", "Raw Data.csv is not a text file"),
+])
+def test_a_damaged_zipped_export_is_refused_in_one_line(tmp_path, content, message):
+    path = tmp_path / "export.zip"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        with zipfile.ZipFile(path, "w") as archive:
+            if content == "segments astray":
+                archive.writestr("export/Raw Data.csv", "\n".join(["t,wx,wy,wz"] + ["0,1,2,3"] * 30))
+                archive.writestr("meta/segments.csv", "segment,start,end\n0,0,1\n")
+            elif content == "latin-1":
+                archive.writestr("Raw Data.csv", "Zeit (s) \xe4".encode("latin-1"))
+            else:
+                archive.writestr("notes.txt", "nothing")
+    with pytest.raises(RecordingError, match=message):
+        read_recordings(path)
 
 
 def test_phyphox_excel_export_reads_as_its_csv(tmp_path, hand_tosses, write_phyphox):
     """phyphox's default export is Excel: sheet "Raw Data" (header and rows), then its metadata
-    sheets. It reads as the same rows in CSV do; a workbook without that sheet is refused."""
+    sheets. It reads as the same rows in CSV do, cells under no header left out; an empty cell
+    is refused naming its row and column, and so is a workbook without that sheet."""
     openpyxl = pytest.importorskip("openpyxl")
     t, w, _ = hand_tosses()
     csv_export = write_phyphox(tmp_path / "Gyroscope rotation rate 3", t, w)
@@ -300,6 +331,13 @@ def test_phyphox_excel_export_reads_as_its_csv(tmp_path, hand_tosses, write_phyp
     from_excel = read_recordings(tmp_path / "Gyroscope rotation rate 3.xlsx")
     assert [r.name for r in from_excel] == [r.name for r in from_csv] and len(from_excel) == 3
     assert all(np.array_equal(a.t, b.t) and np.array_equal(a.w, b.w) for a, b in zip(from_csv, from_excel))
+    sheet.cell(row=5, column=9, value="a note beside the data, under no header")
+    book.save(tmp_path / "noted.xlsx")
+    assert np.array_equal(read_recordings(tmp_path / "noted.xlsx")[0].w, from_csv[0].w)
+    sheet.cell(row=7, column=3).value = None
+    book.save(tmp_path / "holed.xlsx")
+    with pytest.raises(RecordingError, match=r"row 7, column 'Gyroscope y \(rad/s\)': an empty cell"):
+        read_recordings(tmp_path / "holed.xlsx")
     book.remove(book["Raw Data"])
     book.save(tmp_path / "other.xlsx")
     with pytest.raises(RecordingError, match="no sheet 'Raw Data'"):
@@ -344,15 +382,57 @@ def test_free_flight_windows_of_any_rates_are_spans_or_none(rows, seed, decade, 
 
 
 def test_a_phyphox_export_with_no_flight_found_is_read_whole(tmp_path, hand_tosses, write_phyphox):
-    """A tumble free from end to end breaks the bound nowhere, and a hand's turning holds no
-    flight: either export is one recording, the whole file, as with no flights to find."""
+    """A tumble free from end to end breaks the bound nowhere: the whole file, as any recording.
+    A hand's turning breaks it and holds no flight: the whole file too, with a note that no
+    flight was found."""
     inertia = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
     _, w = propagate([1, 0, 0, 0], [0.3, 10.0, 0.2], inertia, np.zeros((300, 3)), 0.01)
     t_hand, w_hand, flights = hand_tosses()
     hand = (t_hand < flights[0][0] - 0.1)  # before the first throw
-    for name, t, rates in (("tumble", np.arange(301) * 0.01, w), ("hand", t_hand[hand], w_hand[hand])):
-        (rec,) = read_recordings(write_phyphox(tmp_path / name, t, rates))
-        assert rec.name == name and rec.t.size == t.size and "window" not in rec.meta
+    t = np.arange(301) * 0.01
+    assert free_flight_windows(t, w) is None and free_flight_windows(t_hand[hand], w_hand[hand]) == []
+    (tumble,) = read_recordings(write_phyphox(tmp_path / "tumble", t, w))
+    assert tumble.name == "tumble" and tumble.t.size == t.size and "window_source" not in tumble.meta
+    (held,) = read_recordings(write_phyphox(tmp_path / "hand", t_hand[hand], w_hand[hand]))
+    assert held.name == "hand" and held.t.size == hand.sum()
+    assert held.meta["window_source"] == WINDOW_NONE_FOUND
+    assert "were not found" in window_note(*held.meta["window"], held.meta["window_source"])
+
+
+def _free_tumble(spin: float, rows: int, noise: float = 2e-3, seed: int = 0):
+    """t (n,) s, w (n, 3) rad/s: a hand (rates of 0.5 rad/s changing at 3 Hz) for 1 s, then a
+    racquet-like body's torque-free tumble at `spin` rad/s near its intermediate axis for `rows`
+    samples, then the hand again; 100 Hz, gyro noise `noise` rad/s."""
+    inertia = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
+    start = [0.02 * spin, spin, 0.01 * spin]
+    _, flight = propagate([1, 0, 0, 0], start, inertia, np.zeros((rows - 1, 3)), 0.01)
+    hand_t = np.arange(100) * 0.01
+    hand = 0.5 * np.sin(2 * np.pi * 3.0 * hand_t[:, None] + np.array([0.0, 1.0, 2.0]))
+    w = np.concatenate([hand, flight, hand]) + np.random.default_rng(seed).normal(0, noise, (rows + 200, 3))
+    return np.arange(rows + 200) * 0.01, w
+
+
+@pytest.mark.parametrize("spin, rows, found", [
+    (12.0, 60, True),    # 52 rows kept, 6.2 rad: a flight
+    (4.0, 60, False),    # 52 rows, 2.1 rad: under half a turn
+    (100.0, 15, False),  # 7 rows, 7 rad: too few rows for the fits
+    (30.0, 30, True),    # 22 rows, 6.6 rad
+])
+def test_a_flight_must_turn_half_a_turn_over_enough_samples(spin, rows, found):
+    t, w = _free_tumble(spin, rows)
+    spans = free_flight_windows(t, w)
+    assert spans == ([(104, 100 + rows - 4)] if found else [])
+
+
+def test_a_noisy_gyro_at_rest_is_no_flight():
+    """A still phone whose gyro is noisy (0.1 rad/s) keeps within the bound on noise alone and
+    seems to turn more than half a turn in each 20 s on either side of a knock: not a flight, as
+    the bound (|w|^2/sqrt(3), near zero) never rises above what the noise allows."""
+    rng = np.random.default_rng(3)
+    t, w = np.arange(4000) * 0.01, rng.normal(0, 0.1, (4000, 3))
+    w[2000:2005] += 5.0  # a knock: the bound is broken there
+    assert np.sum(np.linalg.norm(w[:2000], axis=1) * 0.01) > np.pi
+    assert free_flight_windows(t, w) == []
 
 
 @settings(max_examples=60, deadline=None)
