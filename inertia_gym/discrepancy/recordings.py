@@ -703,17 +703,28 @@ def read_parquet_recording(path: str | Path, columns: dict | None = None, time_u
 def _phyphox_segments(text: str | None, seg_path) -> list[tuple[int, float, float]] | None:
     """(segment, start, end) of each kept window of an export's meta/segments.csv, given its
     text (None: the export has no such file, and neither has the result); seg_path names it.
+    Columns start and end (s, the export's clock) are required; segment (a number; else the
+    row's place from 0) and keep (false, 0 or no leave the row out) are optional; names are
+    read without regard to case or surrounding spaces.
     """
     if text is None:
         return None
-    rows = list(csv.DictReader(text.splitlines()))
+    lines = text.removeprefix("\ufeff").splitlines()
+    delimiter = _delimiter(lines)
+    table = [[c if delimiter == "," else c.replace(",", ".", 1) for c in row]  # a decimal comma
+             for row in csv.reader(lines, delimiter=delimiter) if any(c.strip() for c in row)]
+    header = table[0] if table else []
+    names = [name.strip().lower() for name in header]
+    if "start" not in names or "end" not in names:
+        raise _fail(seg_path, f"needs columns start and end (s); the header is {header}", 1)
+    rows = [dict(zip(names, (cell.strip() for cell in row))) for row in table[1:]]
     out = []
     for i, row in enumerate(rows, start=2):
-        keep = (row.get("keep") or "").strip().lower()
-        if keep in ("false", "0", "no"):
+        if row.get("keep", "").lower() in ("false", "0", "no"):
             continue
         try:
-            out.append((int(row["segment"]), float(row["start"]), float(row["end"])))
+            out.append((int(row["segment"]) if row.get("segment") else i - 2, float(row["start"]),
+                        float(row["end"])))
         except (KeyError, TypeError, ValueError):
             raise _fail(seg_path, "segment, start and end must be numbers", i) from None
     if not out:

@@ -229,6 +229,19 @@ def test_phyphox_bad_segment(tmp_path, sine_export):
         read_recordings(folder)
 
 
+def test_a_segments_file_of_start_and_end_only_is_read(tmp_path, sine_export):
+    """A user's own meta/segments.csv may hold only start and end (any case, spaces, in any of
+    the CSV formats): the windows are numbered from 0 and all kept; without start or end it is
+    refused naming the header."""
+    folder = sine_export(tmp_path / "a", " Start ; End \n0,2;1,0\n\n2,1;2,9\n")
+    recs = read_recordings(folder)
+    assert [r.meta["segment"] for r in recs] == [0, 1]
+    assert [r.meta["window"] for r in recs] == [[0.2, 1.0], [2.1, 2.9]]
+    folder = sine_export(tmp_path / "b", "from,to\n0.2,1.0\n")
+    with pytest.raises(RecordingError, match=r"segments.csv, row 1: needs columns start and end \(s\)"):
+        read_recordings(folder)
+
+
 def test_a_segments_file_that_keeps_nothing_is_refused(tmp_path, sine_export):
     folder = sine_export(tmp_path, "segment,start,end,keep\n0,0.2,1.0,false\n1,1.2,2.0,no\n")
     with pytest.raises(RecordingError, match="keeps no segment .* have the free flights found"):
