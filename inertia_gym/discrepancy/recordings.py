@@ -748,8 +748,10 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
     over the record). A flight is a run of passing rows, less the slope's half-width at each end
     (the rows an impulse there reaches), of at least FLIGHT_MIN_ROWS rows, turning the body at
     least FLIGHT_MIN_TURN rad, where the bound exceeds the noise allowance on most rows (a body
-    at rest or turned slowly in the hand passes on noise alone): [] where the bound is broken
-    and no span qualifies; None also for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the
+    at rest or turned slowly in the hand passes on noise alone), and across no dropout (an
+    interval over GAP_FACTOR times the median: phyphox paused, say, while the hand moved the
+    body): [] where the bound is broken or a dropout falls and no span qualifies; None also
+    for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the
     same motion run k times faster (t / k, w k, its noise k) gives the same rows.
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
@@ -764,7 +766,10 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
     speed2 = np.sum(w[half:t.size - half] ** 2, axis=1)
     bound = speed2 / np.sqrt(3.0)
     allowance = FLIGHT_NOISE_Z * np.linalg.norm(estimate_white_noise(w)) / np.sqrt(spread)
-    passed = slope <= bound + allowance
+    steps = np.diff(t)
+    gap = np.r_[steps > GAP_FACTOR * np.median(steps), False]  # a dropout after the row
+    across = np.lib.stride_tricks.sliding_window_view(gap, FLIGHT_SLOPE_ROWS)[:, :-1].any(axis=1)
+    passed = (slope <= bound + allowance) & ~across  # no flight runs across a dropout
     if passed.all():
         return None
     edges = np.flatnonzero(np.diff(np.r_[0, passed.astype(np.int8), 0]))

@@ -437,6 +437,17 @@ def test_a_flight_must_turn_half_a_turn_over_enough_samples(spin, rows, found):
     assert spans == ([(104, 100 + rows - 4)] if found else [])
 
 
+def test_no_flight_runs_across_a_dropout(hand_tosses):
+    """phyphox paused in mid-flight and resumed 2 s later: the motion across the pause is
+    unknown, so the flight splits there, each side losing the rows a dropout's slope reaches,
+    as at an impulse; the other tosses stay as they were."""
+    t, w, _ = hand_tosses()
+    spans = free_flight_windows(t, w)
+    a, b = spans[1]  # the second toss: the pause falls after its row a + 44
+    paused = t + np.where(np.arange(t.size) >= a + 45, 2.0, 0.0)
+    assert free_flight_windows(paused, w) == [spans[0], (a, a + 41), (a + 49, b), spans[2]]
+
+
 def test_a_noisy_gyro_at_rest_is_no_flight():
     """A still phone whose gyro is noisy (0.1 rad/s) keeps within the bound on noise alone and
     seems to turn more than half a turn in each 20 s on either side of a knock: not a flight, as
