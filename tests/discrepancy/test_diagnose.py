@@ -30,7 +30,7 @@ from inertia_gym.discrepancy.fit import (
     prepare,
     whitened,
 )
-from inertia_gym.discrepancy.recordings import read_recordings
+from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import (
     BEYOND_CATALOGUE,
     RATIO_SPREAD,
@@ -505,3 +505,13 @@ def test_an_explanation_from_another_search_is_led_by_what_explains_most_alone(r
     report, _ = diagnose(rec)
     assert [e["name"] for e in report["explanation"]] == listed
     assert all(e["delta_bic"] > 0 for e in report["explanation"])
+
+
+def test_a_window_in_a_sidecar_is_not_taken_for_a_free_flight_window(hand_tosses):
+    """A recording whose meta holds a "window" of its own (a sidecar's key, say) and no window
+    source is not a phyphox window: report.json's free_flight_window stays null."""
+    t, w, flights = hand_tosses()
+    keep = (t >= flights[0][0]) & (t <= flights[0][1])
+    rec = Recording(t[keep], w[keep], meta={"window": [0.0, 1.0]}, name="toss")
+    report, _ = diagnose(rec)
+    assert report["free_flight_window"] is None and report["fit_after"]["valid"]
