@@ -558,8 +558,8 @@ def _delimiter(lines: list[str]) -> str:
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    """Header and float rows of a CSV file separated by comma, tab or semicolon (a decimal comma
-    is read where the fields are not comma separated); errors name the row and column.
+    """Header and float rows of a CSV file separated by comma, tab or semicolon (_csv_rows);
+    errors name the row and column.
     """
     try:
         text = path.read_text()
@@ -570,11 +570,22 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
     return _parse_table(text, path)
 
 
+def _csv_rows(text: str) -> list[list[str]]:
+    """The rows of a CSV file's text split at its delimiter (_delimiter), a byte-order mark (Excel
+    writes one) dropped; where the fields are not comma separated, a decimal comma in the rows
+    under the header is read as a point.
+    """
+    lines = text.removeprefix("\ufeff").splitlines()
+    delimiter = _delimiter(lines)
+    rows = list(csv.reader(lines, delimiter=delimiter))
+    if delimiter == ",":
+        return rows
+    return rows[:1] + [[cell.replace(",", ".", 1) for cell in row] for row in rows[1:]]
+
+
 def _parse_table(text: str, path) -> tuple[list[str], np.ndarray]:
     """_read_table on the text of a CSV file; path names it in errors."""
-    text_lines = text.removeprefix("\ufeff").splitlines()  # a byte-order mark (Excel writes one)
-    delimiter = _delimiter(text_lines)
-    lines = [row for row in csv.reader(text_lines, delimiter=delimiter)]
+    lines = _csv_rows(text)
     if not lines or not any(cell.strip() for cell in lines[0]):
         raise _fail(path, "empty file (a header row is required)", 1)
     header = [cell.strip() for cell in lines[0]]
@@ -587,7 +598,7 @@ def _parse_table(text: str, path) -> tuple[list[str], np.ndarray]:
         values = []
         for name, cell in zip(header, row):
             try:
-                values.append(float(cell if delimiter == "," else cell.replace(",", ".", 1)))
+                values.append(float(cell))
             except ValueError:
                 raise _fail(path, f"not a number: {cell!r}", i, name) from None
         rows.append(values)
@@ -709,10 +720,7 @@ def _phyphox_segments(text: str | None, seg_path) -> list[tuple[int, float, floa
     """
     if text is None:
         return None
-    lines = text.removeprefix("\ufeff").splitlines()
-    delimiter = _delimiter(lines)
-    table = [[c if delimiter == "," else c.replace(",", ".", 1) for c in row]  # a decimal comma
-             for row in csv.reader(lines, delimiter=delimiter) if any(c.strip() for c in row)]
+    table = [row for row in _csv_rows(text) if any(cell.strip() for cell in row)]
     header = table[0] if table else []
     names = [name.strip().lower() for name in header]
     if "start" not in names or "end" not in names:
@@ -751,8 +759,8 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
     at rest or turned slowly in the hand passes on noise alone), and across no dropout (an
     interval over GAP_FACTOR times the median: phyphox paused, say, while the hand moved the
     body): [] where the bound is broken or a dropout falls and no span qualifies; None also
-    for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the
-    same motion run k times faster (t / k, w k, its noise k) gives the same rows.
+    for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the same motion run k times faster
+    (t / k, w k, its noise k) gives the same rows.
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
     half = FLIGHT_SLOPE_ROWS // 2
@@ -976,7 +984,7 @@ def recording_sources(folder: str | Path) -> list[tuple[str, Path]]:
                    and not any(export in f.parents for export in exports))
     sources = [(export.relative_to(folder).as_posix(), export) for export in exports]
     exported = {name for name, _ in sources}
-    for f in files:  # a file named as an export or another file (X.zip beside X/) keeps its suffix
+    for f in files:  # a file named as an export or another file (X.csv beside X/) keeps its suffix
         name = f.relative_to(folder).with_suffix("").as_posix()
         clash = name in exported or sum(g.with_suffix("") == f.with_suffix("") for g in files) > 1
         sources.append((f.relative_to(folder).as_posix() if clash else name, f))
