@@ -437,6 +437,20 @@ def test_a_flight_must_turn_half_a_turn_over_enough_samples(spin, rows, found):
     assert spans == ([(104, 100 + rows - 4)] if found else [])
 
 
+def test_each_slope_is_held_to_the_bound_of_its_own_centre_row():
+    """A spin about one axis slowing at 10 rad/s^2 (noise-free, so no allowance): the bound
+    |w|^2/sqrt(3) falls below that rate of change once |w| < sqrt(sqrt(3) 10) = 4.16 rad/s,
+    between rows 100 and 101. The slope through rows k-2..k+2 is judged by row k's bound, so the
+    last passing slope is centred on row 100, and the flight ends the slope's half-width before
+    it: rows [4, 99). A bound read two rows off its slope's centre moves that end by two."""
+    t = np.arange(150) * 0.01
+    speed = np.sqrt(np.sqrt(3.0) * 10.0) + 10.0 * (1.005 - t)  # 4.16 rad/s at t = 1.005 s
+    w = np.outer(speed, [0.0, 1.0, 0.0])
+    assert speed[100] ** 2 / np.sqrt(3) > 10.0 > speed[101] ** 2 / np.sqrt(3)
+    assert free_flight_windows(t, w) == [(4, 99)]
+    assert free_flight_windows(t[::-1].max() - t[::-1], w[::-1]) == [(51, 146)]  # speeding up
+
+
 def test_no_flight_runs_across_a_dropout(hand_tosses):
     """phyphox paused in mid-flight and resumed 2 s later: the motion across the pause is
     unknown, so the flight splits there, each side losing the rows a dropout's slope reaches,
