@@ -87,9 +87,11 @@ MIN_ROTATION = 0.1
 MAX_SHAPE_SIGMA = 1e3
 #: Post-fit residuals over this many times the noise: the rigid model leaves something out.
 RIGID_MISFIT = 3.0
-#: A fit that does not converge and leaves residuals over this many times the noise is refused:
-#: the rigid model does not explain the record (every real throw and toss here converges, the
-#: racquet's at up to 283x the noise; rates 10x too large stop unconverged at 84x).
+#: A fit that does not converge and leaves residuals over this many times the noise, or whose
+#: scale is NOMINAL_SCALE_FACTOR off the nominal's, is refused: the rigid model does not explain
+#: the record (every real throw and toss here converges, the racquet's at up to 283x the noise;
+#: rates 10x too large stop unconverged at 84x; time 1000x and the rotor's momentum 100x too
+#: large, at 5x the noise and 584x the nominal).
 UNEXPLAINED_MISFIT = 30.0
 #: A located impulse is left out unless the rest of the record then fits worse by more than this
 #: factor (mean square of the whitened residual over the same rows) or converges less.
@@ -171,8 +173,7 @@ class InertiaEstimate:
         """Principal moments (3,) ascending with 95 % half-widths (3,), axes (3, 3) as columns,
         and each axis' 95 % cone half-angle (3,) in degrees (delta method).
         """
-        vals, vecs = np.linalg.eigh(self.inertia)
-        grads = np.stack([_eig_gradient(vecs[:, i], vecs[:, i]) for i in range(3)])
+        vals, vecs, grads = self._moment_gradients()
         half = 1.96 * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", grads, self.theta_cov, grads), 0, None))
         cone = np.zeros(3)
         for i in range(3):
@@ -183,6 +184,30 @@ class InertiaEstimate:
                     var += float(g @ self.theta_cov @ g)
             cone[i] = math.degrees(min(math.pi / 2, 1.96 * math.sqrt(max(var, 0.0))))
         return vals, half, vecs, cone
+
+    def _moment_gradients(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Principal moments (3,) ascending, axes (3, 3) as columns, and each moment's gradient
+        with respect to theta (3, 6).
+        """
+        vals, vecs = np.linalg.eigh(self.inertia)
+        return vals, vecs, np.stack([_eig_gradient(vecs[:, i], vecs[:, i]) for i in range(3)])
+
+    def moment_covariance(self) -> np.ndarray:
+        """(3, 3) covariance of the principal moments, ascending as principal() gives them (delta
+        method).
+        """
+        _, _, grads = self._moment_gradients()
+        return grads @ self.theta_cov @ grads.T
+
+    def principal_ratios(self) -> tuple[np.ndarray, np.ndarray]:
+        """The principal moments over the largest (3,), descending (the first is 1), and their
+        covariance (3, 3) (delta method; the first row and column zero): the inertia's shape,
+        which gyro-only data fix without its scale.
+        """
+        vals, _, grads = self._moment_gradients()
+        vals, grads = vals[::-1], grads[::-1]
+        g = (grads * vals[0] - np.outer(vals, grads[0])) / vals[0] ** 2
+        return vals / vals[0], g @ self.theta_cov @ g.T
 
 
 def _eig_gradient(u, v) -> np.ndarray:
@@ -424,6 +449,8 @@ class Identification:
         """The JSON keys of identify.json (all finite numbers)."""
         est = self.estimate
         vals, half, axes, cone = est.principal()
+        ratios, ratio_cov = est.principal_ratios()
+        ratio_half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
         return {
             "name": self.name,
             "method": self.method,
@@ -433,8 +460,12 @@ class Identification:
             "ci95": est.ci95().tolist(),
             "principal_moments": vals.tolist(),
             "principal_moments_ci95": np.stack([vals - half, vals + half], axis=1).tolist(),
+            "principal_moments_cov": est.moment_covariance().tolist(),
             "principal_axes": axes.T.tolist(),
             "principal_axes_ci95_deg": cone.tolist(),
+            "principal_ratios": ratios.tolist(),
+            "principal_ratios_ci95": np.stack([ratios - ratio_half, ratios + ratio_half], axis=1).tolist(),
+            "principal_ratios_cov": ratio_cov.tolist(),
             "scale_identified": bool(est.scale_identified),
             "crlb": float(self.crlb),
             "rms": self.rms.tolist(),
@@ -695,6 +726,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
         est = _with_gyro_scale(est, rec.meta.get("gyro_scale_sigma"), notes)
     rms = np.sqrt(np.nanmean(e_w ** 2, axis=0))
     rms_over_noise = float(np.sqrt(np.nanmean((e_w / reference) ** 2)))
+    off_nominal = None  # the identified scale over the nominal's, where far off it
     if est.scale_identified:
         trace_sigma = math.sqrt(max(float(TRACE_WEIGHTS @ est.theta_cov @ TRACE_WEIGHTS), 0.0))
         sigma_s = trace_sigma / float(TRACE_WEIGHTS @ est.theta)
@@ -705,6 +737,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
         if trace_ref is not None and est.scale_identified:
             factor = float(TRACE_WEIGHTS @ est.theta) / trace_ref
             if not 1.0 / NOMINAL_SCALE_FACTOR <= factor <= NOMINAL_SCALE_FACTOR:
+                off_nominal = factor
                 notes.append(f"the identified inertia is {factor:.3g} times the nominal's (trace): "
                              "check the units of the torque (N·m) and the momentum (kg·m²/s) "
                              "columns, or the nominal; a torque in mN·m makes the inertia 1000x")
@@ -714,11 +747,12 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                      f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
                      + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))
     if not converged:
-        if rms_over_noise > UNEXPLAINED_MISFIT:
+        if rms_over_noise > UNEXPLAINED_MISFIT or off_nominal is not None:
             raise EstimatorDivergedError(
-                f"the fit does not converge and leaves residuals {rms_over_noise:.3g} times the "
-                "noise: the rigid-body model does not explain this recording (check its units "
-                "and columns, or run diagnose on it)")
+                f"the fit does not converge and leaves residuals {rms_over_noise:.3g} times the noise"
+                + ("" if off_nominal is None else f", its inertia {off_nominal:.3g} times the nominal's")
+                + ": the rigid-body model does not explain this recording (check its units and "
+                "columns, or run diagnose on it)")
         notes.append("the fit stopped at its iteration limit before converging")
     split = rec.meta.get("split_at_gaps")
     if split:

@@ -119,6 +119,30 @@ def test_model_error_intervals_cover_over_fixed_seeds():
     assert 0.6 < np.sqrt(np.mean(z ** 2)) < 1.5
 
 
+@pytest.mark.parametrize("spin", [(12.0, 0.5, 0.3), (0.3, 10.0, 0.2)])  # near the major, the middle axis
+def test_a_short_free_flight_converges_and_its_shape_intervals_cover(spin):
+    """1 s of a racquet-like body's torque-free flight at 100 Hz, gyro noise 2e-3 rad/s, over 8
+    seeds: the fit crawls along a curved valley (the nutation's frequency and shape fix nearly one
+    combination of the moments). Stopped at 40 iterations it ended 2-3 % off in the ratios with
+    intervals that missed the truth on every seed; carried on (ml.CRAWL_MAX_ITER) it converges
+    and they cover it."""
+    from inertia_gym.dynamics import propagate
+
+    inertia = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
+    truth = np.array([1.0, 19.5 / 20.7, 1.39 / 20.7])
+    _, w = propagate([1, 0, 0, 0], spin, inertia, np.zeros((100, 3)), 0.01)
+    covered = converged = 0
+    for seed in range(8):
+        rec = Recording(np.arange(101) * 0.01, w + np.random.default_rng(seed).normal(0, 2e-3, w.shape),
+                        name=f"flight {seed}")
+        res = identify(rec)
+        ratios, cov = res.estimate.principal_ratios()
+        half = 1.96 * np.sqrt(np.diag(cov))
+        covered += bool(np.all(np.abs(ratios - truth) <= half))
+        converged += res.converged
+    assert converged >= 7 and covered >= 6
+
+
 def test_without_momentum_or_torque_the_scale_is_reported_unidentified():
     rec, sc = _throw(0, rotor=None)
     rec = dataclasses.replace(rec, meta={**rec.meta, "inertia_nominal": sc.inertia_guess_array.tolist()})
