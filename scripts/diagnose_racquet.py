@@ -3,16 +3,16 @@ into the repository).
 
 Usage: PYTHONPATH=. python scripts/diagnose_racquet.py [--data ../shared/data/phyphox-racquet]
        [--out DIR] [--without-segments]
-Writes per toss report.json, summary.md and plots under OUT, prints one line per toss, then the
-count of the leading effects. --without-segments reads each export as phyphox writes it, without
-its authors' meta/segments.csv (its "Raw Data.csv" copied to a temporary folder, deleted after):
-the tosses are then the free flights found from the gyro.
+Writes per toss report.json, summary.md and plots under OUT, prints one line per toss, then what
+the tosses say together (OUT/summary.json and summary.md, as `inertia-gym diagnose` writes for
+several recordings, with the per-toss rows below under "tosses"). --without-segments reads each
+export as phyphox writes it, without its authors' meta/segments.csv (its "Raw Data.csv" copied to
+a temporary folder, deleted after): the tosses are then the free flights found from the gyro.
 """
 
 from __future__ import annotations
 
 import argparse
-import collections
 import json
 import re
 import shutil
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inertia_gym.across import diagnoses_across, diagnoses_markdown
 from inertia_gym.commands.common import write_json
 from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
@@ -44,7 +45,7 @@ def main() -> None:
     if not raws:
         print(f"no racquet recordings under {args.data}: nothing to do")
         return
-    rows = []
+    rows, reports = [], []
     with tempfile.TemporaryDirectory() as scratch:
         for raw in raws:
             source = raw.parent
@@ -52,14 +53,17 @@ def main() -> None:
                 source = Path(scratch) / raw.parent.parent.name / raw.parent.name
                 source.mkdir(parents=True)
                 shutil.copy(raw, source / raw.name)
-            rows += _diagnose_each(read_recordings(source), raw.parent.parent.name, out)
-    write_json(out / "summary.json", {"tosses": rows})
-    leads = collections.Counter(row["explanation"][0] if row["explanation"] else None for row in rows)
-    print(f"{len(rows)} tosses; leading effect: {dict(leads.most_common())}")
+            rows += _diagnose_each(read_recordings(source), raw.parent.parent.name, out, reports)
+    summary = diagnoses_across(reports, [])
+    write_json(out / "summary.json", {**summary, "tosses": rows})
+    text = diagnoses_markdown(summary)
+    (out / "summary.md").write_text(text)
+    print("\n".join(line for line in text.splitlines() if line.startswith("- ")))
 
 
-def _diagnose_each(recs, round_name: str, out: Path) -> list[dict]:
-    """Diagnose each recording of one export, write its outputs under out, one row per toss."""
+def _diagnose_each(recs, round_name: str, out: Path, reports: list) -> list[dict]:
+    """Diagnose each recording of one export, write its outputs under out, one row per toss;
+    each (toss, report) appended to reports."""
     rows = []
     for rec in recs:
         sub = out / re.sub(r"[^\w.-]+", "_", f"{round_name}_{rec.name}")
@@ -68,6 +72,7 @@ def _diagnose_each(recs, round_name: str, out: Path) -> list[dict]:
         plots = write_plots(sub, report, arrays)
         write_json(sub / "report.json", report)
         (sub / "summary.md").write_text(markdown(report, plots))
+        reports.append((sub.name, report))
         top = [f"{e['name']}({e['delta_bic']:.0f})" for e in report["effects"][:3]
                if e["delta_bic"] is not None]
         inertia = np.array(report["fit_after"]["inertia"])

@@ -103,16 +103,18 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     return mapping
 
 
-def for_each_recording(args: argparse.Namespace, work) -> int:
-    """Run work(recording, its output folder) on every recording (segment) of args.rec (read
-    with args.columns, args.time_unit, args.rate_unit); the folder is args.out itself for a
-    single recording, else one sub-folder per recording named after it. Returns 0.
+def for_each_recording(args: argparse.Namespace, work, summarize=None) -> int:
+    """Run work(recording, its output folder) -> its result on every recording (segment) of
+    args.rec (read with args.columns, args.time_unit, args.rate_unit); the folder is args.out
+    itself for a single recording, else one sub-folder per recording named after it, and then
+    summarize(args.out, [(name, result)], [(name, one-line reason)]) writes what they say
+    together. Returns 0.
 
     A single recording's refusal (an InertiaGymError: the recording refused, the fit diverged) is
     raised as it is. Of several (a folder of recordings, a file of segments), a refused one does
     not stop the rest, nor does a file of the folder that cannot be read: its one-line reason
-    goes to stderr and to refused.txt in its folder, and once all are done a RecordingError says
-    how many were refused (exit 2).
+    goes to stderr and to refused.txt in its folder, and once all are done (and summarized) a
+    RecordingError says how many were refused (exit 2).
     """
     from inertia_gym.discrepancy.recordings import recording_sources
 
@@ -127,22 +129,31 @@ def for_each_recording(args: argparse.Namespace, work) -> int:
             raise rec
         work(rec, folder)
         return 0
-    refused = []
+    done, refused = [], []
     for label, rec in pending:
         sub = prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", label))
         try:
             if isinstance(rec, InertiaGymError):  # the file could not be read
                 raise rec
-            work(rec, sub)
+            done.append((label, work(rec, sub)))
         except InertiaGymError as exc:
-            refused.append(label)
+            refused.append((label, str(exc)))
             (sub / "refused.txt").write_text(f"{exc}\n")
             print(f"{label}: refused: {exc}", file=sys.stderr)
+    if summarize is not None:
+        summarize(folder, done, refused)
     if refused:
         written = len(pending) - len(refused)
         raise RecordingError(f"{len(refused)} of {len(pending)} recordings refused (reasons above and in "
                              f"each one's refused.txt under {folder}); the other {written} are written")
     return 0
+
+
+def write_summary(folder: Path, summary: dict, text: str) -> None:
+    """Write what several recordings say together: folder/summary.json and summary.md."""
+    write_json(folder / "summary.json", summary)
+    (folder / "summary.md").write_text(text)
+    print(f"across {summary['recordings']} recordings -> {folder / 'summary.md'}")
 
 
 def _read_each(sources, units):

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 
+from inertia_gym.across import diagnoses_across, diagnoses_markdown
 from inertia_gym.commands.common import (
     add_recording_argument,
     check_physical_inertia,
     for_each_recording,
     write_json,
+    write_summary,
 )
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
 
@@ -23,12 +25,20 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Diagnose each recording (each phyphox window on its own); one sub-folder per window."""
-    return for_each_recording(args, lambda rec, sub: _diagnose_one(rec, sub, args.no_plots))
+    """Diagnose each recording (each phyphox window on its own); one sub-folder per window, and
+    for several, what they say together (summary.json, summary.md).
+    """
+    return for_each_recording(args, lambda rec, sub: _diagnose_one(rec, sub, args.no_plots),
+                              _summarize)
 
 
-def _diagnose_one(rec, sub, no_plots: bool) -> None:
-    """Diagnose one recording into the folder sub (report.json, summary.md, plots)."""
+def _summarize(folder, done, refused) -> None:
+    summary = diagnoses_across(done, refused)
+    write_summary(folder, summary, diagnoses_markdown(summary))
+
+
+def _diagnose_one(rec, sub, no_plots: bool) -> dict:
+    """Diagnose one recording into the folder sub (report.json, summary.md, plots); its report."""
     report, arrays = diagnose(rec)
     check_physical_inertia(report["fit_after"]["inertia"], rec.name)
     plots = [] if no_plots else write_plots(sub, report, arrays)
@@ -36,3 +46,4 @@ def _diagnose_one(rec, sub, no_plots: bool) -> None:
     (sub / "summary.md").write_text(markdown(report, plots))
     print(f"{rec.name}: mismatch={report['mismatch_detected']} best={report['best_effect']} "
           f"-> {sub / 'report.json'}")
+    return report

@@ -6,11 +6,13 @@ import argparse
 
 import numpy as np
 
+from inertia_gym.across import identifications_across, identifications_markdown
 from inertia_gym.commands.common import (
     add_recording_argument,
     check_physical_inertia,
     for_each_recording,
     write_json,
+    write_summary,
 )
 from inertia_gym.identification import METHODS, identify, markdown
 from inertia_gym.plots import plot_identification
@@ -30,12 +32,20 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Identify each recording (each phyphox window on its own); one sub-folder per window."""
-    return for_each_recording(args, lambda rec, sub: _identify_one(rec, sub, args.method, args.no_plots))
+    """Identify each recording (each phyphox window on its own); one sub-folder per window, and
+    for several, the inertia they give together (summary.json, summary.md).
+    """
+    return for_each_recording(args, lambda rec, sub: _identify_one(rec, sub, args.method, args.no_plots),
+                              _summarize)
 
 
-def _identify_one(rec, sub, method: str, no_plots: bool) -> None:
-    """Identify one recording into the folder sub (identify.json, summary.md, plots)."""
+def _summarize(folder, done, refused) -> None:
+    summary = identifications_across(done, refused)
+    write_summary(folder, summary, identifications_markdown(summary))
+
+
+def _identify_one(rec, sub, method: str, no_plots: bool) -> dict:
+    """Identify one recording into the folder sub (identify.json, summary.md, plots); its summary."""
     result = identify(rec, method)
     summary = result.summary()
     check_physical_inertia(summary["inertia"], rec.name)
@@ -46,3 +56,4 @@ def _identify_one(rec, sub, method: str, no_plots: bool) -> None:
     print(f"{rec.name}: principal moments {np.array2string(moments, precision=4)} "
           f"{'kg·m²' if summary['scale_identified'] else '(normalised: scale not identified)'}"
           f", rms/noise {summary['rms_over_noise']:.2f} -> {sub / 'identify.json'}")
+    return summary

@@ -41,6 +41,11 @@ def test_a_refused_recording_does_not_stop_the_batch(tosses, tmp_path, capsys, c
     assert len(err) == 2  # one line per refusal, one for the batch
     assert err[0].startswith("round2/Gyroscope rotation rate 1: refused: ")
     assert "1 of 2 recordings refused" in err[1] and "the other 1 are written" in err[1]
+    summary = json.loads((out / "summary.json").read_text())  # what they say together
+    assert summary["recordings"] == 2 and len(summary["rows"]) == 1
+    assert summary["refused"][0]["name"] == "round2/Gyroscope rotation rate 1"
+    assert "needs at least" in summary["refused"][0]["reason"]
+    assert "Refused: 1 (round2/Gyroscope rotation rate 1: " in (out / "summary.md").read_text()
 
 
 @pytest.mark.parametrize("command, result", [("diagnose", "report.json"), ("identify", "identify.json")])
@@ -77,7 +82,16 @@ def test_the_free_flights_of_a_phone_export_are_diagnosed_and_identified_each(tm
         assert start <= window["t_start"] < window["t_end"] <= end and window["source"] == WINDOW_FOUND
         assert max(report["fit_after"]["rms_over_noise"]) < 1.5 and not report["explanation"]
         assert "found from the gyro" in (folder / "summary.md").read_text()
+    across = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert across["diagnosed"] == 3 and across["leading_effects"] == {"none": 3}
+    assert across["valid_fits"] == 3 and across["worst_rms_over_noise"]["after_median"] < 1.5
     assert main(["identify", str(export), "--out", str(tmp_path / "id"), "--no-plots"]) == 0
     result = tmp_path / "id" / "Gyroscope_rotation_rate_1_flight_2" / "identify.json"
     notes = json.loads(result.read_text())["notes"]
     assert any(n.startswith("free flight from t = 4.2") and "found from the gyro" in n for n in notes)
+    # the body's shape from the three flights together (each spins near another principal axis)
+    shape = json.loads((tmp_path / "id" / "summary.json").read_text())["principal_ratios"]
+    truth = [1.0, 19.5 / 20.7, 1.39 / 20.7]
+    assert shape["n"] == 3 and shape["source"] != "scatter"  # every flight's intervals usable
+    assert all(lo <= r <= hi for r, (lo, hi) in zip(truth, shape["ci95"]))
+    assert all(hi - lo < 0.05 for lo, hi in shape["ci95"])

@@ -701,7 +701,8 @@ def test_identify_and_diagnose_commands_write_one_folder_per_piece(dropout_recor
     for command in ("identify", "diagnose"):
         out = tmp_path / command
         assert main([command, str(dropout_recordings[True]), "--out", str(out), "--no-plots"]) == 0
-        assert sorted(p.name for p in out.iterdir()) == ["gap_bursts_rows_1-150", "gap_bursts_rows_151-451"]
+        assert sorted(p.name for p in out.iterdir()) == ["gap_bursts_rows_1-150", "gap_bursts_rows_151-451",
+                                                         "summary.json", "summary.md"]
     report = json.loads((tmp_path / "diagnose" / "gap_bursts_rows_1-150" / "report.json").read_text())
     assert report["split_at_gaps"]["pieces"] == 2 and not report["mismatch_detected"]
     assert "gap_bursts rows 151-451" in capsys.readouterr().out

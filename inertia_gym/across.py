@@ -1,0 +1,274 @@
+"""What several recordings of one body say together: the summary that `diagnose` and `identify`
+write beside their per-recording folders (DIR/summary.json and DIR/summary.md) when they are
+given several recordings (a folder, or a phone export of several tosses).
+
+Pure functions over the per-recording results as written (report.json, identify.json dicts).
+The inertia's shape is compared as its principal moments over the largest (descending, the
+first 1), which every recording fixes, with or without a known torque.
+"""
+
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+from scipy import stats
+
+RATIO_LABELS = ("I1/I1", "I2/I1", "I3/I1")
+
+
+def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]]) -> dict:
+    """summary.json of several diagnoses: done [(name, report.json dict)], refused [(name,
+    one-line reason)].
+
+    Keys: recordings, diagnosed, refused [{name, reason}], leading_effects {effect: count} (the
+    first effect of each explanation; "none" where none is selected), most_common_lead {name,
+    count, share} (share of the diagnosed), valid_fits, beyond_catalogue (count),
+    worst_rms_over_noise {before_median, after_median, fall} (each recording's worst axis;
+    fall = before / after of the medians), principal_ratios (the body's shape from the fits
+    after, shape_combined(); each fit's covariance taken as diagonal, from its 95 % intervals),
+    rows [{name, leading, explanation, valid, worst_before, worst_after,
+    principal_ratios, beyond_catalogue}].
+    """
+    fits = [r["fit_after"] for _, r in done
+            if r["fit_after"]["valid"] and r["fit_after"]["principal_ratios_ci95"]]
+    ratios = shape_combined([f["principal_ratios"] for f in fits],
+                            [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
+                             for f in fits])
+    rows = [{"name": name, "leading": r["explanation"][0]["name"] if r["explanation"] else "none",
+             "explanation": [e["name"] for e in r["explanation"]], "valid": bool(r["fit_after"]["valid"]),
+             "worst_before": _worst(r["fit_before"]), "worst_after": _worst(r["fit_after"]),
+             "principal_ratios": r["fit_after"]["principal_ratios"],
+             "beyond_catalogue": bool(r["beyond_catalogue"])} for name, r in done]
+    leads = collections.Counter(row["leading"] for row in rows)
+    top = leads.most_common(1)[0] if rows else ("none", 0)
+    before = [row["worst_before"] for row in rows if row["worst_before"] is not None]
+    after = [row["worst_after"] for row in rows if row["worst_after"] is not None]
+    median_before = float(np.median(before)) if before else None
+    median_after = float(np.median(after)) if after else None
+    return {
+        "recordings": len(done) + len(refused), "diagnosed": len(done),
+        "refused": [{"name": name, "reason": reason} for name, reason in refused],
+        "leading_effects": dict(leads.most_common()),
+        "most_common_lead": {"name": top[0], "count": top[1], "share": top[1] / len(rows) if rows else None},
+        "valid_fits": sum(row["valid"] for row in rows),
+        "beyond_catalogue": sum(row["beyond_catalogue"] for row in rows),
+        "worst_rms_over_noise": {"before_median": median_before, "after_median": median_after,
+                                 "fall": median_before / median_after if median_before and median_after
+                                 else None},
+        "principal_ratios": ratios,
+        "rows": rows,
+    }
+
+
+def identifications_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]]) -> dict:
+    """summary.json of several identifications: done [(name, identify.json dict)], refused.
+
+    Keys: recordings, identified, refused [{name, reason}], principal_ratios (the body's shape
+    from all of them: combined()), principal_moments (kg·m², the same, where every recording
+    identified the scale; else None), rows [{name, principal_ratios, principal_ratios_ci95,
+    principal_moments, scale_identified, rms_over_noise}].
+    """
+    rows = [{"name": name, "principal_ratios": s["principal_ratios"],
+             "principal_ratios_ci95": s["principal_ratios_ci95"],
+             "principal_moments": sorted(s["principal_moments"], reverse=True),
+             "scale_identified": bool(s["scale_identified"]), "rms_over_noise": s["rms_over_noise"]}
+            for name, s in done]
+    ratios = shape_combined([s["principal_ratios"] for _, s in done],
+                            [s["principal_ratios_cov"] for _, s in done])
+    moments = None
+    if done and all(row["scale_identified"] for row in rows):  # descending, as the ratios
+        moments = combined([np.array(s["principal_moments"][::-1]) for _, s in done],
+                           [np.array(s["principal_moments_cov"])[::-1, ::-1] for _, s in done])
+    return {"recordings": len(done) + len(refused), "identified": len(done),
+            "refused": [{"name": name, "reason": reason} for name, reason in refused],
+            "principal_ratios": ratios, "principal_moments": moments, "rows": rows}
+
+
+def shape_combined(ratios: list, covs: list) -> dict | None:
+    """combined() of principal-moment ratios [(3,)] (descending, the first 1) with their
+    covariances [(3, 3)]: the first, the largest over itself, is 1 exactly and left out of the
+    test; the result's vectors have it back in front.
+    """
+    result = combined([np.asarray(r, float)[1:] for r in ratios],
+                      [np.asarray(c, float)[1:, 1:] for c in covs])
+    if result is None:
+        return None
+    return {**result, **{k: [1.0, *result[k]] for k in ("estimate", "median", "min", "max")},
+            "ci95": None if result["ci95"] is None else [[1.0, 1.0], *result["ci95"]]}
+
+
+def combined(values: list[np.ndarray], covs: list[np.ndarray]) -> dict | None:
+    """One vector from several estimates of it, values [(k,)] with covariances [(k, k)] (n of
+    them); None for none.
+
+    Each component by random effects: every recording's estimate is the truth plus its own
+    error (its variance from its covariance) plus an error of its own that its interval does
+    not count (a model that leaves something out, or a body that changed), of a variance tau^2
+    shared by all (DerSimonian-Laird: zero where they agree within their own intervals). The
+    estimate is the mean weighted by 1 / (v_i + tau^2), its 95 % interval Hartung-Knapp's
+    (Student's t over n - 1, the weighted scatter about the estimate, never narrower than the
+    weights alone allow). Recordings with honest intervals then get their weighted mean; with
+    errors their intervals leave out, weights that even out, and an interval set by the scatter
+    (weighting by understated intervals alone, or widening them all by one factor, covered the
+    truth on only 58-70 % of such cases).
+    One recording: its own estimate and interval. Where a variance is not positive and finite:
+    the plain mean and the scatter's interval (Student's t over n - 1; none from one recording).
+    Keys: estimate, ci95 ((k, 2) or None), source ("intervals": tau = 0 in every component;
+    "random effects"; "scatter"), between_sd ((k,) tau, or None), and the test of one vector for
+    all, with the full covariances: chi2 (None where one is singular), dof = k (n - 1), p;
+    n, median, min, max.
+    """
+    if not values:
+        return None
+    x = np.array(values, float)
+    n, k = x.shape
+    out = {"n": n, **_spread(x), "chi2": None, "dof": k * (n - 1), "p": None, "between_sd": None}
+    var = np.array([np.diag(np.asarray(c, float)) for c in covs])
+    if not (np.all(np.isfinite(var)) and np.all(var > 0)):
+        mean = x.mean(axis=0)
+        if n < 2:
+            return {**out, "estimate": mean.tolist(), "ci95": None, "source": "scatter"}
+        half = stats.t.ppf(0.975, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
+        return {**out, "estimate": mean.tolist(), "ci95": _interval(mean, half), "source": "scatter"}
+    out.update(_one_vector_test(x, covs))
+    if n < 2:
+        return {**out, "estimate": x[0].tolist(), "ci95": _interval(x[0], 1.96 * np.sqrt(var[0])),
+                "source": "intervals"}
+    w = 1.0 / var
+    fixed = np.sum(w * x, 0) / np.sum(w, 0)
+    q = np.sum(w * (x - fixed) ** 2, 0)
+    tau2 = np.maximum(0.0, (q - (n - 1)) / (np.sum(w, 0) - np.sum(w ** 2, 0) / np.sum(w, 0)))
+    ws = 1.0 / (var + tau2)
+    mean = np.sum(ws * x, 0) / np.sum(ws, 0)
+    scatter = np.sum(ws * (x - mean) ** 2, 0) / (n - 1)
+    half = stats.t.ppf(0.975, n - 1) * np.sqrt(np.maximum(scatter, 1.0) / np.sum(ws, 0))
+    return {**out, "estimate": mean.tolist(), "ci95": _interval(mean, half),
+            "source": "random effects" if np.any(tau2 > 0) else "intervals",
+            "between_sd": np.sqrt(tau2).tolist()}
+
+
+def _one_vector_test(x: np.ndarray, covs) -> dict:
+    """chi2 of the estimates x (n, k) about their weighted mean (weights the inverse
+    covariances) and its p over k (n - 1) degrees of freedom; {} where a covariance is singular.
+    """
+    try:
+        weights = [np.linalg.inv(np.asarray(c, float)) for c in covs]
+    except np.linalg.LinAlgError:
+        return {}
+    if not all(np.all(np.isfinite(w)) for w in weights):
+        return {}
+    mean = np.linalg.solve(np.sum(weights, 0), np.sum([w @ v for w, v in zip(weights, x)], 0))
+    chi2 = float(sum((v - mean) @ w @ (v - mean) for w, v in zip(weights, x)))
+    dof = x.size - x.shape[1]
+    return {"chi2": chi2, "p": float(stats.chi2.sf(chi2, dof)) if dof else 1.0}
+
+
+def _interval(mean: np.ndarray, half: np.ndarray) -> list:
+    """(k, 2) [lo, hi] of mean +- half."""
+    return np.stack([mean - half, mean + half], 1).tolist()
+
+
+def _worst(fit: dict) -> float | None:
+    """A fit summary's worst-axis rms over the noise (None for no valid fit)."""
+    return max(fit["rms_over_noise"]) if fit.get("rms_over_noise") else None
+
+
+def _spread(x: np.ndarray) -> dict:
+    """Median, min and max of each column of x (n, k)."""
+    return {"median": np.median(x, 0).tolist(), "min": x.min(0).tolist(), "max": x.max(0).tolist()}
+
+
+def diagnoses_markdown(summary: dict) -> str:
+    """summary.md of diagnoses_across's summary."""
+    n = summary["diagnosed"]
+    lines = [f"# Diagnosis across {summary['recordings']} recordings", ""]
+    lines += _refused_lines(summary)
+    if n:
+        leads = ", ".join(f"`{name}` on {count} ({count / n:.0%})" for name, count in
+                          summary["leading_effects"].items())
+        worst = summary["worst_rms_over_noise"]
+        lines += [f"- Leading effect of the explanation, of {n} diagnosed: {leads}.",
+                  f"- A valid fit on {summary['valid_fits']} of {n}; beyond the catalogue (the "
+                  f"explanation leaves a large misfit) on {summary['beyond_catalogue']}."]
+        if worst["fall"] is not None:
+            lines.append(f"- Worst-axis rms over the noise, median: {worst['before_median']:.3g} before, "
+                         f"{worst['after_median']:.3g} after ({worst['fall']:.3g}x lower).")
+        lines += _shape_lines(summary["principal_ratios"], "the fits after")
+        lines += ["", "| recording | leading effect | explanation | worst rms/noise before | after | "
+                      "I2/I1, I3/I1 |", "|---|---|---|---|---|---|"]
+        for row in summary["rows"]:
+            ratios = row["principal_ratios"]
+            ratio = ", ".join(f"{r:.3f}" for r in ratios[1:]) if ratios else "-"
+            lines.append(f"| {row['name']} | {row['leading']} | {' + '.join(row['explanation']) or '-'} | "
+                         f"{_num(row['worst_before'])} | {_num(row['worst_after'])} | {ratio} |")
+    return "\n".join(lines) + "\n"
+
+
+def identifications_markdown(summary: dict) -> str:
+    """summary.md of identifications_across's summary."""
+    lines = [f"# Inertia across {summary['recordings']} recordings", ""]
+    lines += _refused_lines(summary)
+    lines += _shape_lines(summary["principal_ratios"], "the rigid fits")
+    moments = summary["principal_moments"]
+    if moments is not None:
+        lines += [f"- Principal moments (kg·m², the scale identified on every recording): "
+                  f"{_values(('I1', 'I2', 'I3'), moments)} (95 %).", "- " + source_words(moments)]
+    if summary["rows"]:
+        lines += ["", "| recording | I2/I1 | I3/I1 | scale identified | rms/noise |", "|---|---|---|---|---|"]
+        for row in summary["rows"]:
+            cells = [f"{r:.4g} [{lo:.4g}, {hi:.4g}]" for r, (lo, hi) in
+                     zip(row["principal_ratios"][1:], row["principal_ratios_ci95"][1:])]
+            lines.append(f"| {row['name']} | {' | '.join(cells)} | {row['scale_identified']} | "
+                         f"{row['rms_over_noise']:.3g} |")
+    return "\n".join(lines) + "\n"
+
+
+def _shape_lines(ratios: dict | None, fits: str) -> list[str]:
+    """Lines on the body's shape from a shape_combined() result (none for None)."""
+    if ratios is None:
+        return []
+    shape = {**ratios, "estimate": ratios["estimate"][1:], "ci95": ratios["ci95"] and ratios["ci95"][1:]}
+    values = _values(RATIO_LABELS[1:], shape)
+    spread = "; ".join(f"{label} {lo:.4g} to {hi:.4g}" for label, lo, hi in
+                       zip(RATIO_LABELS[1:], ratios["min"][1:], ratios["max"][1:]))
+    return [f"- Principal moments over the largest, from {fits} of {ratios['n']} recordings: {values}"
+            f" (95 %; each recording's own: {spread}).", "- " + source_words(ratios)]
+
+
+def _values(labels, result: dict) -> str:
+    """"label = estimate [lo, hi]; ..." of a combined() result (no interval where it has none)."""
+    ci = result["ci95"] or [None] * len(labels)
+    return "; ".join(f"{label} = {m:.4g}" + ("" if c is None else f" [{c[0]:.4g}, {c[1]:.4g}]")
+                     for label, m, c in zip(labels, result["estimate"], ci))
+
+
+def source_words(result: dict) -> str:
+    """Where a combined() interval comes from, in words."""
+    if result["source"] == "scatter":
+        if result["n"] < 2:
+            return "One recording whose intervals cannot be used: no interval."
+        return ("A recording's intervals cannot be used (a variance is not positive): the interval is "
+                "the scatter between the recordings.")
+    if result["n"] < 2:
+        return "One recording: its own interval."
+    test = ("" if result["chi2"] is None else f" (chi-square {result['chi2']:.3g} on {result['dof']} "
+                                              f"degrees of freedom, p = {result['p']:.2g})")
+    if result["source"] == "intervals":
+        return (f"The recordings agree within their own intervals{test}: the estimate is their "
+                "weighted mean.")
+    return (f"The recordings scatter more than their own intervals allow{test}: each recording's "
+            "interval understates its error (its model leaves something out, or the body changed "
+            "between recordings) by about " + ", ".join(f"{b:.3g}" for b in result["between_sd"])
+            + " (standard deviation), which the estimate's weights and interval include (random effects).")
+
+
+def _refused_lines(summary: dict) -> list[str]:
+    if not summary["refused"]:
+        return []
+    return [f"- Refused: {len(summary['refused'])} ("
+            + "; ".join(f"{r['name']}: {r['reason']}" for r in summary["refused"]) + ")."]
+
+
+def _num(value) -> str:
+    return "-" if value is None else f"{value:.3g}"
