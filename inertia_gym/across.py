@@ -10,6 +10,7 @@ first 1), which every recording fixes, with or without a known torque.
 from __future__ import annotations
 
 import collections
+import re
 
 import numpy as np
 from scipy import stats
@@ -17,72 +18,111 @@ from scipy import stats
 RATIO_LABELS = ("I1/I1", "I2/I1", "I3/I1")
 
 
+def series_name(name: str) -> str:
+    """The name a recording shares with the rest of its series: its own without its trailing
+    number and the word that counts it ("Empty_LOG00179" -> "Empty_LOG", "EXPORT segment 3" ->
+    "EXPORT", "EXPORT flight 2" -> "EXPORT", "REC rows 1-150" -> "REC", "throw 3" -> "throw").
+    """
+    return (re.sub(r"[\s_-]*(segment|flight|rows|piece)?[\s_-]*[\d-]+$", "", name)
+            or re.sub(r"[\s_-]*[\d-]+$", "", name) or name)
+
+
 def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]]) -> dict:
     """summary.json of several diagnoses: done [(name, report.json dict)], refused [(name,
     one-line reason)].
 
-    Keys: recordings, diagnosed, refused [{name, reason}], leading_effects {effect: count} (the
-    first effect of each explanation; "none" where none is selected), most_common_lead {name,
-    count, share} (share of the diagnosed), valid_fits, beyond_catalogue (count),
-    worst_rms_over_noise {before_median, after_median, fall} (each recording's worst axis;
-    fall = before / after of the medians), principal_ratios (the body's shape from the fits
-    after, shape_combined(); each fit's covariance taken as diagonal, from its 95 % intervals),
-    rows [{name, leading, explanation, valid, worst_before, worst_after,
-    principal_ratios, beyond_catalogue}].
+    Keys: recordings, refused [{name, reason}], rows [{name, series, leading, explanation,
+    valid, worst_before, worst_after, principal_ratios, beyond_catalogue}], the keys of
+    _diagnoses over them all, and groups: where the recordings fall into several series
+    (series_name: a folder of several bodies' throws, say), [{name, names, the keys of
+    _diagnoses}] per series, else [].
     """
-    fits = [r["fit_after"] for _, r in done
-            if r["fit_after"]["valid"] and r["fit_after"]["principal_ratios_ci95"]]
-    ratios = shape_combined([f["principal_ratios"] for f in fits],
-                            [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
-                             for f in fits])
-    rows = [{"name": name, "leading": r["explanation"][0]["name"] if r["explanation"] else "none",
+    rows = [{"name": name, "series": series_name(name),
+             "leading": r["explanation"][0]["name"] if r["explanation"] else "none",
              "explanation": [e["name"] for e in r["explanation"]], "valid": bool(r["fit_after"]["valid"]),
              "worst_before": _worst(r["fit_before"]), "worst_after": _worst(r["fit_after"]),
              "principal_ratios": r["fit_after"]["principal_ratios"],
              "beyond_catalogue": bool(r["beyond_catalogue"])} for name, r in done]
-    leads = collections.Counter(row["leading"] for row in rows)
-    top = leads.most_common(1)[0] if rows else ("none", 0)
-    before = [row["worst_before"] for row in rows if row["worst_before"] is not None]
-    after = [row["worst_after"] for row in rows if row["worst_after"] is not None]
+    return {"recordings": len(done) + len(refused),
+            "refused": [{"name": name, "reason": reason} for name, reason in refused],
+            **_diagnoses(done), "groups": _groups(done, _diagnoses), "rows": rows}
+
+
+def _diagnoses(done: list[tuple[str, dict]]) -> dict:
+    """diagnosed, leading_effects {effect: count} (the first effect of each explanation; "none"
+    where none is selected), most_common_lead {name, count, share} (share of the diagnosed),
+    valid_fits, beyond_catalogue (count), worst_rms_over_noise {before_median, after_median,
+    fall} (each recording's worst axis; fall = before / after of the medians), principal_ratios
+    (the body's shape from the fits after, shape_combined(); each fit's covariance taken as
+    diagonal, from its 95 % intervals).
+    """
+    reports = [r for _, r in done]
+    fits = [f for r in reports if (f := r["fit_after"])["valid"] and f["principal_ratios_ci95"]]
+    ratios = shape_combined([f["principal_ratios"] for f in fits],
+                            [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
+                             for f in fits])
+    leads = collections.Counter(r["explanation"][0]["name"] if r["explanation"] else "none" for r in reports)
+    top = leads.most_common(1)[0] if reports else ("none", 0)
+    before = [w for r in reports if (w := _worst(r["fit_before"])) is not None]
+    after = [w for r in reports if (w := _worst(r["fit_after"])) is not None]
     median_before = float(np.median(before)) if before else None
     median_after = float(np.median(after)) if after else None
     return {
-        "recordings": len(done) + len(refused), "diagnosed": len(done),
-        "refused": [{"name": name, "reason": reason} for name, reason in refused],
-        "leading_effects": dict(leads.most_common()),
-        "most_common_lead": {"name": top[0], "count": top[1], "share": top[1] / len(rows) if rows else None},
-        "valid_fits": sum(row["valid"] for row in rows),
-        "beyond_catalogue": sum(row["beyond_catalogue"] for row in rows),
+        "diagnosed": len(reports), "leading_effects": dict(leads.most_common()),
+        "most_common_lead": {"name": top[0], "count": top[1],
+                             "share": top[1] / len(reports) if reports else None},
+        "valid_fits": sum(bool(r["fit_after"]["valid"]) for r in reports),
+        "beyond_catalogue": sum(bool(r["beyond_catalogue"]) for r in reports),
         "worst_rms_over_noise": {"before_median": median_before, "after_median": median_after,
                                  "fall": median_before / median_after if median_before and median_after
                                  else None},
         "principal_ratios": ratios,
-        "rows": rows,
     }
 
 
 def identifications_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]]) -> dict:
     """summary.json of several identifications: done [(name, identify.json dict)], refused.
 
-    Keys: recordings, identified, refused [{name, reason}], principal_ratios (the body's shape
-    from all of them: combined()), principal_moments (kg·m², the same, where every recording
-    identified the scale; else None), rows [{name, principal_ratios, principal_ratios_ci95,
-    principal_moments, scale_identified, rms_over_noise}].
+    Keys: recordings, refused [{name, reason}], rows [{name, series, principal_ratios,
+    principal_ratios_ci95, principal_moments, scale_identified, rms_over_noise}], the keys of
+    _identifications over them all, and groups as diagnoses_across's.
     """
-    rows = [{"name": name, "principal_ratios": s["principal_ratios"],
+    rows = [{"name": name, "series": series_name(name), "principal_ratios": s["principal_ratios"],
              "principal_ratios_ci95": s["principal_ratios_ci95"],
              "principal_moments": sorted(s["principal_moments"], reverse=True),
              "scale_identified": bool(s["scale_identified"]), "rms_over_noise": s["rms_over_noise"]}
             for name, s in done]
-    ratios = shape_combined([s["principal_ratios"] for _, s in done],
-                            [s["principal_ratios_cov"] for _, s in done])
-    moments = None
-    if done and all(row["scale_identified"] for row in rows):  # descending, as the ratios
-        moments = combined([np.array(s["principal_moments"][::-1]) for _, s in done],
-                           [np.array(s["principal_moments_cov"])[::-1, ::-1] for _, s in done])
-    return {"recordings": len(done) + len(refused), "identified": len(done),
+    return {"recordings": len(done) + len(refused),
             "refused": [{"name": name, "reason": reason} for name, reason in refused],
-            "principal_ratios": ratios, "principal_moments": moments, "rows": rows}
+            **_identifications(done), "groups": _groups(done, _identifications), "rows": rows}
+
+
+def _identifications(done: list[tuple[str, dict]]) -> dict:
+    """identified, principal_ratios (the body's shape from them all: shape_combined()) and
+    principal_moments (kg·m², descending, combined() the same way, where every recording
+    identified the scale; else None).
+    """
+    summaries = [s for _, s in done]
+    ratios = shape_combined([s["principal_ratios"] for s in summaries],
+                            [s["principal_ratios_cov"] for s in summaries])
+    moments = None
+    if summaries and all(s["scale_identified"] for s in summaries):  # descending, as the ratios
+        moments = combined([np.array(s["principal_moments"][::-1]) for s in summaries],
+                           [np.array(s["principal_moments_cov"])[::-1, ::-1] for s in summaries])
+    return {"identified": len(summaries), "principal_ratios": ratios, "principal_moments": moments}
+
+
+def _groups(done: list[tuple[str, dict]], summarize) -> list[dict]:
+    """[{name, names, **summarize(its recordings)}] per series (series_name) where there are
+    several, in the order they first appear; [] for one.
+    """
+    series: dict[str, list] = {}
+    for name, result in done:
+        series.setdefault(series_name(name), []).append((name, result))
+    if len(series) < 2:
+        return []
+    return [{"name": key, "names": [n for n, _ in members], **summarize(members)}
+            for key, members in series.items()]
 
 
 def shape_combined(ratios: list, covs: list) -> dict | None:
@@ -181,20 +221,12 @@ def _spread(x: np.ndarray) -> dict:
 
 def diagnoses_markdown(summary: dict) -> str:
     """summary.md of diagnoses_across's summary."""
-    n = summary["diagnosed"]
     lines = [f"# Diagnosis across {summary['recordings']} recordings", ""]
-    lines += _refused_lines(summary)
-    if n:
-        leads = ", ".join(f"`{name}` on {count} ({count / n:.0%})" for name, count in
-                          summary["leading_effects"].items())
-        worst = summary["worst_rms_over_noise"]
-        lines += [f"- Leading effect of the explanation, of {n} diagnosed: {leads}.",
-                  f"- A valid fit on {summary['valid_fits']} of {n}; beyond the catalogue (the "
-                  f"explanation leaves a large misfit) on {summary['beyond_catalogue']}."]
-        if worst["fall"] is not None:
-            lines.append(f"- Worst-axis rms over the noise, median: {worst['before_median']:.3g} before, "
-                         f"{worst['after_median']:.3g} after ({worst['fall']:.3g}x lower).")
-        lines += _shape_lines(summary["principal_ratios"], "the fits after")
+    lines += _refused_lines(summary) + _diagnoses_lines(summary) + _series_note(summary)
+    for group in summary["groups"]:
+        lines += ["", f"## Series {group['name']} ({_count(group['diagnosed'])})", ""]
+        lines += _diagnoses_lines(group)
+    if summary["rows"]:
         lines += ["", "| recording | leading effect | explanation | worst rms/noise before | after | "
                       "I2/I1, I3/I1 |", "|---|---|---|---|---|---|"]
         for row in summary["rows"]:
@@ -205,15 +237,30 @@ def diagnoses_markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _diagnoses_lines(result: dict) -> list[str]:
+    """Lines on a _diagnoses() result (of all recordings or of one series)."""
+    n = result["diagnosed"]
+    if not n:
+        return []
+    leads = ", ".join(f"`{name}` on {count} ({count / n:.0%})"
+                      for name, count in result["leading_effects"].items())
+    worst = result["worst_rms_over_noise"]
+    lines = [f"- Leading effect of the explanation, of {n} diagnosed: {leads}.",
+             f"- A valid fit on {result['valid_fits']} of {n}; beyond the catalogue (the explanation "
+             f"leaves a large misfit) on {result['beyond_catalogue']}."]
+    if worst["fall"] is not None:
+        lines.append(f"- Worst-axis rms over the noise, median: {worst['before_median']:.3g} before, "
+                     f"{worst['after_median']:.3g} after ({worst['fall']:.3g}x lower).")
+    return lines + _shape_lines(result["principal_ratios"], "the explained fits")
+
+
 def identifications_markdown(summary: dict) -> str:
     """summary.md of identifications_across's summary."""
     lines = [f"# Inertia across {summary['recordings']} recordings", ""]
-    lines += _refused_lines(summary)
-    lines += _shape_lines(summary["principal_ratios"], "the rigid fits")
-    moments = summary["principal_moments"]
-    if moments is not None:
-        lines += [f"- Principal moments (kg·m², the scale identified on every recording): "
-                  f"{_values(('I1', 'I2', 'I3'), moments)} (95 %).", "- " + source_words(moments)]
+    lines += _refused_lines(summary) + _identifications_lines(summary) + _series_note(summary)
+    for group in summary["groups"]:
+        lines += ["", f"## Series {group['name']} ({_count(group['identified'])})", ""]
+        lines += _identifications_lines(group)
     if summary["rows"]:
         lines += ["", "| recording | I2/I1 | I3/I1 | scale identified | rms/noise |", "|---|---|---|---|---|"]
         for row in summary["rows"]:
@@ -224,6 +271,16 @@ def identifications_markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _identifications_lines(result: dict) -> list[str]:
+    """Lines on an _identifications() result (of all recordings or of one series)."""
+    lines = _shape_lines(result["principal_ratios"], "the rigid fits")
+    moments = result["principal_moments"]
+    if moments is not None:
+        lines += [f"- Principal moments (kg·m², the scale identified on every recording): "
+                  f"{_values(('I1', 'I2', 'I3'), moments)} (95 %).", "- " + source_words(moments)]
+    return lines
+
+
 def _shape_lines(ratios: dict | None, fits: str) -> list[str]:
     """Lines on the body's shape from a shape_combined() result (none for None)."""
     if ratios is None:
@@ -232,7 +289,7 @@ def _shape_lines(ratios: dict | None, fits: str) -> list[str]:
     values = _values(RATIO_LABELS[1:], shape)
     spread = "; ".join(f"{label} {lo:.4g} to {hi:.4g}" for label, lo, hi in
                        zip(RATIO_LABELS[1:], ratios["min"][1:], ratios["max"][1:]))
-    return [f"- Principal moments over the largest, from {fits} of {ratios['n']} recordings: {values}"
+    return [f"- Principal moments over the largest, from {fits} of {_count(ratios['n'])}: {values}"
             f" (95 %; each recording's own: {spread}).", "- " + source_words(ratios)]
 
 
@@ -263,11 +320,23 @@ def source_words(result: dict) -> str:
             + " (standard deviation), which the estimate's weights and interval include (random effects).")
 
 
+def _series_note(summary: dict) -> list[str]:
+    """A line saying the recordings fall into several series, each summarized below."""
+    if not summary["groups"]:
+        return []
+    return [f"- The recordings fall into {len(summary['groups'])} series (named alike up to their "
+            "number): if these are different bodies, read each series below, not the shape of all."]
+
+
 def _refused_lines(summary: dict) -> list[str]:
     if not summary["refused"]:
         return []
     return [f"- Refused: {len(summary['refused'])} ("
             + "; ".join(f"{r['name']}: {r['reason']}" for r in summary["refused"]) + ")."]
+
+
+def _count(n: int) -> str:
+    return f"{n} recording{'' if n == 1 else 's'}"
 
 
 def _num(value) -> str:

@@ -20,6 +20,9 @@ estimate ``authors_estimate_inertia``) runs ``identify(rec)`` and scores:
 
 Prints a markdown table, the median and worst error and the coverage over 6 x 20 parameters,
 and the same split by configuration (the 10 Empty throws against the 10 calibration throws).
+Then each body's throws together, as `inertia-gym identify` on the folder summarizes them
+(across.identifications_across, one series per body): the combined principal moments (the
+ratios with --withhold-h) against the reference's, and whether their 95 % intervals cover it.
 ``--withhold-h`` drops the rotor momentum (the h columns): torque-free motion then fixes the
 inertia only up to scale, so identify reports it normalised (to trace 1 kg·m², no nominal in the
 sidecars); the error is then that of the ratios after rescaling the estimate to the reference's
@@ -44,6 +47,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from inertia_gym.across import identifications_across  # noqa: E402
 from inertia_gym.discrepancy.recordings import read_recordings  # noqa: E402
 from inertia_gym.estimation.ml import FROBENIUS_WEIGHTS  # noqa: E402
 from inertia_gym.identification import identify  # noqa: E402
@@ -60,8 +64,8 @@ def rel_frobenius(estimate, truth) -> float:
     return float(np.linalg.norm(estimate - truth) / np.linalg.norm(truth))
 
 
-def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> dict:
-    """One throw's row of the table."""
+def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> tuple[dict, dict]:
+    """One throw's identify.json summary and its row of the table."""
     if withhold_h:
         rec = dataclasses.replace(rec, h=None)
     truth = np.asarray(truth_entry["inertia"], dtype=float)
@@ -86,7 +90,7 @@ def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> dict:
     rel_sigma = float(np.sqrt(np.sum(FROBENIUS_WEIGHTS * sigma ** 2))
                       / np.sqrt(np.sum(FROBENIUS_WEIGHTS * theta_true ** 2)))
     authors = truth_entry.get("authors_estimate_inertia")
-    return {
+    return ident.summary(), {
         "throw": rec.name,
         "n_samples": int(rec.t.size),
         "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -116,6 +120,24 @@ def score(rec, truth_entry, withhold_h: bool, fit_drag: bool = False) -> dict:
         "inertia_true": truth.tolist(),
         "notes": list(ident.notes),
     }
+
+
+def body_together(group: dict, truth: dict) -> dict:
+    """One body's throws combined (a group of across.identifications_across) against the
+    reference: its principal moments, descending (its ratios where the scale is not identified),
+    the relative error and 95 % half-width of each, and whether the interval covers it."""
+    moments = np.mean([np.sort(np.linalg.eigvalsh(np.asarray(truth[n]["inertia"], float)))[::-1]
+                       for n in group["names"]], axis=0)
+    scaled = group["principal_moments"] is not None
+    result = group["principal_moments"] if scaled else group["principal_ratios"]
+    reference = moments if scaled else moments / moments[0]
+    estimate, ci = np.array(result["estimate"]), np.array(result["ci95"])
+    return {"series": group["name"], "throws": len(group["names"]), "source": result["source"],
+            "quantity": "principal moments (kg·m²)" if scaled else "principal ratios",
+            "estimate": estimate.tolist(), "reference": reference.tolist(),
+            "rel_error": ((estimate - reference) / reference).tolist(),
+            "rel_half_width": ((ci[:, 1] - ci[:, 0]) / 2 / reference).tolist(),
+            "covered": [bool(lo <= r <= hi) for r, (lo, hi) in zip(reference, ci)]}
 
 
 def pct(x) -> str:
@@ -167,11 +189,13 @@ def main():
     # Compile the numba kernels outside the per-throw wall times.
     identify(read_recordings(files[0])[0])
     t0 = time.perf_counter()
-    rows = []
+    rows, summaries = [], []
     for path in files:
         rec = read_recordings(path)[0]
-        rows.append(score(dataclasses.replace(rec, name=path.stem), truth[path.stem],
-                          args.withhold_h, args.fit_drag))
+        summary, row = score(dataclasses.replace(rec, name=path.stem), truth[path.stem],
+                             args.withhold_h, args.fit_drag)
+        rows.append(row)
+        summaries.append((path.stem, summary))
     total = time.perf_counter() - t0
     errors = np.array([r["rel_error"] for r in rows])
     principal = np.array([r["principal_rel_error"] for r in rows])
@@ -198,6 +222,13 @@ def main():
         print(f"- {name}: {g['throws']} throws, median error {100 * g['median_rel_error']:.2f} %, "
               f"worst {100 * g['worst_rel_error']:.2f} %; intervals cover {g['covered']} of "
               f"{g['parameters']} parameters and {g['moments_covered']} of {g['moments']} moments")
+    bodies = [body_together(group, truth) for group in identifications_across(summaries, [])["groups"]]
+    for b in bodies:
+        off, widths = (np.round(100 * np.array(b[k]), 2).tolist() for k in ("rel_error", "rel_half_width"))
+        print(f"- {b['series']} ({b['throws']} throws together, {b['source']}): {b['quantity']} "
+              f"{np.round(b['estimate'], 7).tolist()} against the reference's "
+              f"{np.round(b['reference'], 7).tolist()}: errors {off} %, 95 % half-widths {widths} %, "
+              f"{sum(b['covered'])} of {len(b['covered'])} covered")
     print(f"- {len(rows)} throws identified in {total:.1f} s")
     if args.out:
         out = Path(args.out)
@@ -207,7 +238,7 @@ def main():
                   "median_principal_rel_error": float(np.median(principal)),
                   "worst_principal_rel_error": float(principal.max()),
                   "covered": int(covered.sum()), "parameters": int(covered.size),
-                  "moments_covered": int(moments_covered.sum()), "split": split,
+                  "moments_covered": int(moments_covered.sum()), "split": split, "bodies": bodies,
                   "wall_s_total": total, "rows": rows}
         (out / "rotor_throws.json").write_text(json.dumps(report, indent=1))
 

@@ -14,6 +14,7 @@ from inertia_gym.across import (
     diagnoses_markdown,
     identifications_across,
     identifications_markdown,
+    series_name,
     source_words,
 )
 from inertia_gym.identification import InertiaEstimate
@@ -170,3 +171,29 @@ def test_identifications_across_combines_the_shape_and_the_moments_where_scaled(
     assert "(95 %" in text and "kg·m²" in text and "| throw 3 |" in text
     unscaled = [(name, {**s, "scale_identified": False}) for name, s in summaries]
     assert identifications_across(unscaled, [])["principal_moments"] is None
+
+
+@pytest.mark.parametrize("name, series", [
+    ("Empty_LOG00179", "Empty_LOG"), ("cal_proof_body_LOG00121", "cal_proof_body_LOG"),
+    ("round1/Gyroscope rotation rate 2025-01-16 17-10-11 segment 3",
+     "round1/Gyroscope rotation rate 2025-01-16 17-10-11"),
+    ("Gyroscope rotation rate 1 flight 2", "Gyroscope rotation rate 1"), ("REC rows 1-150", "REC"),
+    ("throw 3", "throw"), ("spin", "spin"), ("007", "007")])
+def test_a_recordings_series_is_its_name_without_its_number(name, series):
+    assert series_name(name) == series
+
+
+def test_several_series_are_summarized_each():
+    """Throws of two bodies in one folder: the shape of all of them means nothing, each series'
+    is its body's; one series gives no groups."""
+    done = [(f"{body}_LOG{k:05d}", _report(["viscous_damping"], [9, 9, 9], [1, 1, 1], ratios))
+            for body, ratios in (("plate", [1, 0.5, 0.4]), ("cube", [1, 0.95, 0.9])) for k in range(3)]
+    out = diagnoses_across(done, [])
+    assert [g["name"] for g in out["groups"]] == ["plate_LOG", "cube_LOG"]
+    assert [g["diagnosed"] for g in out["groups"]] == [3, 3]
+    assert out["groups"][0]["principal_ratios"]["estimate"] == pytest.approx([1, 0.5, 0.4])
+    assert out["groups"][1]["principal_ratios"]["estimate"] == pytest.approx([1, 0.95, 0.9])
+    assert out["rows"][0]["series"] == "plate_LOG" and out["principal_ratios"]["n"] == 6
+    text = diagnoses_markdown(out)
+    assert "fall into 2 series" in text and "## Series cube_LOG (3 recordings)" in text
+    assert diagnoses_across(done[:3], [])["groups"] == []
