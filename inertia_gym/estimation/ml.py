@@ -59,6 +59,10 @@ GIVE_UP_FACTOR = 10.0
 #: 40 iterations 3-4 % off in the moments' ratios, its intervals missing the truth on 10 of 10
 #: noise seeds; continued, it converges, and they cover it.
 CRAWL_MAX_ITER = 400
+#: ... unless its residuals exceed this many times the noise: such a fit is no answer however long
+#: it crawls (identify refuses it unconverged: UNEXPLAINED_MISFIT), and a caught throw's 4-kHz
+#: record took 25 s more to be refused.
+CRAWL_MAX_RMS = 30.0
 
 
 # ------------------------------------------------------------------------------------------
@@ -566,8 +570,9 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
     stage's (the trajectory slipped out of the fit's basin: near a separatrix the sensitivities
     grow exponentially), is retried with a quarter more instead of twice the last horizon; if
     that fails too, the fit keeps the last good horizon (refitted without the prior) and says
-    so in ``n_used`` < M. A final stage stopped by the iteration limit carries on for up to
-    CRAWL_MAX_ITER iterations (``converged`` says whether it then converged).
+    so in ``n_used`` < M. A final stage stopped by the iteration limit within CRAWL_MAX_RMS times
+    the noise carries on for up to CRAWL_MAX_ITER iterations (``converged`` says whether it then
+    converged).
     """
     m_total = prob.meas_idx.size
     n = m_total if first_horizon is None else int(np.clip(first_horizon, 1, m_total))
@@ -604,9 +609,9 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
             n = min(max(good[0] + 1, int(1.25 * good[0])), m_total)
         else:
             break
-    n_used, p, q_ref, ev, cost, converged, had_prior, _ = good
-    if had_prior or not converged:  # refit as pure likelihood the last good stage that carried
-        # the start's prior, and carry on one that stopped at the iteration limit
+    n_used, p, q_ref, ev, cost, converged, had_prior, rms = good
+    if had_prior or (not converged and rms <= CRAWL_MAX_RMS):  # refit as pure likelihood the last
+        # good stage that carried the start's prior, and carry on one that stopped at the limit
         p, q_ref, ev, cost, it, converged = _levenberg_marquardt(
             prob.window(n_used), p, q_ref, max_iter=max_iter if converged else CRAWL_MAX_ITER)
         total_iter += it
