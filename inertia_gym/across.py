@@ -221,19 +221,27 @@ def _spread(x: np.ndarray) -> dict:
 
 def diagnoses_markdown(summary: dict) -> str:
     """summary.md of diagnoses_across's summary."""
-    lines = [f"# Diagnosis across {summary['recordings']} recordings", ""]
-    lines += _refused_lines(summary) + _diagnoses_lines(summary) + _series_note(summary)
+    def cells(row):
+        ratios = row["principal_ratios"]
+        return [row["name"], row["leading"], " + ".join(row["explanation"]) or "-", _num(row["worst_before"]),
+                _num(row["worst_after"]), ", ".join(f"{r:.3f}" for r in ratios[1:]) if ratios else "-"]
+
+    return _markdown("Diagnosis", summary, _diagnoses_lines, "diagnosed",
+                     ("recording", "leading effect", "explanation", "worst rms/noise before", "after",
+                      "I2/I1, I3/I1"), cells)
+
+
+def _markdown(title: str, summary: dict, lines_of, count: str, header, cells) -> str:
+    """summary.md of an across summary: its lines (lines_of), each series' (counted by the key
+    count), and a table of the rows (header, and cells(row) -> the row's cells).
+    """
+    lines = [f"# {title} across {summary['recordings']} recordings", ""]
+    lines += _refused_lines(summary) + lines_of(summary) + _series_note(summary)
     for group in summary["groups"]:
-        lines += ["", f"## Series {group['name']} ({_count(group['diagnosed'])})", ""]
-        lines += _diagnoses_lines(group)
+        lines += ["", f"## Series {group['name']} ({_count(group[count])})", ""] + lines_of(group)
     if summary["rows"]:
-        lines += ["", "| recording | leading effect | explanation | worst rms/noise before | after | "
-                      "I2/I1, I3/I1 |", "|---|---|---|---|---|---|"]
-        for row in summary["rows"]:
-            ratios = row["principal_ratios"]
-            ratio = ", ".join(f"{r:.3f}" for r in ratios[1:]) if ratios else "-"
-            lines.append(f"| {row['name']} | {row['leading']} | {' + '.join(row['explanation']) or '-'} | "
-                         f"{_num(row['worst_before'])} | {_num(row['worst_after'])} | {ratio} |")
+        lines += ["", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(cells(row)) + " |" for row in summary["rows"]]
     return "\n".join(lines) + "\n"
 
 
@@ -256,19 +264,13 @@ def _diagnoses_lines(result: dict) -> list[str]:
 
 def identifications_markdown(summary: dict) -> str:
     """summary.md of identifications_across's summary."""
-    lines = [f"# Inertia across {summary['recordings']} recordings", ""]
-    lines += _refused_lines(summary) + _identifications_lines(summary) + _series_note(summary)
-    for group in summary["groups"]:
-        lines += ["", f"## Series {group['name']} ({_count(group['identified'])})", ""]
-        lines += _identifications_lines(group)
-    if summary["rows"]:
-        lines += ["", "| recording | I2/I1 | I3/I1 | scale identified | rms/noise |", "|---|---|---|---|---|"]
-        for row in summary["rows"]:
-            cells = [f"{r:.4g} [{lo:.4g}, {hi:.4g}]" for r, (lo, hi) in
-                     zip(row["principal_ratios"][1:], row["principal_ratios_ci95"][1:])]
-            lines.append(f"| {row['name']} | {' | '.join(cells)} | {row['scale_identified']} | "
-                         f"{row['rms_over_noise']:.3g} |")
-    return "\n".join(lines) + "\n"
+    def cells(row):
+        ratios = [f"{r:.4g} [{lo:.4g}, {hi:.4g}]" for r, (lo, hi) in
+                  zip(row["principal_ratios"][1:], row["principal_ratios_ci95"][1:])]
+        return [row["name"], *ratios, str(row["scale_identified"]), f"{row['rms_over_noise']:.3g}"]
+
+    return _markdown("Inertia", summary, _identifications_lines, "identified",
+                     ("recording", "I2/I1", "I3/I1", "scale identified", "rms/noise"), cells)
 
 
 def _identifications_lines(result: dict) -> list[str]:
