@@ -22,6 +22,8 @@ def series_name(name: str) -> str:
     """The name a recording shares with the rest of its series: its own without its trailing
     number and the word that counts it ("Empty_LOG00179" -> "Empty_LOG", "EXPORT segment 3" ->
     "EXPORT", "EXPORT flight 2" -> "EXPORT", "REC rows 1-150" -> "REC", "throw 3" -> "throw").
+    A heuristic: "racquet_v2" and "racquet_v3" are one series "racquet_v", and a name ending
+    in a time stamp loses its last part.
     """
     return (re.sub(r"[\s_-]*(segment|flight|rows|piece)?[\s_-]*[\d-]+$", "", name)
             or re.sub(r"[\s_-]*[\d-]+$", "", name) or name)
@@ -151,7 +153,7 @@ def combined(values: list[np.ndarray], covs: list[np.ndarray]) -> dict | None:
     weights alone allow). Recordings with honest intervals then get their weighted mean; with
     errors their intervals leave out, weights that even out, and an interval set by the scatter
     (weighting by understated intervals alone, or widening them all by one factor, covered the
-    truth on only 58-70 % of such cases).
+    truth on only 60-70 % of such cases).
     One recording: its own estimate and interval. Where a variance is not positive and finite:
     the plain mean and the scatter's interval (Student's t over n - 1; none from one recording).
     Keys: estimate, ci95 ((k, 2) or None), source ("intervals": tau = 0 in every component;
@@ -183,6 +185,8 @@ def combined(values: list[np.ndarray], covs: list[np.ndarray]) -> dict | None:
     mean = np.sum(ws * x, 0) / np.sum(ws, 0)
     scatter = np.sum(ws * (x - mean) ** 2, 0) / (n - 1)
     half = stats.t.ppf(0.975, n - 1) * np.sqrt(np.maximum(scatter, 1.0) / np.sum(ws, 0))
+    if not (np.all(np.isfinite(half)) and np.all(np.isfinite(tau2))):  # variances near underflow
+        return combined(values, [np.full((k, k), np.nan)] * n)
     return {**out, "estimate": mean.tolist(), "ci95": _interval(mean, half),
             "source": "random effects" if np.any(tau2 > 0) else "intervals",
             "between_sd": np.sqrt(tau2).tolist()}
@@ -193,13 +197,15 @@ def _one_vector_test(x: np.ndarray, covs) -> dict:
     covariances) and its p over k (n - 1) degrees of freedom; {} where a covariance is singular.
     """
     try:
+        for c in covs:
+            np.linalg.cholesky(np.asarray(c, float))  # positive definite, or no test
         weights = [np.linalg.inv(np.asarray(c, float)) for c in covs]
+        mean = np.linalg.solve(np.sum(weights, 0), np.sum([w @ v for w, v in zip(weights, x)], 0))
     except np.linalg.LinAlgError:
         return {}
-    if not all(np.all(np.isfinite(w)) for w in weights):
-        return {}
-    mean = np.linalg.solve(np.sum(weights, 0), np.sum([w @ v for w, v in zip(weights, x)], 0))
     chi2 = float(sum((v - mean) @ w @ (v - mean) for w, v in zip(weights, x)))
+    if not np.isfinite(chi2):
+        return {}
     dof = x.size - x.shape[1]
     return {"chi2": chi2, "p": float(stats.chi2.sf(chi2, dof)) if dof else 1.0}
 
@@ -235,7 +241,7 @@ def _markdown(title: str, summary: dict, lines_of, count: str, header, cells) ->
     """summary.md of an across summary: its lines (lines_of), each series' (counted by the key
     count), and a table of the rows (header, and cells(row) -> the row's cells).
     """
-    lines = [f"# {title} across {summary['recordings']} recordings", ""]
+    lines = [f"# {title} across {_count(summary['recordings'])}", ""]
     lines += _refused_lines(summary) + lines_of(summary) + _series_note(summary)
     for group in summary["groups"]:
         lines += ["", f"## Series {group['name']} ({_count(group[count])})", ""] + lines_of(group)
@@ -311,15 +317,17 @@ def source_words(result: dict) -> str:
                 "the scatter between the recordings.")
     if result["n"] < 2:
         return "One recording: its own interval."
-    test = ("" if result["chi2"] is None else f" (chi-square {result['chi2']:.3g} on {result['dof']} "
-                                              f"degrees of freedom, p = {result['p']:.2g})")
+    test = ("" if result["chi2"] is None else
+            f" The test of one vector for all, with the covariances' correlations: chi-square "
+            f"{result['chi2']:.3g} on {result['dof']} degrees of freedom, p = {result['p']:.2g}.")
     if result["source"] == "intervals":
-        return (f"The recordings agree within their own intervals{test}: the estimate is their "
-                "weighted mean.")
-    return (f"The recordings scatter more than their own intervals allow{test}: each recording's "
-            "interval understates its error (its model leaves something out, or the body changed "
-            "between recordings) by about " + ", ".join(f"{b:.3g}" for b in result["between_sd"])
-            + " (standard deviation), which the estimate's weights and interval include (random effects).")
+        return ("The recordings scatter no more than their own intervals allow, one component at a "
+                "time (a between-recording spread of zero): the estimate is their weighted mean." + test)
+    return ("The recordings scatter more than their own intervals allow: each recording's interval "
+            "understates its error (its model leaves something out, or the body changed between "
+            "recordings) by about " + ", ".join(f"{b:.3g}" for b in result["between_sd"])
+            + " (standard deviation), which the estimate's weights and interval include (random "
+            "effects)." + test)
 
 
 def _series_note(summary: dict) -> list[str]:
@@ -327,7 +335,8 @@ def _series_note(summary: dict) -> list[str]:
     if not summary["groups"]:
         return []
     return [f"- The recordings fall into {len(summary['groups'])} series (named alike up to their "
-            "number): if these are different bodies, read each series below, not the shape of all."]
+            "number): if these are different bodies, read each series below, not what all of them "
+            "give together."]
 
 
 def _refused_lines(summary: dict) -> list[str]:

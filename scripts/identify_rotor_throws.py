@@ -131,9 +131,11 @@ def body_together(group: dict, truth: dict) -> dict:
     scaled = group["principal_moments"] is not None
     result = group["principal_moments"] if scaled else group["principal_ratios"]
     reference = moments if scaled else moments / moments[0]
-    estimate, ci = np.array(result["estimate"]), np.array(result["ci95"])
+    keep = slice(0, 3) if scaled else slice(1, 3)  # the largest over itself is 1: nothing to score
+    estimate, reference = np.array(result["estimate"])[keep], reference[keep]
+    ci = np.array(result["ci95"] or np.full((3, 2), np.nan))[keep]
     return {"series": group["name"], "throws": len(group["names"]), "source": result["source"],
-            "quantity": "principal moments (kg·m²)" if scaled else "principal ratios",
+            "quantity": "principal moments (kg·m²)" if scaled else "principal ratios I2/I1, I3/I1",
             "estimate": estimate.tolist(), "reference": reference.tolist(),
             "rel_error": ((estimate - reference) / reference).tolist(),
             "rel_half_width": ((ci[:, 1] - ci[:, 0]) / 2 / reference).tolist(),

@@ -47,7 +47,7 @@ def test_agreeing_estimates_give_their_weighted_mean_and_its_interval():
     assert np.allclose(np.array(out["ci95"]), np.stack([mean - half, mean + half], 1))
     assert out["chi2"] == pytest.approx(chi2) and out["p"] == pytest.approx(stats.chi2.sf(chi2, 4))
     assert out["median"] == [1.0, 2.0] and out["min"] == [0.99, 1.995] and out["max"] == [1.02, 2.01]
-    assert "agree within their own intervals" in source_words(out)
+    assert "no more than their own intervals allow" in source_words(out)
 
 
 def test_disagreeing_estimates_get_a_between_recording_error():
@@ -197,3 +197,19 @@ def test_several_series_are_summarized_each():
     text = diagnoses_markdown(out)
     assert "fall into 2 series" in text and "## Series cube_LOG (3 recordings)" in text
     assert diagnoses_across(done[:3], [])["groups"] == []
+
+
+def test_one_recordings_moments_keep_their_own_intervals():
+    """One identify.json alone: the combined moments (descending) are its own, with the 95 %
+    intervals identify gave them (ascending in identify.json): the covariance is turned with them."""
+    a = np.random.default_rng(3).normal(size=(6, 6)) * 1e-4
+    est = InertiaEstimate(np.array([0.45, 0.01, 0.0, 0.30, 0.0, 0.05]), a @ a.T, True)
+    vals, half, _, _ = est.principal()
+    ratios, ratio_cov = est.principal_ratios()
+    summary = {"principal_moments": vals.tolist(), "principal_moments_cov": est.moment_covariance().tolist(),
+               "principal_ratios": ratios.tolist(), "principal_ratios_cov": ratio_cov.tolist(),
+               "principal_ratios_ci95": [[r, r] for r in ratios], "scale_identified": True,
+               "rms_over_noise": 1.0}
+    moments = identifications_across([("throw 1", summary)], [])["principal_moments"]
+    assert moments["estimate"] == pytest.approx(vals[::-1].tolist())
+    assert np.allclose(moments["ci95"], np.stack([vals - half, vals + half], 1)[::-1])

@@ -103,6 +103,11 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     return mapping
 
 
+#: What several recordings say together, beside their sub-folders (a recording of that name
+#: gets a folder with "_" appended).
+SUMMARY_FILES = ("summary.json", "summary.md")
+
+
 def for_each_recording(args: argparse.Namespace, work, summarize=None) -> int:
     """Run work(recording, its output folder) -> its result on every recording (segment) of
     args.rec (read with args.columns, args.time_unit, args.rate_unit); the folder is args.out
@@ -131,7 +136,8 @@ def for_each_recording(args: argparse.Namespace, work, summarize=None) -> int:
         return 0
     done, refused = [], []
     for label, rec in pending:
-        sub = prepare_out_dir(folder / re.sub(r"[^\w.-]+", "_", label))
+        safe = re.sub(r"[^\w.-]+", "_", label)
+        sub = prepare_out_dir(folder / (f"{safe}_" if safe in SUMMARY_FILES else safe))
         try:
             if isinstance(rec, InertiaGymError):  # the file could not be read
                 raise rec
@@ -150,10 +156,11 @@ def for_each_recording(args: argparse.Namespace, work, summarize=None) -> int:
 
 
 def write_summary(folder: Path, summary: dict, text: str) -> None:
-    """Write what several recordings say together: folder/summary.json and summary.md."""
-    write_json(folder / "summary.json", summary)
-    (folder / "summary.md").write_text(text)
-    print(f"across {summary['recordings']} recordings -> {folder / 'summary.md'}")
+    """Write what several recordings say together: folder/SUMMARY_FILES."""
+    json_path, md_path = (folder / name for name in SUMMARY_FILES)
+    write_json(json_path, summary)
+    md_path.write_text(text)
+    print(f"across {summary['recordings']} recordings -> {md_path}")
 
 
 def _read_each(sources, units):

@@ -53,10 +53,10 @@ SLIP_FACTOR = 1.5
 #: A horizon stage whose start misses the new data by this factor over the last good rms is
 #: abandoned before iterating.
 GIVE_UP_FACTOR = 10.0
-#: Iterations the final fit may take when a stage ends at its iteration limit still gaining: a
-#: crawl along a curved, ill-conditioned valley (a 1-s flip or a spin near the major axis, where
+#: Iterations more that the last good stage may take where it stopped at its iteration limit:
+#: a crawl along a curved, ill-conditioned valley (a 1-s flip or a spin near the major axis, where
 #: the nutation's frequency and shape fix nearly the same combination of the moments) stopped at
-#: 40 iterations 3-4 % off in the moments' ratios, its intervals missing the truth on 10 of 10
+#: 40 iterations 2-3 % off in the moments' ratios, its intervals missing the truth on 10 of 10
 #: noise seeds; continued, it converges, and they cover it.
 CRAWL_MAX_ITER = 400
 #: ... unless its residuals exceed this many times the noise: such a fit is no answer however long
@@ -570,9 +570,9 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
     stage's (the trajectory slipped out of the fit's basin: near a separatrix the sensitivities
     grow exponentially), is retried with a quarter more instead of twice the last horizon; if
     that fails too, the fit keeps the last good horizon (refitted without the prior) and says
-    so in ``n_used`` < M. A final stage stopped by the iteration limit within CRAWL_MAX_RMS times
-    the noise carries on for up to CRAWL_MAX_ITER iterations (``converged`` says whether it then
-    converged).
+    so in ``n_used`` < M. The last good stage, where it stopped at the iteration limit within
+    CRAWL_MAX_RMS times the noise, carries on for up to CRAWL_MAX_ITER more iterations
+    (``converged`` says whether it then converged).
     """
     m_total = prob.meas_idx.size
     n = m_total if first_horizon is None else int(np.clip(first_horizon, 1, m_total))
@@ -580,7 +580,7 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
     q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_start is None else np.asarray(q_start, dtype=float)
     prior_mean = p.copy()
     total_iter, stages = 0, 0
-    good = None  # (n, p, q_ref, evaluation, cost, converged, had_prior)
+    good = None  # (n, p, q_ref, evaluation, cost, converged, had_prior, rms)
     retried = False
     while True:
         last = n == m_total
@@ -610,10 +610,10 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
         else:
             break
     n_used, p, q_ref, ev, cost, converged, had_prior, rms = good
-    if had_prior or (not converged and rms <= CRAWL_MAX_RMS):  # refit as pure likelihood the last
-        # good stage that carried the start's prior, and carry on one that stopped at the limit
+    crawl = not converged and rms <= CRAWL_MAX_RMS  # stopped at the limit, and worth carrying on
+    if had_prior or crawl:  # refit as pure likelihood the last good stage that carried the prior
         p, q_ref, ev, cost, it, converged = _levenberg_marquardt(
-            prob.window(n_used), p, q_ref, max_iter=max_iter if converged else CRAWL_MAX_ITER)
+            prob.window(n_used), p, q_ref, max_iter=CRAWL_MAX_ITER if crawl else max_iter)
         total_iter += it
     return MLFit(p, q_ref if prob.with_att else None, ev, cost, total_iter, stages, converged,
                  n_used)

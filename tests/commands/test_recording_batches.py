@@ -62,6 +62,7 @@ def test_a_folder_of_recording_files_with_an_unreadable_one(tmp_path, capsys, co
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert (out / "LOG01" / result).is_file()
+    assert json.loads((out / "summary.json").read_text())["refused"][0]["name"] == "notes"
     assert "notes.csv" in (out / "notes" / "refused.txt").read_text()
     assert len(err) == 2 and err[0].startswith("notes: refused: ")
     assert "1 of 2 recordings refused" in err[1]
@@ -95,3 +96,17 @@ def test_the_free_flights_of_a_phone_export_are_diagnosed_and_identified_each(tm
     assert shape["n"] == 3 and shape["source"] != "scatter"  # every flight's intervals usable
     assert all(lo <= r <= hi for r, (lo, hi) in zip(truth, shape["ci95"]))
     assert all(hi - lo < 0.05 for lo, hi in shape["ci95"])
+
+
+def test_a_recording_named_like_the_summary_gets_its_own_folder(tmp_path):
+    """A recording file "summary.md.csv" (named "summary.md") would have its folder where the
+    summary of all is written: its folder gets "_" appended."""
+    rec, side = simulate_recording(Scenario(), 2.0, seed=3, torque=False, sample_dt=0.01)
+    folder = tmp_path / "throws"
+    folder.mkdir()
+    for name in ("summary.md", "LOG01"):
+        write_recording(folder / f"{name}.csv", dataclasses.replace(rec, q=None), side)
+    out = tmp_path / "out"
+    assert main(["identify", str(folder), "--out", str(out), "--no-plots"]) == 0
+    assert (out / "summary.md_" / "identify.json").is_file() and (out / "summary.md").is_file()
+    assert json.loads((out / "summary.json").read_text())["identified"] == 2
