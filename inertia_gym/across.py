@@ -153,7 +153,7 @@ def combined(values: list[np.ndarray], covs: list[np.ndarray]) -> dict | None:
     weights alone allow). Recordings with honest intervals then get their weighted mean; with
     errors their intervals leave out, weights that even out, and an interval set by the scatter
     (weighting by understated intervals alone, or widening them all by one factor, covered the
-    truth on only 60-70 % of such cases).
+    truth on only 58-70 % of such cases, simulated).
     One recording: its own estimate and interval. Where a variance is not positive and finite:
     the plain mean and the scatter's interval (Student's t over n - 1; none from one recording).
     Keys: estimate, ci95 ((k, 2) or None), source ("intervals": tau = 0 in every component;
