@@ -39,15 +39,27 @@ def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]
     (series_name: a folder of several bodies' throws, say), [{name, names, the keys of
     _diagnoses}] per series, else [].
     """
-    rows = [{"name": name, "series": series_name(name),
-             "leading": r["explanation"][0]["name"] if r["explanation"] else "none",
+    rows = [{"name": name, "series": series_name(name), "leading": _lead(r),
              "explanation": [e["name"] for e in r["explanation"]], "valid": bool(r["fit_after"]["valid"]),
              "worst_before": _worst(r["fit_before"]), "worst_after": _worst(r["fit_after"]),
              "principal_ratios": r["fit_after"]["principal_ratios"],
              "beyond_catalogue": bool(r["beyond_catalogue"])} for name, r in done]
+    return _across(done, refused, rows, _diagnoses)
+
+
+def _across(done: list[tuple[str, dict]], refused: list[tuple[str, str]], rows: list[dict],
+            aggregate) -> dict:
+    """The summary of done [(name, result)] and refused [(name, reason)]: recordings, refused
+    [{name, reason}], the keys of aggregate(done), groups (_groups) and rows.
+    """
     return {"recordings": len(done) + len(refused),
             "refused": [{"name": name, "reason": reason} for name, reason in refused],
-            **_diagnoses(done), "groups": _groups(done, _diagnoses), "rows": rows}
+            **aggregate(done), "groups": _groups(done, aggregate), "rows": rows}
+
+
+def _lead(report: dict) -> str:
+    """The first effect of a report's explanation ("none" where none is selected)."""
+    return report["explanation"][0]["name"] if report["explanation"] else "none"
 
 
 def _diagnoses(done: list[tuple[str, dict]]) -> dict:
@@ -63,7 +75,7 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     ratios = shape_combined([f["principal_ratios"] for f in fits],
                             [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
                              for f in fits])
-    leads = collections.Counter(r["explanation"][0]["name"] if r["explanation"] else "none" for r in reports)
+    leads = collections.Counter(_lead(r) for r in reports)
     top = leads.most_common(1)[0] if reports else ("none", 0)
     before = [w for r in reports if (w := _worst(r["fit_before"])) is not None]
     after = [w for r in reports if (w := _worst(r["fit_after"])) is not None]
@@ -94,9 +106,7 @@ def identifications_across(done: list[tuple[str, dict]], refused: list[tuple[str
              "principal_moments": sorted(s["principal_moments"], reverse=True),
              "scale_identified": bool(s["scale_identified"]), "rms_over_noise": s["rms_over_noise"]}
             for name, s in done]
-    return {"recordings": len(done) + len(refused),
-            "refused": [{"name": name, "reason": reason} for name, reason in refused],
-            **_identifications(done), "groups": _groups(done, _identifications), "rows": rows}
+    return _across(done, refused, rows, _identifications)
 
 
 def _identifications(done: list[tuple[str, dict]]) -> dict:

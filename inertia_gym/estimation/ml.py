@@ -611,7 +611,7 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
             break
     n_used, p, q_ref, ev, cost, converged, had_prior, rms = good
     crawl = not converged and rms <= CRAWL_MAX_RMS  # stopped at the limit, and worth carrying on
-    if had_prior or crawl:  # refit as pure likelihood the last good stage that carried the prior
+    if had_prior or crawl:  # refit without the start's prior (pure likelihood), or carry on
         p, q_ref, ev, cost, it, converged = _levenberg_marquardt(
             prob.window(n_used), p, q_ref, max_iter=CRAWL_MAX_ITER if crawl else max_iter)
         total_iter += it
