@@ -6,15 +6,26 @@ a pool or a Ray worker runs with one numba, torch and BLAS thread (a worker per 
 parallelism; more threads only oversubscribe the cores); with one worker or one task the
 tasks run here, under the caller's own thread settings. :func:`kernels_own_the_cores` keeps
 BLAS off the cores while numba's parallel kernels run in this process.
+
+:func:`fan_out` is for the independent pieces of one job (diagnose's candidate fits): this
+process takes them one after the other and a helper process per other core takes them too,
+results in task order, the same as run here. The helpers start on first use and live as long
+as this process; a task goes to one only once it has started. Never inside a pool worker or a
+helper (those already fill the cores), and never with HELPERS_VARIABLE=0.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import functools
+import importlib
 import multiprocessing
 import os
 import sys
+import threading
+import time
+import types
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -23,6 +34,9 @@ from threadpoolctl import threadpool_limits
 from inertia_gym.errors import ConfigError
 
 BACKENDS = ("local", "ray")
+#: environment variable: "0" runs fan_out's tasks in the calling process only (also set in every
+#: worker and helper, so that they never start helpers of their own)
+HELPERS_VARIABLE = "INERTIA_GYM_HELPERS"
 
 
 def single_threaded_worker() -> None:
@@ -30,6 +44,7 @@ def single_threaded_worker() -> None:
     import numba
     import torch
 
+    os.environ[HELPERS_VARIABLE] = "0"
     numba.set_num_threads(1)
     torch.set_num_threads(1)
     threadpool_limits(1)
@@ -110,6 +125,162 @@ def _map_local(fn, tasks, workers):
         pool.shutdown(wait=False, cancel_futures=True)
 
 
+def _helper_started() -> None:
+    """A helper's initializer: one numba and BLAS thread (torch is not needed: not imported),
+    no helpers of its own.
+    """
+    import numba
+
+    os.environ[HELPERS_VARIABLE] = "0"
+    numba.set_num_threads(1)
+    threadpool_limits(1)
+
+
+def _imported(module: str) -> None:
+    """Import `module` here (a helper's first task: the modules its tasks need, loaded before it
+    counts as started).
+    """
+    importlib.import_module(module)
+
+
+@contextlib.contextmanager
+def _main_module_hidden():
+    """A spawned child re-runs the parent's main script (as __mp_main__) unless it is a
+    package's __main__; a user's script that calls diagnose at its top level would then run
+    again in every helper. Helpers need only the package: the main module is hidden while they
+    start.
+    """
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
+class _Helpers:
+    """The process's helper pool (spawned: torch and numba keep threads that a forked child
+    must not inherit), created on first use; `ready` once its processes have started. A pool
+    that breaks (a helper killed) is not used again: the tasks run here.
+    """
+
+    pool: cf.ProcessPoolExecutor | None = None
+    started: list = []
+    count = 0
+    broken = False
+
+    @classmethod
+    def ready(cls, module: str) -> int:
+        """Helpers that can take a task now (0 while they start and import `module`, or where
+        there are none).
+        """
+        if cls.broken or os.environ.get(HELPERS_VARIABLE) == "0" or default_workers() < 2:
+            return 0
+        if cls.pool is None:
+            cls.count = default_workers() - 1
+            cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
+                                              mp_context=multiprocessing.get_context("spawn"),
+                                              initializer=_helper_started)
+            with _main_module_hidden():  # the pool starts its processes as tasks arrive
+                cls.started = [cls.pool.submit(_imported, module) for _ in range(cls.count)]
+        if not all(f.done() for f in cls.started):
+            return 0
+        if any(f.exception() is not None for f in cls.started):
+            cls.broken = True
+            return 0
+        return cls.count
+
+
+def wait_for_helpers(module: str, timeout: float = 120.0) -> int:
+    """Start the helpers (where fan_out would use them) and wait until they have imported
+    `module`: the helpers that then take tasks (0 where there are none, or after `timeout` s).
+    fan_out never waits for them; a benchmark or a test that wants them running does.
+    """
+    deadline = time.monotonic() + timeout
+    while not (count := _Helpers.ready(module)) and time.monotonic() < deadline:
+        if _Helpers.broken or _Helpers.pool is None:
+            return 0
+        time.sleep(0.05)
+    return count
+
+
+def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
+    """[fn(task) for task in tasks], with the helpers (one per other core) taking tasks beside
+    this process once they have started. fn and the tasks must be picklable and fn(task) must
+    depend on the task alone (so that where it runs changes nothing). While helpers run, this
+    process's numba kernels keep to one thread. An exception in a task is raised here, after
+    the tasks already sent have finished; a task whose helper failed (not the task) runs here.
+    """
+    tasks = list(tasks)
+    helpers = _Helpers.ready(getattr(fn, "func", fn).__module__) if len(tasks) > 1 else 0
+    if not helpers:
+        return [fn(task) for task in tasks]
+    import numba
+
+    results: list = [None] * len(tasks)
+    errors: list = []
+    lock = threading.Lock()
+    order = list(range(len(tasks)))[::-1]  # popped from the end: first task first
+
+    def take() -> int | None:
+        with lock:
+            return order.pop() if order and not errors else None
+
+    def feed() -> None:  # keeps every helper busy while tasks are left
+        running: set = set()
+        while True:
+            while not _Helpers.broken and len(running) < helpers and (i := take()) is not None:
+                try:
+                    future = _Helpers.pool.submit(fn, tasks[i])
+                except (cf.BrokenExecutor, RuntimeError):
+                    _Helpers.broken = True
+                    with lock:
+                        order.append(i)
+                    break
+                future.index = i
+                running.add(future)
+            if not running:
+                return
+            done, running = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                error = future.exception()
+                if isinstance(error, cf.BrokenExecutor):
+                    _Helpers.broken = True
+                    with lock:
+                        order.append(future.index)  # run here instead
+                elif error is not None:
+                    with lock:
+                        errors.append(error)
+                else:
+                    results[future.index] = future.result()
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    feeder.start()
+    try:
+        while True:
+            i = take()
+            if i is None:
+                feeder.join(0.01)
+                if feeder.is_alive() and not errors:
+                    continue  # a broken helper may hand its task back
+                with lock:
+                    if not order or errors:
+                        break
+                continue
+            results[i] = fn(tasks[i])
+    except BaseException as error:
+        with lock:
+            errors.insert(0, error)
+    finally:
+        feeder.join()
+        numba.set_num_threads(threads)
+    if errors:
+        raise errors[0]
+    return results
+
+
 # Ray's switch for single-machine clusters (read when ray is first imported): a cluster started
 # here keeps its traffic on the loopback interface instead of the machine's network address.
 _RAY_SINGLE_MACHINE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
@@ -148,4 +319,5 @@ def _map_ray(fn, tasks, workers, address):
             ray.shutdown()
 
 
-__all__ = ["BACKENDS", "default_workers", "kernels_own_the_cores", "map_unordered", "single_threaded_worker"]
+__all__ = ["BACKENDS", "HELPERS_VARIABLE", "default_workers", "fan_out", "kernels_own_the_cores",
+           "map_unordered", "single_threaded_worker", "wait_for_helpers"]

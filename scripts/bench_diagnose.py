@@ -7,11 +7,13 @@ over every parameter, the segments' rates included) against the package's own so
 (fit.fit_nominal: Levenberg-Marquardt on the arrow-shaped Jacobian, columns batched) on the
 same objective from the same start. A second peer: the same diagnosis with BLAS free to use
 its threads (diagnose without executors.kernels_own_the_cores), whose idle workers spin on the
-cores numba's kernels need.
+cores numba's kernels need. A third: the same diagnosis without helper processes
+(INERTIA_GYM_HELPERS=0: every candidate fit in this process; executors.fan_out), its report
+checked identical.
 
 Where the real racquet tosses are at hand (--racquet, default ../shared/data/phyphox-racquet),
-each kept free-flight window (about 1 s at 100 Hz) is diagnosed once too: median and max wall,
-within the limit only if every toss is.
+each kept free-flight window (about 1 s at 100 Hz) is diagnosed with and without helpers, in
+turn: median and max wall of each, within the limit only if every toss is.
 
 Usage: PYTHONPATH=. python scripts/bench_diagnose.py [--repeat 3] [--json OUT.json] [--racquet DIR]
 Limits asked by the issue on this 2-core machine: 600-s 10-Hz <= 10 s, 1-s toss <= 5 s.
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 
@@ -32,6 +35,7 @@ from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
+from inertia_gym.executors import HELPERS_VARIABLE, wait_for_helpers
 from inertia_gym.scenario import Scenario
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
@@ -70,6 +74,15 @@ def timed(fn, repeat: int) -> tuple[float, object]:
     return float(np.median(walls)), out
 
 
+def without_helpers(fn):
+    """fn() run with every candidate fit in this process (no helper processes)."""
+    os.environ[HELPERS_VARIABLE] = "0"
+    try:
+        return fn()
+    finally:
+        del os.environ[HELPERS_VARIABLE]
+
+
 def peer_nominal(d: F.Data) -> tuple[float, float]:
     """Wall time (s) and cost of scipy's least_squares on the nominal fit's objective, started
     where fit_nominal starts (its first inertia start)."""
@@ -95,10 +108,14 @@ def main() -> None:
     ap.add_argument("--racquet", default=str(racquet),
                     help="the real racquet tosses, timed one diagnosis each where the folder exists")
     args = ap.parse_args()
-    out = {}
+    os.environ.pop(HELPERS_VARIABLE, None)
+    helpers = wait_for_helpers(F.__name__)
+    out = {"helpers": helpers}
+    print(json.dumps(out), flush=True)
     for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", toss(), 5.0)):
         wall, (report, _) = timed(lambda r=rec: diagnose(r), args.repeat)
         threaded, (threaded_report, _) = timed(lambda r=rec: diagnose.__wrapped__(r), args.repeat)
+        alone, (alone_report, _) = without_helpers(lambda r=rec: timed(lambda: diagnose(r), args.repeat))
         d = F.prepare(rec)
         own, nominal = timed(lambda d=d: F.fit_nominal(d), args.repeat)
         peer, peer_cost = peer_nominal(d)
@@ -108,20 +125,29 @@ def main() -> None:
                      "diagnose_blas_threads_s": threaded, "blas_threads_slowdown": threaded / wall,
                      "same_explanation": [e["name"] for e in threaded_report["explanation"]]
                      == [e["name"] for e in report["explanation"]],
+                     "diagnose_without_helpers_s": alone, "helpers_speedup": alone / wall,
+                     "same_report_without_helpers": json.dumps(alone_report, sort_keys=True, default=str)
+                     == json.dumps(report, sort_keys=True, default=str),
                      "nominal_fit_s": own, "peer_least_squares_s": peer, "speedup": peer / own,
                      "nominal_cost": own_cost, "peer_cost": peer_cost}
         print(json.dumps({name: out[name]}), flush=True)
     tosses = sorted(Path(args.racquet).glob("round*/*/Raw Data.csv"))
-    if tosses:  # real 1-s tosses (kept free-flight windows): one diagnosis each, compiled above
-        walls = []
+    if tosses:  # real 1-s tosses (kept free-flight windows): each diagnosed with and without helpers
+        walls, alone = [], []
         for raw in tosses:
             for rec in read_recordings(raw.parent):
                 t0 = time.perf_counter()
                 diagnose(rec)
                 walls.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                without_helpers(lambda r=rec: diagnose(r))
+                alone.append(time.perf_counter() - t0)
         out["racquet_tosses"] = {"tosses": len(walls), "median_s": float(np.median(walls)),
                                  "max_s": float(np.max(walls)), "limit_s": 5.0,
-                                 "within_limit": float(np.max(walls)) <= 5.0}  # every toss
+                                 "within_limit": float(np.max(walls)) <= 5.0,  # every toss
+                                 "without_helpers_median_s": float(np.median(alone)),
+                                 "without_helpers_max_s": float(np.max(alone)),
+                                 "helpers_speedup": float(np.sum(alone) / np.sum(walls))}
         print(json.dumps({"racquet_tosses": out["racquet_tosses"]}), flush=True)
     else:
         print(f"no racquet recordings under {args.racquet}: real tosses not timed")

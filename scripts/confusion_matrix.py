@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from inertia_gym.discrepancy.effects import EFFECTS, REGISTRY
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.executors import HELPERS_VARIABLE
 from inertia_gym.scenario import Scenario
 
 #: Pairs of effects from different families, each of a kind a real recording can hold together.
@@ -157,6 +158,7 @@ def main() -> None:
                  args.pair_seeds)
     t0 = time.perf_counter()
     rows = []
+    os.environ[HELPERS_VARIABLE] = "0"  # the workers fill the cores: no helpers of their own
     with ProcessPoolExecutor(args.workers) as pool:
         futures = [pool.submit(run_case, c, args.duration, args.tau_max) for c in todo]
         for future in futures:

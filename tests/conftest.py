@@ -1,3 +1,4 @@
+import os
 from pathlib import Path
 
 import numpy as np
@@ -5,6 +6,10 @@ import pytest
 
 from inertia_gym.discrepancy.recordings import PHYPHOX_COLUMNS, Recording, read_recordings
 from inertia_gym.scenario import Scenario
+
+# the suite's xdist workers already fill the cores: diagnose's fits run without helper processes
+# (tests/test_executors.py switches them on where it tests them)
+os.environ.setdefault("INERTIA_GYM_HELPERS", "0")
 
 #: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
 RACQUET = next((p / "shared/data/phyphox-racquet" for p in Path(__file__).resolve().parents

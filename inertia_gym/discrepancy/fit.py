@@ -50,6 +50,7 @@ from inertia_gym.estimation.inertia_param import (
     realizable_phi,
 )
 from inertia_gym.estimation.longrun import correlation_lags
+from inertia_gym.executors import fan_out
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -1146,6 +1147,36 @@ def _rows_and_base(d: Data, base: "Fit") -> tuple:
     return d.seg.tobytes(), base.layout, base.x.tobytes()
 
 
+#: d.cache entries keyed by everything they depend on (fits and starts): what a helper may be
+#: given and bring back (the others hold arrays tied to d's own objects, or a closure)
+SHARED_CACHE = ("fit", "starts")
+
+
+def _in_turn(task) -> tuple:
+    """fan_out's task: (fn(d=d, **kwargs), the shared cache entries it found), run on a copy of
+    d's cache (the d sent to the helpers is never changed while they are sent it).
+    """
+    fn, shipped, kwargs = task
+    d = dataclasses.replace(shipped, cache=dict(shipped.cache))
+    out = fn(d=d, **kwargs)
+    return out, {k: v for k, v in d.cache.items() if k not in shipped.cache and k[0] in SHARED_CACHE}
+
+
+def fanned(fn, d: Data, calls: list[dict]) -> list:
+    """[fn(d=d, **kwargs) for kwargs in calls], the calls shared with the helper processes
+    (executors.fan_out); what they cached is added to d.cache. Each call runs on a copy of d
+    with the shared part of its cache, here or in a helper: the results are the same either
+    way.
+    """
+    shipped = dataclasses.replace(d, cache={k: v for k, v in d.cache.items() if k[0] in SHARED_CACHE})
+    results = []
+    for out, found in fan_out(_in_turn, [(fn, shipped, kwargs) for kwargs in calls]):
+        for key, value in found.items():
+            d.cache.setdefault(key, value)
+        results.append(out)
+    return results
+
+
 def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, extra_starts=(),
               omega_max: float | None = None) -> Fit:
     """Fit the effects `names` (in `forms`) jointly with the inertia and the segments' rates,
@@ -1285,7 +1316,7 @@ def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
     catalogue (BICs within TIE_BIC), the report names both.
     """
     names, skipped = candidates(d)
-    return ranked([fit_effect(name, d, nominal) for name in names]), skipped
+    return ranked(fanned(fit_effect, d, [{"name": name, "nominal": nominal} for name in names])), skipped
 
 
 def ranked(fits: list[Fit]) -> list[Fit]:
@@ -1352,7 +1383,8 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
     if not first.chain or all(f == simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         return first
-    plain = ranked([_alone(f, simplest[f.name], d, nominal) for f in singles])
+    plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
+                                      for f in singles]))
     best = first
     for other in (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1)):
         if other.chain and _claims_cost(other.fit) < _claims_cost(best.fit) - TIE_BIC:
@@ -1381,6 +1413,35 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
 def _claims_cost(fit: Fit) -> float:
     """A compound fit's BIC plus the significance margin per effect it names."""
     return fit.bic + SIGNIFICANT_DELTA_BIC * len(fit.names)
+
+
+def _screened(single: Fit, current: Fit, structured: bool, d: Data) -> Fit:
+    """The effect of `single` (its single-effect fit) screened on top of the fit `current`
+    (_search's screen): in the form of its single-effect fit, from that fit's parameters or
+    from where it changes nothing, whichever fits better, and, for an effect that
+    restarts_on_base where the residual left is `structured` (not white), from each of its own
+    starts on top of current; the best screen.
+    """
+    name, form = single.name, single.forms[0]
+    layout = Layout.of((*current.names, name), (*current.forms, form), d,
+                       max(current.layout.omega_max, single.layout.omega_max))
+    probe = Probe(layout, d, current)
+    model = REGISTRY[name]
+    starts = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
+                           probe.x(model.neutral(form, d, current))])
+    if model.restarts_on_base and structured:  # its own starts, on top of the current fit
+        starts += probe.own_starts()
+    screened = [fit_model(layout.names, layout.forms, d, current, joint=False, start=start,
+                          omega_max=layout.omega_max) for start in starts]
+    return min(screened, key=lambda f: f.bic if np.isfinite(f.bic) else np.inf)
+
+
+def _without(fit: Fit, drop: int, singles: dict, d: Data) -> list[Fit]:
+    """The chain of the compound fit's effects without its drop-th, each added to the previous
+    (singles: the single-effect fits, each in its form in fit).
+    """
+    keep = [i for i in range(len(fit.names)) if i != drop]
+    return _chain(tuple(fit.names[i] for i in keep), tuple(fit.forms[i] for i in keep), d, singles)
 
 
 def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: int = 0) -> Explanation:
@@ -1412,25 +1473,8 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     pool = [f.name for f in singles if np.isfinite(f.bic)]
     while len(current.names) < max_effects:
         structured = effective_share(d, current) < 1.0  # the residual left is not white
-        # each candidate screened in the form of its single-effect fit, from that fit's
-        # parameters or from where it changes nothing, whichever fits better
-        trials = []
-        for n in pool:
-            if n in current.names:
-                continue
-            single = by_name[n]
-            form = single.forms[0]
-            layout = Layout.of((*current.names, n), (*current.forms, form), d,
-                               max(current.layout.omega_max, single.layout.omega_max))
-            probe = Probe(layout, d, current)
-            model = REGISTRY[n]
-            starts = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
-                                   probe.x(model.neutral(form, d, current))])
-            if model.restarts_on_base and structured:  # its own starts, on top of the current fit
-                starts += probe.own_starts()
-            screened = [fit_model(layout.names, layout.forms, d, current, joint=False, start=start,
-                                  omega_max=layout.omega_max) for start in starts]
-            trials.append(min(screened, key=lambda f: f.bic if np.isfinite(f.bic) else np.inf))
+        trials = fanned(_screened, d, [{"single": by_name[n], "current": current, "structured": structured}
+                                       for n in pool if n not in current.names])
         trials = [t for t in trials if np.isfinite(t.bic)]
         if not trials:
             break
@@ -1440,8 +1484,8 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
         leading = sorted(trials, key=lambda t: t.bic)
         leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:]
                                               if structured and REGISTRY[t.names[-1]].restarts_on_base]
-        refits = [fit_model(t.names, t.forms, d, current, start=t.x, omega_max=t.layout.omega_max)
-                  for t in leading]
+        refits = fanned(fit_model, d, [{"names": t.names, "forms": t.forms, "base": current, "start": t.x,
+                                        "omega_max": t.layout.omega_max} for t in leading])
         best = min(refits, key=lambda f: f.bic)
         if not current.bic - best.bic > SIGNIFICANT_DELTA_BIC:
             break
@@ -1450,11 +1494,15 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     changed = len(current.names) > 1
     while changed and len(current.names) > 1:
         changed = False
-        for i, name in enumerate(current.names):
-            rest = tuple(n for n in current.names if n != name)
-            rest_forms = tuple(f for j, f in enumerate(current.forms) if j != i)
-            by_name = {**by_name, rest[0]: _alone(by_name[rest[0]], rest_forms[0], d, nominal)}
-            rest_chain = _chain(rest, rest_forms, d, by_name)
+        # the explanation without each of its effects (independent fits: in parallel), the
+        # first one whose removal costs less than the margin dropped
+        for i in range(len(current.names)):
+            rest = current.names[:i] + current.names[i + 1:]
+            first_form = current.forms[current.names.index(rest[0])]
+            by_name[rest[0]] = _alone(by_name[rest[0]], first_form, d, nominal)
+        without = fanned(_without, d, [{"fit": current, "drop": i, "singles": by_name}
+                                       for i in range(len(current.names))])
+        for name, rest_chain in zip(current.names, without):
             if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
                 dropped[name] = (f"removing it from the explanation costs only "
                                  f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
