@@ -133,21 +133,24 @@ def main() -> None:
         print(json.dumps({name: out[name]}), flush=True)
     tosses = sorted(Path(args.racquet).glob("round*/*/Raw Data.csv"))
     if tosses:  # real 1-s tosses (kept free-flight windows): each diagnosed with and without helpers
-        walls, alone = [], []
+        walls, alone, same = [], [], 0
         for raw in tosses:
             for rec in read_recordings(raw.parent):
                 t0 = time.perf_counter()
-                diagnose(rec)
+                report, _ = diagnose(rec)
                 walls.append(time.perf_counter() - t0)
                 t0 = time.perf_counter()
-                without_helpers(lambda r=rec: diagnose(r))
+                alone_report, _ = without_helpers(lambda r=rec: diagnose(r))
                 alone.append(time.perf_counter() - t0)
+                same += json.dumps(report, sort_keys=True, default=str) == json.dumps(
+                    alone_report, sort_keys=True, default=str)
         out["racquet_tosses"] = {"tosses": len(walls), "median_s": float(np.median(walls)),
                                  "max_s": float(np.max(walls)), "limit_s": 5.0,
                                  "within_limit": float(np.max(walls)) <= 5.0,  # every toss
                                  "without_helpers_median_s": float(np.median(alone)),
                                  "without_helpers_max_s": float(np.max(alone)),
-                                 "helpers_speedup": float(np.sum(alone) / np.sum(walls))}
+                                 "helpers_speedup": float(np.sum(alone) / np.sum(walls)),
+                                 "same_report_without_helpers": same}
         print(json.dumps({"racquet_tosses": out["racquet_tosses"]}), flush=True)
     else:
         print(f"no racquet recordings under {args.racquet}: real tosses not timed")
