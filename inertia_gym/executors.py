@@ -8,10 +8,11 @@ tasks run here, under the caller's own thread settings. :func:`kernels_own_the_c
 BLAS off the cores while numba's parallel kernels run in this process.
 
 :func:`fan_out` is for the independent pieces of one job (diagnose's candidate fits): this
-process takes them one after the other and a helper process per other core takes them too,
-results in task order, the same as run here. The helpers start on first use and live as long
-as this process; a task goes to one only once it has started. Never inside a pool worker or a
-helper (those already fill the cores), and never with HELPERS_VARIABLE=0.
+process takes them one after the other and helper processes take them too, results in task
+order, the same as run here. The helpers (one per other core, at most MAX_HELPERS) start on
+first use and live as long as this process; a task goes to one only once it has started.
+Never inside a pool worker or a helper (those already fill the cores), and never with
+HELPERS_VARIABLE=0.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ BACKENDS = ("local", "ray")
 #: environment variable: "0" runs fan_out's tasks in the calling process only (also set in every
 #: worker and helper, so that they never start helpers of their own)
 HELPERS_VARIABLE = "INERTIA_GYM_HELPERS"
+#: at most this many helpers: a fan-out holds a handful of tasks (diagnose's: 3 to 14), and each
+#: helper holds its own copy of the package in memory
+MAX_HELPERS = 3
 
 
 def single_threaded_worker() -> None:
@@ -177,7 +181,7 @@ class _Helpers:
         if cls.broken or os.environ.get(HELPERS_VARIABLE) == "0" or default_workers() < 2:
             return 0
         if cls.pool is None:
-            cls.count = default_workers() - 1
+            cls.count = min(default_workers() - 1, MAX_HELPERS)
             cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
                                               mp_context=multiprocessing.get_context("spawn"),
                                               initializer=_helper_started)
@@ -205,10 +209,10 @@ def wait_for_helpers(module: str, timeout: float = 120.0) -> int:
 
 
 def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
-    """[fn(task) for task in tasks], with the helpers (one per other core) taking tasks beside
-    this process once they have started. fn and the tasks must be picklable and fn(task) must
-    depend on the task alone (so that where it runs changes nothing). While helpers run, this
-    process's numba kernels keep to one thread. An exception in a task is raised here, after
+    """[fn(task) for task in tasks], with the helpers (one per other core, at most MAX_HELPERS)
+    taking tasks beside this process once they have started. fn and the tasks must be picklable
+    and fn(task) must depend on the task alone (so that where it runs changes nothing). While
+    helpers run, this process's numba kernels keep to one thread. An exception in a task is raised here, after
     the tasks already sent have finished; a task whose helper failed (not the task) runs here.
     """
     tasks = list(tasks)

@@ -840,21 +840,27 @@ def fit_nominal(d: Data) -> Fit:
     starts = [np.concatenate([phi, initial_rates(d)]) for phi in _inertia_starts(d)]
     if d.inertia0 is not None:
         x = starts[0]
-    elif d.segments < SHORT_SEGMENTS:
-        runs = [solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, FULL_ITER)[0]
-                for x0 in [_best_start_on_short_segments(starts, layout, d, lb, ub), *starts]]
-        chosen, *direct = [finish(layout, x, d) for x in runs]
+    elif d.segments < SHORT_SEGMENTS:  # the runs are independent: side by side (fanned)
+        runs = fanned(_rigid_run, d, [{"layout": layout, "starts": starts}]
+                      + [{"layout": layout, "x0": x0} for x0 in starts])
+        chosen, *direct = [finish(layout, x, d) for x, _ in runs]
         best = min(direct, key=lambda f: f.bic)
         return best if best.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
     else:
-        best = None
-        for x0 in starts:
-            x, cost = solve(x0, free, layout, d, lb, ub, START_ITER)
-            if best is None or cost < best[1]:
-                best = (x, cost)
-        x = best[0]
+        tried = fanned(_rigid_run, d, [{"layout": layout, "x0": x0, "max_iter": START_ITER} for x0 in starts])
+        x = min(tried, key=lambda f: f[1])[0]  # the first of least cost
     x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
     return finish(layout, x, d)
+
+
+def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER):
+    """(x, cost) of the rigid model solved for max_iter iterations from x0, or from the start
+    that _best_start_on_short_segments chooses among `starts`.
+    """
+    lb, ub = _bounds(layout, d)
+    if x0 is None:
+        x0 = _best_start_on_short_segments(starts, layout, d, lb, ub)
+    return solve(np.clip(x0, lb, ub), _free(layout, d), layout, d, lb, ub, max_iter)
 
 
 def hemisphere(count: int) -> np.ndarray:
