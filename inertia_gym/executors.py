@@ -35,6 +35,7 @@ from threadpoolctl import threadpool_limits
 from inertia_gym.errors import ConfigError
 
 BACKENDS = ("local", "ray")
+_HOME = os.getpid()  # the process that imported this module
 #: environment variable: "0" runs fan_out's tasks in the calling process only (also set in every
 #: worker and helper, so that they never start helpers of their own)
 HELPERS_VARIABLE = "INERTIA_GYM_HELPERS"
@@ -131,13 +132,22 @@ def _map_local(fn, tasks, workers):
 
 def _helper_started() -> None:
     """A helper's initializer: one numba and BLAS thread (torch is not needed: not imported),
-    no helpers of its own.
+    no helpers of its own, and a watch on the process that started it: a helper whose parent
+    was killed (it never said stop) ends itself instead of waiting for tasks forever.
     """
     import numba
 
     os.environ[HELPERS_VARIABLE] = "0"
     numba.set_num_threads(1)
     threadpool_limits(1)
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _imported(module: str) -> None:
@@ -165,7 +175,10 @@ def _main_module_hidden():
 class _Helpers:
     """The process's helper pool (spawned: torch and numba keep threads that a forked child
     must not inherit), created on first use; `ready` once its processes have started. A pool
-    that breaks (a helper killed) is not used again: the tasks run here.
+    that breaks (a helper killed) is not used again: the tasks run here. Only the process that
+    imported this module, and not one that multiprocessing started, has helpers: a forked child
+    would share its parent's pool, a pool worker may not start processes (a daemon), and a
+    multiprocessing child joins its own children before anything tells them to stop.
     """
 
     pool: cf.ProcessPoolExecutor | None = None
@@ -178,15 +191,20 @@ class _Helpers:
         """Helpers that can take a task now (0 while they start and import `module`, or where
         there are none).
         """
-        if cls.broken or os.environ.get(HELPERS_VARIABLE) == "0" or default_workers() < 2:
+        if (cls.broken or os.environ.get(HELPERS_VARIABLE) == "0" or default_workers() < 2
+                or os.getpid() != _HOME or multiprocessing.parent_process() is not None):
             return 0
         if cls.pool is None:
             cls.count = min(default_workers() - 1, MAX_HELPERS)
-            cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
-                                              mp_context=multiprocessing.get_context("spawn"),
-                                              initializer=_helper_started)
-            with _main_module_hidden():  # the pool starts its processes as tasks arrive
-                cls.started = [cls.pool.submit(_imported, module) for _ in range(cls.count)]
+            try:
+                cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
+                                                  mp_context=multiprocessing.get_context("spawn"),
+                                                  initializer=_helper_started)
+                with _main_module_hidden():  # the pool starts its processes as tasks arrive
+                    cls.started = [cls.pool.submit(_imported, module) for _ in range(cls.count)]
+            except (OSError, RuntimeError, AssertionError):  # no processes here: the tasks run here
+                cls.broken = True
+                return 0
         if not all(f.done() for f in cls.started):
             return 0
         if any(f.exception() is not None for f in cls.started):
@@ -210,10 +228,12 @@ def wait_for_helpers(module: str, timeout: float = 120.0) -> int:
 
 def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
     """[fn(task) for task in tasks], with the helpers (one per other core, at most MAX_HELPERS)
-    taking tasks beside this process once they have started. fn and the tasks must be picklable
-    and fn(task) must depend on the task alone (so that where it runs changes nothing). While
-    helpers run, this process's numba kernels keep to one thread. An exception in a task is raised here, after
-    the tasks already sent have finished; a task whose helper failed (not the task) runs here.
+    taking tasks beside this process once they have started. fn and the tasks must be picklable,
+    fn from an importable module (not the main script: hidden from the helpers), and fn(task)
+    must depend on the task alone (so that where it runs changes nothing). While helpers run,
+    this process's numba kernels keep to one thread. An exception in a task is raised here,
+    after the tasks already sent have finished; a task whose helper failed (not the task) runs
+    here.
     """
     tasks = list(tasks)
     helpers = _Helpers.ready(getattr(fn, "func", fn).__module__) if len(tasks) > 1 else 0

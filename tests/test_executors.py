@@ -130,6 +130,42 @@ def test_a_task_whose_helper_died_runs_here(helpers):
     assert executors.fan_out(_where, range(4)) == [(x, os.getpid()) for x in range(4)]
 
 
+def _fan_out_here(tasks, answers=None):
+    """fan_out(_where, tasks), put on `answers` (a queue) where given."""
+    results = executors.fan_out(_where, tasks)
+    if answers is not None:
+        answers.put(results)
+    return results
+
+
+def test_a_forked_child_runs_its_tasks_itself_and_ends(helpers):
+    """A process the user forks after the helpers started: the parent's pool, its threads and
+    pipes, is not the child's, and helpers of its own would keep it from ending (multiprocessing
+    joins a child's children before anything tells them to stop): it runs its tasks itself."""
+    import multiprocessing
+
+    fork = multiprocessing.get_context("fork")
+    answers = fork.Queue()
+    child = fork.Process(target=_fan_out_here, args=(list(range(4)), answers))
+    child.start()
+    results = answers.get(timeout=120)
+    child.join(timeout=60)
+    assert child.exitcode == 0
+    assert [task for task, _ in results] == list(range(4))
+    assert {pid for _, pid in results} == {child.pid}
+
+
+def test_a_daemonic_pool_worker_runs_its_tasks_itself(helpers):
+    """Inside a multiprocessing.Pool worker (a daemon, which may not start processes) fan_out
+    runs every task in that worker."""
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        results = pool.apply_async(_fan_out_here, (list(range(4)),)).get(timeout=120)
+    assert [task for task, _ in results] == list(range(4))
+    assert len({pid for _, pid in results}) == 1 and os.getpid() not in {pid for _, pid in results}
+
+
 def test_a_script_without_a_main_guard_is_not_run_again_by_the_helpers(tmp_path):
     """A spawned process re-runs the parent's main script unless it is hidden: a user's script
     calling diagnose at its top level would run again in every helper."""
