@@ -22,7 +22,9 @@ import contextlib
 import functools
 import importlib
 import multiprocessing
+import multiprocessing.connection
 import os
+import signal
 import sys
 import threading
 import time
@@ -36,6 +38,7 @@ from inertia_gym.errors import ConfigError
 
 BACKENDS = ("local", "ray")
 _HOME = os.getpid()  # the process that imported this module
+_MISSING = object()  # a result not (yet) in
 #: environment variable: "0" runs fan_out's tasks in the calling process only (also set in every
 #: worker and helper, so that they never start helpers of their own)
 HELPERS_VARIABLE = "INERTIA_GYM_HELPERS"
@@ -132,22 +135,24 @@ def _map_local(fn, tasks, workers):
 
 def _helper_started() -> None:
     """A helper's initializer: one numba and BLAS thread (torch is not needed: not imported),
-    no helpers of its own, and a watch on the process that started it: a helper whose parent
-    was killed (it never said stop) ends itself instead of waiting for tasks forever.
+    no helpers of its own, Ctrl-C left to the process that started it (which stops the
+    helpers), and a watch on that process: a helper whose parent died (it never said stop)
+    ends itself instead of waiting for tasks forever.
     """
     import numba
 
     os.environ[HELPERS_VARIABLE] = "0"
     numba.set_num_threads(1)
     threadpool_limits(1)
-    parent = os.getppid()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = multiprocessing.parent_process()
 
     def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(1.0)
+        multiprocessing.connection.wait([parent.sentinel])  # returns when the parent is gone
         os._exit(0)
 
-    threading.Thread(target=watch, daemon=True).start()
+    if parent is not None:
+        threading.Thread(target=watch, daemon=True).start()
 
 
 def _imported(module: str) -> None:
@@ -185,6 +190,8 @@ class _Helpers:
     started: list = []
     count = 0
     broken = False
+    sent = 0  # tasks sent to the helpers so far
+    lock = threading.Lock()
 
     @classmethod
     def ready(cls, module: str) -> int:
@@ -194,17 +201,18 @@ class _Helpers:
         if (cls.broken or os.environ.get(HELPERS_VARIABLE) == "0" or default_workers() < 2
                 or os.getpid() != _HOME or multiprocessing.parent_process() is not None):
             return 0
-        if cls.pool is None:
-            cls.count = min(default_workers() - 1, MAX_HELPERS)
-            try:
-                cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
-                                                  mp_context=multiprocessing.get_context("spawn"),
-                                                  initializer=_helper_started)
-                with _main_module_hidden():  # the pool starts its processes as tasks arrive
-                    cls.started = [cls.pool.submit(_imported, module) for _ in range(cls.count)]
-            except (OSError, RuntimeError, AssertionError):  # no processes here: the tasks run here
-                cls.broken = True
-                return 0
+        with cls.lock:
+            if cls.pool is None:
+                cls.count = min(default_workers() - 1, MAX_HELPERS)
+                try:
+                    cls.pool = cf.ProcessPoolExecutor(max_workers=cls.count,
+                                                      mp_context=multiprocessing.get_context("spawn"),
+                                                      initializer=_helper_started)
+                    with _main_module_hidden():  # the pool starts its processes as tasks arrive
+                        cls.started = [cls.pool.submit(_imported, module) for _ in range(cls.count)]
+                except (OSError, RuntimeError):  # no processes here: the tasks run here
+                    cls.broken = True
+                    return 0
         if not all(f.done() for f in cls.started):
             return 0
         if any(f.exception() is not None for f in cls.started):
@@ -213,9 +221,16 @@ class _Helpers:
         return cls.count
 
 
+def helpers_ready(module: str) -> int:
+    """The helpers fan_out would use now for tasks of `module` (starting them where they would
+    be used: 0 until they have started).
+    """
+    return _Helpers.ready(module)
+
+
 def wait_for_helpers(module: str, timeout: float = 120.0) -> int:
     """Start the helpers (where fan_out would use them) and wait until they have imported
-    `module`: the helpers that then take tasks (0 where there are none, or after `timeout` s).
+    `module`: the number of helpers then (0 where there are none, or after `timeout` s).
     fan_out never waits for them; a benchmark or a test that wants them running does.
     """
     deadline = time.monotonic() + timeout
@@ -230,10 +245,10 @@ def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
     """[fn(task) for task in tasks], with the helpers (one per other core, at most MAX_HELPERS)
     taking tasks beside this process once they have started. fn and the tasks must be picklable,
     fn from an importable module (not the main script: hidden from the helpers), and fn(task)
-    must depend on the task alone (so that where it runs changes nothing). While helpers run,
-    this process's numba kernels keep to one thread. An exception in a task is raised here,
-    after the tasks already sent have finished; a task whose helper failed (not the task) runs
-    here.
+    must depend on the task alone and on nothing this process changed at run time (so that
+    where it runs changes nothing). While helpers run, this process's numba kernels keep to one
+    thread. A task's exception is raised here (that of the first such task in order), after
+    the tasks already sent have finished; a task whose helper failed (not the task) runs here.
     """
     tasks = list(tasks)
     helpers = _Helpers.ready(getattr(fn, "func", fn).__module__) if len(tasks) > 1 else 0
@@ -241,8 +256,8 @@ def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
         return [fn(task) for task in tasks]
     import numba
 
-    results: list = [None] * len(tasks)
-    errors: list = []
+    results: list = [_MISSING] * len(tasks)
+    errors: dict = {}  # task index -> its exception
     lock = threading.Lock()
     order = list(range(len(tasks)))[::-1]  # popped from the end: first task first
 
@@ -250,39 +265,47 @@ def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
         with lock:
             return order.pop() if order and not errors else None
 
+    def hand_back(i: int) -> None:
+        with lock:
+            order.append(i)
+
     def feed() -> None:  # keeps every helper busy while tasks are left
         running: set = set()
-        while True:
-            while not _Helpers.broken and len(running) < helpers and (i := take()) is not None:
-                try:
-                    future = _Helpers.pool.submit(fn, tasks[i])
-                except (cf.BrokenExecutor, RuntimeError):
-                    _Helpers.broken = True
-                    with lock:
-                        order.append(i)
-                    break
-                future.index = i
-                running.add(future)
-            if not running:
-                return
-            done, running = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                error = future.exception()
-                if isinstance(error, cf.BrokenExecutor):
-                    _Helpers.broken = True
-                    with lock:
-                        order.append(future.index)  # run here instead
-                elif error is not None:
-                    with lock:
-                        errors.append(error)
-                else:
-                    results[future.index] = future.result()
+        try:
+            while True:
+                while not _Helpers.broken and len(running) < helpers and (i := take()) is not None:
+                    try:
+                        future = _Helpers.pool.submit(fn, tasks[i])
+                    except (cf.BrokenExecutor, RuntimeError):
+                        _Helpers.broken = True
+                        hand_back(i)
+                        break
+                    _Helpers.sent += 1
+                    future.index = i
+                    running.add(future)
+                if not running:
+                    return
+                done, running = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+                for future in done:
+                    error = None if future.cancelled() else future.exception()
+                    if future.cancelled() or isinstance(error, cf.BrokenExecutor):
+                        _Helpers.broken = True
+                        hand_back(future.index)  # run here instead
+                    elif error is not None:
+                        with lock:
+                            errors[future.index] = error
+                    else:
+                        results[future.index] = future.result()
+        except BaseException:  # the helpers failed in a way not foreseen: their tasks run here
+            _Helpers.broken = True
+            for future in running:
+                hand_back(future.index)
 
     feeder = threading.Thread(target=feed, daemon=True)
     threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    feeder.start()
     try:
+        numba.set_num_threads(1)
+        feeder.start()
         while True:
             i = take()
             if i is None:
@@ -293,15 +316,23 @@ def fan_out(fn: Callable[[Any], Any], tasks: Iterable) -> list:
                     if not order or errors:
                         break
                 continue
-            results[i] = fn(tasks[i])
-    except BaseException as error:
+            try:
+                results[i] = fn(tasks[i])
+            except Exception as error:
+                with lock:
+                    errors[i] = error
+    except BaseException:  # (Ctrl-C here: nothing more is sent; the tasks running finish)
         with lock:
-            errors.insert(0, error)
+            order.clear()
+        raise
     finally:
-        feeder.join()
         numba.set_num_threads(threads)
+        if feeder.is_alive():
+            feeder.join()
     if errors:
-        raise errors[0]
+        raise errors[min(errors)]
+    if any(r is _MISSING for r in results):  # (cannot happen: every task ran here or in a helper)
+        raise RuntimeError("fan_out lost a task's result")
     return results
 
 
@@ -344,4 +375,4 @@ def _map_ray(fn, tasks, workers, address):
 
 
 __all__ = ["BACKENDS", "HELPERS_VARIABLE", "default_workers", "fan_out", "kernels_own_the_cores",
-           "map_unordered", "single_threaded_worker", "wait_for_helpers"]
+           "helpers_ready", "map_unordered", "single_threaded_worker", "wait_for_helpers"]

@@ -9,7 +9,7 @@ from inertia_gym.scenario import Scenario
 
 # the suite's xdist workers already fill the cores: diagnose's fits run without helper processes
 # (tests/test_executors.py switches them on where it tests them)
-os.environ.setdefault("INERTIA_GYM_HELPERS", "0")
+os.environ["INERTIA_GYM_HELPERS"] = "0"
 
 #: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
 RACQUET = next((p / "shared/data/phyphox-racquet" for p in Path(__file__).resolve().parents

@@ -50,7 +50,7 @@ from inertia_gym.estimation.inertia_param import (
     realizable_phi,
 )
 from inertia_gym.estimation.longrun import correlation_lags
-from inertia_gym.executors import fan_out
+from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -1158,6 +1158,16 @@ def _rows_and_base(d: Data, base: "Fit") -> tuple:
 SHARED_CACHE = ("fit", "starts")
 
 
+#: the catalogue as this module found it: a helper knows only these effects (an effect a user
+#: registers at run time, e.g. in a script, exists in that process alone: fits run there)
+BUILT_IN = dict(REGISTRY)
+
+
+def _shared(key) -> bool:
+    """A d.cache key of the SHARED_CACHE kinds."""
+    return isinstance(key, tuple) and key[0] in SHARED_CACHE
+
+
 def _in_turn(task) -> tuple:
     """fan_out's task: (fn(d=d, **kwargs), the shared cache entries it found), run on a copy of
     d's cache (the d sent to the helpers is never changed while they are sent it).
@@ -1165,18 +1175,20 @@ def _in_turn(task) -> tuple:
     fn, shipped, kwargs = task
     d = dataclasses.replace(shipped, cache=dict(shipped.cache))
     out = fn(d=d, **kwargs)
-    return out, {k: v for k, v in d.cache.items() if k not in shipped.cache and k[0] in SHARED_CACHE}
+    return out, {k: v for k, v in d.cache.items() if k not in shipped.cache and _shared(k)}
 
 
 def fanned(fn, d: Data, calls: list[dict]) -> list:
     """[fn(d=d, **kwargs) for kwargs in calls], the calls shared with the helper processes
-    (executors.fan_out); what they cached is added to d.cache. Each call runs on a copy of d
-    with the shared part of its cache, here or in a helper: the results are the same either
-    way.
+    (executors.fan_out; all here where the catalogue is not BUILT_IN); what they cached is
+    added to d.cache. Each call runs on a copy of d with the shared part of its cache, here or
+    in a helper: the results are the same either way.
     """
-    shipped = dataclasses.replace(d, cache={k: v for k, v in d.cache.items() if k[0] in SHARED_CACHE})
+    shipped = dataclasses.replace(d, cache={k: v for k, v in d.cache.items() if _shared(k)})
+    tasks = [(fn, shipped, kwargs) for kwargs in calls]
     results = []
-    for out, found in fan_out(_in_turn, [(fn, shipped, kwargs) for kwargs in calls]):
+    ran = fan_out(_in_turn, tasks) if REGISTRY == BUILT_IN else [_in_turn(task) for task in tasks]
+    for out, found in ran:
         for key, value in found.items():
             d.cache.setdefault(key, value)
         results.append(out)
@@ -1442,12 +1454,13 @@ def _screened(single: Fit, current: Fit, structured: bool, d: Data) -> Fit:
     return min(screened, key=lambda f: f.bic if np.isfinite(f.bic) else np.inf)
 
 
-def _without(fit: Fit, drop: int, singles: dict, d: Data) -> list[Fit]:
+def _without(fit: Fit, drop: int, first: Fit, d: Data) -> list[Fit]:
     """The chain of the compound fit's effects without its drop-th, each added to the previous
-    (singles: the single-effect fits, each in its form in fit).
+    (first: the single-effect fit of the first effect left, in its form in fit).
     """
     keep = [i for i in range(len(fit.names)) if i != drop]
-    return _chain(tuple(fit.names[i] for i in keep), tuple(fit.forms[i] for i in keep), d, singles)
+    return _chain(tuple(fit.names[i] for i in keep), tuple(fit.forms[i] for i in keep), d,
+                  {first.name: first})
 
 
 def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: int = 0) -> Explanation:
@@ -1500,20 +1513,28 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     changed = len(current.names) > 1
     while changed and len(current.names) > 1:
         changed = False
-        # the explanation without each of its effects (independent fits: in parallel), the
-        # first one whose removal costs less than the margin dropped
-        for i in range(len(current.names)):
-            rest = current.names[:i] + current.names[i + 1:]
-            first_form = current.forms[current.names.index(rest[0])]
-            by_name[rest[0]] = _alone(by_name[rest[0]], first_form, d, nominal)
-        without = fanned(_without, d, [{"fit": current, "drop": i, "singles": by_name}
-                                       for i in range(len(current.names))])
-        for name, rest_chain in zip(current.names, without):
-            if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
-                dropped[name] = (f"removing it from the explanation costs only "
-                                 f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
-                current, chain, changed = rest_chain[-1], rest_chain, True
-                break
+        # the explanation without each of its effects, in order, the first whose removal costs
+        # less than the margin dropped; independent fits: as many at a time as there are
+        # processes to run them (this one and the helpers ready), so that, run one after the
+        # other, none is fitted that the order would skip
+        removals = list(range(len(current.names)))
+        while removals and not changed:
+            width = 1 + (helpers_ready(__name__) if REGISTRY == BUILT_IN else 0)
+            batch, removals = removals[:width], removals[width:]
+            for i in batch:
+                rest = current.names[:i] + current.names[i + 1:]
+                first_form = current.forms[current.names.index(rest[0])]
+                by_name[rest[0]] = _alone(by_name[rest[0]], first_form, d, nominal)
+            without = fanned(_without, d, [{"fit": current, "drop": i, "first": by_name[rest[0]]}
+                                           for i in batch
+                                           for rest in [current.names[:i] + current.names[i + 1:]]])
+            for i, rest_chain in zip(batch, without):
+                name = current.names[i]
+                if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
+                    dropped[name] = (f"removing it from the explanation costs only "
+                                     f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
+                    current, chain, changed = rest_chain[-1], rest_chain, True
+                    break
     chosen = current.names
     for name in pool:
         if name not in chosen and not dropped.get(name, "").startswith("removing"):
