@@ -1163,6 +1163,13 @@ SHARED_CACHE = ("fit", "starts")
 BUILT_IN = dict(REGISTRY)
 
 
+def _helpers() -> int:
+    """Helper processes ready to take this module's fits (none where the catalogue is not
+    BUILT_IN: a helper would not know the added effect).
+    """
+    return helpers_ready(__name__) if REGISTRY == BUILT_IN else 0
+
+
 def _shared(key) -> bool:
     """A d.cache key of the SHARED_CACHE kinds."""
     return isinstance(key, tuple) and key[0] in SHARED_CACHE
@@ -1187,7 +1194,7 @@ def fanned(fn, d: Data, calls: list[dict]) -> list:
     shipped = dataclasses.replace(d, cache={k: v for k, v in d.cache.items() if _shared(k)})
     tasks = [(fn, shipped, kwargs) for kwargs in calls]
     results = []
-    ran = fan_out(_in_turn, tasks) if REGISTRY == BUILT_IN else [_in_turn(task) for task in tasks]
+    ran = fan_out(_in_turn, tasks) if _helpers() else [_in_turn(task) for task in tasks]
     for out, found in ran:
         for key, value in found.items():
             d.cache.setdefault(key, value)
@@ -1519,15 +1526,15 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
         # other, none is fitted that the order would skip
         removals = list(range(len(current.names)))
         while removals and not changed:
-            width = 1 + (helpers_ready(__name__) if REGISTRY == BUILT_IN else 0)
+            width = 1 + _helpers()
             batch, removals = removals[:width], removals[width:]
+            firsts = []  # the single fit of the first effect left without the i-th, in its form
             for i in batch:
-                rest = current.names[:i] + current.names[i + 1:]
-                first_form = current.forms[current.names.index(rest[0])]
-                by_name[rest[0]] = _alone(by_name[rest[0]], first_form, d, nominal)
-            without = fanned(_without, d, [{"fit": current, "drop": i, "first": by_name[rest[0]]}
-                                           for i in batch
-                                           for rest in [current.names[:i] + current.names[i + 1:]]])
+                j = 1 if i == 0 else 0
+                by_name[current.names[j]] = _alone(by_name[current.names[j]], current.forms[j], d, nominal)
+                firsts.append(by_name[current.names[j]])
+            without = fanned(_without, d, [{"fit": current, "drop": i, "first": first}
+                                           for i, first in zip(batch, firsts)])
             for i, rest_chain in zip(batch, without):
                 name = current.names[i]
                 if rest_chain[-1].bic - current.bic <= SIGNIFICANT_DELTA_BIC:
