@@ -76,18 +76,20 @@ BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 #: Solver iterations: a screen, a start's trial run, a full fit; a fit stops when an iteration
 #: gains less than CONVERGED in BIC units (cost gain / mean square per residual).
 SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
-#: The rigid fit, every ΔBIC's baseline, is polished on until the undamped Gauss-Newton step
-#: predicts a gain under RIGID_DECREMENT in BIC units (at most RIGID_ITER iterations; a step
-#: gaining under STEP_FLOOR is a stall), where it fits within ml.CRAWL_MAX_RMS times the noise:
-#: on 1-s torque-free flights near the major or the middle axis it crawls along a curved valley
-#: (the nutation fixes nearly one combination of the moments), where single steps gain under
-#: CONVERGED long before the valley's floor. Stopped there it sat 1-3 % off in the ratios, its
-#: intervals missed the truth on 7 (major axis) and 3 (middle axis) of 8 seeds, and a gyro
-#: scale or bias then gained over 10 in BIC on 3 of the 8 clean flights near the major axis.
+#: The rigid fit (every ΔBIC's baseline) and the explanation's fit are polished on until the
+#: undamped Gauss-Newton step predicts a gain under POLISH_DECREMENT in BIC units (at most
+#: POLISH_ITER iterations; a step gaining under STEP_FLOOR is a stall), where they fit within
+#: ml.CRAWL_MAX_RMS times the noise. On 1-s flights near the major or the middle axis the fits
+#: crawl along a curved valley (the nutation fixes nearly one combination of the moments), where
+#: single steps gain under CONVERGED long before the valley's floor. Stopped there (8 seeds),
+#: the torque-free rigid fit sat 1-3 % off in the ratios, its intervals missed the truth on 7
+#: (major axis) and 3 (middle axis) of 8 seeds, and a gyro scale or bias gained over 10 in BIC
+#: on 3 of the 8 clean flights near the major axis; with drag, the explanation's fit sat 2-40
+#: in cost above its floor, its intervals missing the truth on 7 of 8 (major axis).
 #: A rigid fit beyond that misfit is no answer and only the effects' start: polished, on the
 #: real rotor throws with the rotor's momentum withheld (hundreds of times the noise) it led 3
 #: of 20 explanations into worse fits.
-RIGID_ITER, RIGID_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
+POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
 #: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
 LM_START = 1e-3
 #: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
@@ -874,41 +876,41 @@ def fit_nominal(d: Data) -> Fit:
         runs = fanned(_rigid_run, d, [{"layout": layout, "starts": starts}]
                       + [{"layout": layout, "x0": x0} for x0 in starts])
         chosen, *direct = [finish(layout, x, d) for x, _ in runs]
-        chosen, best = _polished([chosen, min(direct, key=lambda f: f.bic)], d)
+        chosen, best = polished([chosen, min(direct, key=lambda f: f.bic)], d)
         return best if best.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
     else:
         tried = fanned(_rigid_run, d, [{"layout": layout, "x0": x0, "max_iter": START_ITER} for x0 in starts])
         x = min(tried, key=lambda f: f[1])[0]  # the first of least cost
     x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
-    return _polished([finish(layout, x, d)], d)[0]
+    return polished([finish(layout, x, d)], d)[0]
 
 
-def _polished(fits: list[Fit], d: Data) -> list[Fit]:
-    """The rigid fits run on to their valley's floor (RIGID_ITER, RIGID_DECREMENT) where they fit
+def polished(fits: list[Fit], d: Data) -> list[Fit]:
+    """The fits run on to their valley's floor (POLISH_ITER, POLISH_DECREMENT) where they fit
     within CRAWL_MAX_RMS times the noise (side by side), the others as they are.
     """
     near = [i for i, f in enumerate(fits) if np.sqrt(np.mean(f.z ** 2)) <= CRAWL_MAX_RMS]
-    runs = fanned(_rigid_run, d, [{"layout": fits[i].layout, "x0": fits[i].x, "polish": True} for i in near])
+    runs = fanned(_polish_run, d, [{"layout": fits[i].layout, "x0": fits[i].x} for i in near])
     out = list(fits)
-    for i, (x, _) in zip(near, runs):
-        out[i] = finish(fits[i].layout, x, d)
+    for i, x in zip(near, runs):
+        out[i] = finish(fits[i].layout, x, d, fits[i].k)
     return out
 
 
-def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER,
-               polish: bool = False):
+def _polish_run(layout: Layout, d: Data, x0) -> np.ndarray:
+    """The x of the model solved from x0 on to the valley's floor (POLISH_ITER, POLISH_DECREMENT)."""
+    lb, ub = _bounds(layout, d)
+    return solve(x0, _free(layout, d), layout, d, lb, ub, POLISH_ITER, POLISH_DECREMENT)[0]
+
+
+def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER):
     """(x, cost) of the rigid model solved for max_iter iterations from x0, or from the start
-    that _best_start_on_short_segments chooses among `starts`; with polish, on from x0 to the
-    valley's floor (RIGID_ITER, RIGID_DECREMENT).
+    that _best_start_on_short_segments chooses among `starts`.
     """
     lb, ub = _bounds(layout, d)
     if x0 is None:
         x0 = _best_start_on_short_segments(starts, layout, d, lb, ub)
-    if polish:
-        max_iter, decrement = RIGID_ITER, RIGID_DECREMENT
-    else:
-        decrement = None
-    return solve(np.clip(x0, lb, ub), _free(layout, d), layout, d, lb, ub, max_iter, decrement)
+    return solve(np.clip(x0, lb, ub), _free(layout, d), layout, d, lb, ub, max_iter)
 
 
 def hemisphere(count: int) -> np.ndarray:

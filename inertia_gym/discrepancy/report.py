@@ -26,6 +26,7 @@ from inertia_gym.discrepancy.fit import (
     impulses,
     intervals,
     model_inertia,
+    polished,
     prepare,
     ranked,
     select,
@@ -218,6 +219,8 @@ def _fits(rec: Recording):
         nominal = finish(nominal.layout, nominal.x, d, nominal.k)
         fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
+    if chosen.fit is not None:  # the fit the report reads its inertia and intervals from
+        chosen = dataclasses.replace(chosen, chain=chosen.chain[:-1] + tuple(polished([chosen.fit], d)))
     return d, nominal, fits, skipped, chosen
 
 
