@@ -81,11 +81,12 @@ SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
 #: POLISH_ITER iterations; a step gaining under STEP_FLOOR is a stall), where they fit within
 #: ml.CRAWL_MAX_RMS times the noise. On 1-s flights near the major or the middle axis the fits
 #: crawl along a curved valley (the nutation fixes nearly one combination of the moments), where
-#: single steps gain under CONVERGED long before the valley's floor. Stopped there (8 seeds),
-#: the torque-free rigid fit sat 1-3 % off in the ratios, its intervals missed the truth on 7
-#: (major axis) and 3 (middle axis) of 8 seeds, and a gyro scale or bias gained over 10 in BIC
-#: on 3 of the 8 clean flights near the major axis; with drag, the explanation's fit sat 2-40
-#: in cost above its floor, its intervals missing the truth on 7 of 8 (major axis).
+#: single steps gain under CONVERGED long before the valley's floor. Stopped there (8 seeds,
+#: the noise estimated from the data), the torque-free rigid fit sat 1-3 % off in the ratios,
+#: its intervals missed the truth on 7 (major axis) and 3 (middle axis) of 8 seeds, and a gyro
+#: scale or bias gained over 10 in BIC on 3 of the 8 clean flights near the major axis; with
+#: drag, the explanation's fit sat 2-40 above its floor in cost, its intervals missing the
+#: truth on 7 of 8 (major axis).
 #: A rigid fit beyond that misfit is no answer and only the effects' start: polished, on the
 #: real rotor throws with the rotor's momentum withheld (hundreds of times the noise) it led 3
 #: of 20 explanations into worse fits.

@@ -174,11 +174,12 @@ def test_a_fast_toss_at_100_hz_is_fitted_to_its_noise(w0):
 @pytest.mark.parametrize("w0, drag", [((12.0, 0.5, 0.3), False), ((0.3, 10.0, 0.2), False),
                                       ((12.0, 0.5, 0.3), True)])  # near the major, the middle axis
 def test_a_short_flight_is_fitted_to_its_valleys_floor_and_its_shape_intervals_cover(w0, drag):
-    """1 s of the racquet's flight at 100 Hz, gyro noise 2e-3 rad/s, 8 seeds, torque-free or with
-    drag: the fits crawl along a curved valley. Stopped where a step gained under 1 in BIC, the
-    rigid fit sat 1-3 % off in the ratios, its intervals covering the truth on 1 (major) and 5
-    (middle) of 8 seeds, a gyro scale or bias named on 3 of the 8 clean flights near the major
-    axis; with drag the explanation's fit covered it on 1 of 8.
+    """1 s of the racquet's flight at 100 Hz, gyro noise 2e-3 rad/s (given), 8 seeds, torque-free
+    or with drag: the fits crawl along a curved valley. Stopped where a step gained under 1 in
+    BIC, the ratios' intervals covered the truth on 4 (major axis), 8 (middle axis) and, with
+    drag near the major axis, 1 of 8 seeds; polished, on 8, 8 and 8. (With the noise estimated
+    from the data, torque-free: 1 and 5 of 8, and a gyro scale or bias named on 3 of the 8 near
+    the major axis; polished, 8 and 8, none named.)
     """
     truth = np.sort(np.diag(RACQUET))[::-1] / RACQUET.max()
     c_true = np.diag([0.1, 0.1, 0.02]) * np.diag(RACQUET)  # N·m·s
