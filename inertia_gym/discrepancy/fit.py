@@ -50,7 +50,6 @@ from inertia_gym.estimation.inertia_param import (
     realizable_phi,
 )
 from inertia_gym.estimation.longrun import correlation_lags
-from inertia_gym.estimation.ml import CRAWL_MAX_RMS
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
@@ -78,18 +77,20 @@ BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION = 100.0, 50.0
 SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
 #: The rigid fit (every ΔBIC's baseline) and the explanation's fit are polished on until the
 #: undamped Gauss-Newton step predicts a gain under POLISH_DECREMENT in BIC units (at most
-#: POLISH_ITER iterations; a step gaining under STEP_FLOOR is a stall), where they fit within
-#: ml.CRAWL_MAX_RMS times the noise. On 1-s flights near the major or the middle axis the fits
+#: POLISH_ITER iterations; a step gaining under STEP_FLOOR is a stall), where their whitened
+#: rms is within POLISH_MAX_RMS. On 1-s flights near the major or the middle axis the fits
 #: crawl along a curved valley (the nutation fixes nearly one combination of the moments), where
 #: single steps gain under CONVERGED long before the valley's floor. Stopped there (8 seeds,
 #: the noise estimated from the data), the torque-free rigid fit sat 1-3 % off in the ratios,
 #: its intervals missed the truth on 7 (major axis) and 3 (middle axis) of 8 seeds, and a gyro
 #: scale or bias gained over 10 in BIC on 3 of the 8 clean flights near the major axis; with
 #: drag, the explanation's fit sat 2-40 above its floor in cost, its intervals missing the
-#: truth on 7 of 8 (major axis).
-#: A rigid fit beyond that misfit is no answer and only the effects' start: polished, on the
-#: real rotor throws with the rotor's momentum withheld (hundreds of times the noise) it led 3
-#: of 20 explanations into worse fits.
+#: truth on 7 of 8 (major axis). A fit beyond POLISH_MAX_RMS leaves physics out: its intervals
+#: are its misfit's (covariance() widens them by it), and a rigid one is only the effects'
+#: start. Polished, the rigid fits of the real rotor throws with the rotor's momentum withheld
+#: (hundreds of times the noise) led 3 of 20 explanations into worse fits, and the explanations
+#: of the real racquet tosses (1.5-8 times the noise) took up to 3.5 s more a toss.
+POLISH_MAX_RMS = 1.5
 POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
 #: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
 LM_START = 1e-3
@@ -887,10 +888,10 @@ def fit_nominal(d: Data) -> Fit:
 
 
 def polished(fits: list[Fit], d: Data) -> list[Fit]:
-    """The fits run on to their valley's floor (POLISH_ITER, POLISH_DECREMENT) where they fit
-    within CRAWL_MAX_RMS times the noise (side by side), the others as they are.
+    """The fits run on to their valley's floor (POLISH_ITER, POLISH_DECREMENT) where their
+    whitened rms is within POLISH_MAX_RMS (side by side), the others as they are.
     """
-    near = [i for i, f in enumerate(fits) if np.sqrt(np.mean(f.z ** 2)) <= CRAWL_MAX_RMS]
+    near = [i for i, f in enumerate(fits) if np.sqrt(np.mean(f.z ** 2)) <= POLISH_MAX_RMS]
     runs = fanned(_polish_run, d, [{"layout": fits[i].layout, "x0": fits[i].x} for i in near])
     out = list(fits)
     for i, x in zip(near, runs):
