@@ -88,8 +88,9 @@ SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
 #: truth on 7 of 8 (major axis). A fit beyond POLISH_MAX_RMS leaves physics out: its intervals
 #: are its misfit's (covariance() widens them by it), and a rigid one is only the effects'
 #: start. Polished, the rigid fits of the real rotor throws with the rotor's momentum withheld
-#: (hundreds of times the noise) led 3 of 20 explanations into worse fits, and the explanations
-#: of the real racquet tosses (1.5-8 times the noise) took up to 3.5 s more a toss.
+#: (hundreds of times the noise) led 3 of 20 explanations into worse fits (1 into a better),
+#: and the explanations of the real racquet tosses (1.5-8 times the noise) took up to 3.5 s
+#: more a toss.
 POLISH_MAX_RMS = 1.5
 POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
 #: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
