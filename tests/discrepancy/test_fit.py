@@ -88,21 +88,33 @@ def test_jacobian_columns_equal_brute_force_differences():
             np.testing.assert_allclose(mine, brute[:seg_of.size], rtol=1e-6, atol=1e-6 * np.abs(brute).max())
 
 
-def test_normal_blocks_step_equals_the_dense_damped_least_squares():
-    rng = np.random.default_rng(0)
-    n_seg, rows, p = 4, 30, 5
+def _arrow_problem(seed: int, n_seg: int, rows: int, column_scales) -> tuple:
+    """A random least-squares problem of the arrow shape NormalBlocks takes: (seg_of (N,),
+    global columns g (N, P) scaled by column_scales, rate columns js (N, 3), residual r (N,))."""
+    rng = np.random.default_rng(seed)
     seg_of = np.repeat(np.arange(n_seg), rows)
-    g = rng.normal(size=(n_seg * rows, p))
-    js = rng.normal(size=(n_seg * rows, 3))
-    r = rng.normal(size=n_seg * rows)
+    g = rng.normal(size=(n_seg * rows, len(column_scales))) * np.asarray(column_scales)
+    return seg_of, g, rng.normal(size=(n_seg * rows, 3)), rng.normal(size=n_seg * rows)
+
+
+def _dense(g, js, seg_of, n_seg: int) -> np.ndarray:
+    """The whole Jacobian: the global columns, then each segment's three rate columns."""
+    p = g.shape[1]
+    dense = np.zeros((g.shape[0], p + 3 * n_seg))
+    dense[:, :p] = g
+    for s in range(n_seg):
+        dense[seg_of == s, p + 3 * s:p + 3 * s + 3] = js[seg_of == s]
+    return dense
+
+
+def test_normal_blocks_step_equals_the_dense_damped_least_squares():
+    n_seg, p = 4, 5
+    seg_of, g, js, r = _arrow_problem(0, n_seg, 30, np.ones(p))
     lam = 0.3
     blocks = F.NormalBlocks.of(g, js, r, seg_of, n_seg)
     blocks.step(10.0)  # the blocks are formed once and serve every damping
     dg, ds = blocks.step(lam)
-    dense = np.zeros((n_seg * rows, p + 3 * n_seg))
-    dense[:, :p] = g
-    for s in range(n_seg):
-        dense[seg_of == s, p + 3 * s:p + 3 * s + 3] = js[seg_of == s]
+    dense = _dense(g, js, seg_of, n_seg)
     # Marquardt damping on every diagonal of the scaled normal equations
     a = dense.T @ dense
     a = a + lam * np.diag(np.diag(a))
@@ -120,18 +132,9 @@ def test_normal_blocks_step_equals_the_dense_damped_least_squares():
 @pytest.mark.parametrize("seg_free", [True, False])
 def test_the_decrement_is_the_fall_of_the_linear_least_squares(seg_free):
     """NormalBlocks.decrement: |r|^2 - min |r + J d|^2 over d, by the dense least squares."""
-    rng = np.random.default_rng(2)
-    n_seg, rows, p = 3, 25, 4
-    seg_of = np.repeat(np.arange(n_seg), rows)
-    g = rng.normal(size=(n_seg * rows, p)) * np.array([1e-3, 1.0, 1e3, 1.0])
-    js = rng.normal(size=(n_seg * rows, 3))
-    r = rng.normal(size=n_seg * rows)
-    dense = g.copy()
-    if seg_free:
-        dense = np.zeros((n_seg * rows, p + 3 * n_seg))
-        dense[:, :p] = g
-        for s in range(n_seg):
-            dense[seg_of == s, p + 3 * s:p + 3 * s + 3] = js[seg_of == s]
+    n_seg = 3
+    seg_of, g, js, r = _arrow_problem(2, n_seg, 25, [1e-3, 1.0, 1e3, 1.0])
+    dense = _dense(g, js, seg_of, n_seg) if seg_free else g
     best = np.linalg.lstsq(dense, -r, rcond=None)[0]
     fall = r @ r - np.sum((r + dense @ best) ** 2)
     assert F.NormalBlocks.of(g, js, r, seg_of, n_seg, seg_free).decrement() == pytest.approx(fall, rel=1e-9)
@@ -142,12 +145,8 @@ def test_a_parameter_the_residual_does_not_see_takes_no_step(seg_free):
     # a flexible mode's frequency while its coupling is zero, an inertia change's time while the
     # change is zero: the column is exactly zero, and the step along it must be too (it was the
     # pseudo-inverse's round-off divided by 1e-300), the other entries the step without it
-    rng = np.random.default_rng(1)
-    n_seg, rows, p = 3, 20, 4
-    seg_of = np.repeat(np.arange(n_seg), rows)
-    g = rng.normal(size=(n_seg * rows, p)) * np.array([1e-3, 1.0, 1e3, 1.0])
-    js = rng.normal(size=(n_seg * rows, 3))
-    r = rng.normal(size=n_seg * rows)
+    n_seg = 3
+    seg_of, g, js, r = _arrow_problem(1, n_seg, 20, [1e-3, 1.0, 1e3, 1.0])
     dead = g.copy()
     dead[:, 1] = 0.0
     for lam in (1e-9, 1e-3, 0.3):
