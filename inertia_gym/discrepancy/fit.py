@@ -697,9 +697,11 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: f
     Stops when a step gains less than CONVERGED in BIC units (the cost's gain over the mean
     square per residual: N log(mse) moves by that much) at no more damping than LM_START (a
     stall at larger damping is tried once more from LM_START), or after max_iter iterations.
-    With `decrement` (BIC units), every step that gains counts, and the solve stops instead where
-    the undamped Gauss-Newton step predicts a gain under it (NormalBlocks.decrement): a polish
-    that follows a curved valley to its floor.
+    With `decrement` (BIC units), every step that gains more than STEP_FLOOR counts, and the solve
+    stops where the undamped Gauss-Newton step predicts a gain under `decrement`
+    (NormalBlocks.decrement; at a physical limit, the lesser of that and the same step's kept on
+    the limit's face, since the step through the limit cannot be taken), at a stall, or after
+    max_iter iterations: a polish that follows a curved valley to its floor.
     """
     x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub), d)
     gi = np.flatnonzero(free[:layout.n_global])
@@ -716,9 +718,14 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: f
         js = np.where(np.isfinite(js), js, 0.0)
         on_face = _face_basis(layout.face(x)[:, gi])
         blocks = NormalBlocks.of(g, js, r, seg_of, layout.segments, seg_free)
-        if decrement is not None and blocks.decrement() <= decrement * cost / r.size:
-            break
         face_blocks = None
+        if decrement is not None:
+            left = blocks.decrement()
+            if on_face is not None:
+                face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
+                left = min(left, face_blocks.decrement())
+            if left <= decrement * cost / r.size:
+                break
         improved = False
         for _ in range(12):
             trials = [_moved(x, blocks.step(lam), gi, layout, d, lb, ub)]
@@ -861,6 +868,7 @@ def fit_nominal(d: Data) -> Fit:
     the scale is not seen) with every segment's initial rates.
 
     Without a nominal several inertia starts are tried briefly and the best run to convergence.
+    The fit returned is polished (polished()) where it is within POLISH_MAX_RMS of the noise.
     On a record of few segments the start chosen on short pieces and each start itself are run
     to convergence on the record; another start's fit replaces the chosen one where its BIC is
     lower by SIGNIFICANT_DELTA_BIC: the chosen start can lead the long trajectory into a far
@@ -1410,8 +1418,10 @@ class Explanation:
     """A compound explanation: the fits of the chain nominal -> +e1 -> +e1+e2 ..., the BIC each
     effect added along that chain, and what the selection tried and left out.
 
-    chain: fits, chain[i] holds the first i+1 effects; added: (name, delta BIC) per effect;
-    dropped: {name: reason} of effects removed by the backward check or never added.
+    chain: fits, chain[i] holds the first i+1 effects; added: (name, delta BIC) per effect along
+    the chain as selected (diagnose then polishes chain[-1], the fit it reports, and keeps these:
+    the last effect's gain is not credited with the polish's); dropped: {name: reason} of effects
+    removed by the backward check or never added.
     """
 
     chain: tuple[Fit, ...]

@@ -219,7 +219,8 @@ def _fits(rec: Recording):
         nominal = finish(nominal.layout, nominal.x, d, nominal.k)
         fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
-    if chosen.fit is not None:  # the fit the report reads its inertia and intervals from
+    if chosen.fit is not None:  # the fit the report reads its inertia and intervals from (the
+        # selection's delta BICs, chosen.added, are kept as selected)
         chosen = dataclasses.replace(chosen, chain=chosen.chain[:-1] + tuple(polished([chosen.fit], d)))
     return d, nominal, fits, skipped, chosen
 
