@@ -217,9 +217,11 @@ Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurement
 
 
 #: Runs advanced in lock-step by one task of the compiled loop: the lanes of its vector
-#: instructions (8 float64 fill one 512-bit register).
+#: instructions (8 float64 fill one 512-bit register). The loop is compiled for this many
+#: lanes and for one (a lone run); each lane count is about a minute of compiling.
 LANES = 8
-#: Runs per task when a batch of at most LANES runs is split over threads (_segment_halves).
+#: Runs per task when a batch of more than HALF_LANES and at most LANES runs is split over
+#: threads (fewer runs go one per task, on one lane each).
 HALF_LANES = LANES // 2
 #: The filter's model of the body: no disturbance, no wheel (a tuple: a compile-time constant).
 MODEL_DISTURBANCE = tuple(NO_DISTURBANCE.tolist())
@@ -238,11 +240,13 @@ def _set_lane9(rows, lane, values):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, first, lanes):
-    """Advance runs first .. first + lanes - 1 of the batch (those that exist and have not
+def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, first, stop,
+                   lanes):
+    """Advance runs first .. min(first + lanes, stop) - 1 of the batch (those that have not
     diverged) by plan.n_steps[r] steps each, in lock-step; their truth, estimate, counters
-    (n_updates, sigma_fresh, status: (B,)) and logs change in place. lanes : a literal
-    integer (compiled once per value): LANES, or 1 for a batch of one run, which would
+    (n_updates, sigma_fresh, status: (B,)) and logs change in place. first, stop : int64
+    (never literal constants: each distinct argument type compiles the loop anew).
+    lanes : a literal integer (compiled once per value): LANES, or 1 for one run, which would
     otherwise pay for LANES - 1 idle lanes.
 
     The runs' (q, w), filter means, inertias, torques and transitions are held lane by lane,
@@ -253,8 +257,7 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
     another lane.
     """
     nb.literally(lanes)
-    batch = truth.y.shape[0]
-    count = min(lanes, batch - first)  # lanes past the batch's end mirror run `first`, idle
+    count = min(lanes, stop - first)  # lanes past `stop` mirror run `first`, idle
     dt = cfg.dt
     use_ukf = cfg.ukf > 0
     n_sigma = ukf.N_SIGMA if use_ukf else 0
@@ -453,37 +456,37 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
 
 
 @nb.njit(cache=True, parallel=True)
-def _segment_batch(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
-    """Advance every run of the batch, LANES runs per task, tasks in parallel.
+def _segment_tasks(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, per_task):
+    """Advance every run of the batch, per_task runs per task, tasks in parallel: on one lane
+    each when per_task is 1, else on LANES lanes (per_task <= LANES).
 
     cfg_array : (1,) array of the filter configuration record (a record is handed to the
     parallel loop inside an array: numba cannot pass a bare record into a parfor).
     n_updates, sigma_fresh, status : (B,) per-run counters and flags, updated in place.
     """
-    for task in nb.prange((truth.y.shape[0] + LANES - 1) // LANES):
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                       task * LANES, LANES)
-
-
-@nb.njit(cache=True, parallel=True)
-def _segment_halves(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
-    """A batch of at most LANES runs as tasks of HALF_LANES runs, in parallel: with two or more
-    threads the cores share a batch that one task of LANES lanes would leave to one core.
-    Arguments as :func:`_segment_batch`.
-    """
-    for task in nb.prange((truth.y.shape[0] + HALF_LANES - 1) // HALF_LANES):
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                       task * HALF_LANES, HALF_LANES)
+    batch = truth.y.shape[0]
+    for task in nb.prange((batch + per_task - 1) // per_task):
+        first = np.int64(task * per_task)
+        stop = min(first + per_task, batch)
+        if per_task == 1:
+            _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                           first, stop, 1)
+        else:
+            _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                           first, stop, LANES)
 
 
 @nb.njit(cache=True)
 def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
     """A batch of at most LANES runs: one task, without the threading layer's launch cost."""
-    if truth.y.shape[0] == 1:
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status, 0, 1)
+    first = np.int64(0)
+    stop = first + truth.y.shape[0]
+    if stop == 1:
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       first, stop, 1)
     else:
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status, 0,
-                       LANES)
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       first, stop, LANES)
 
 
 def run_segment(
@@ -513,10 +516,12 @@ def run_segment(
     n_steps = np.broadcast_to(np.asarray(n_steps, dtype=np.int64), (batch,)).copy()
     if np.any(n_steps < 0) or not np.any(n_steps > 0):
         raise ConfigError(f"segment lengths must be >= 0 steps, one > 0; got {n_steps.tolist()}")
-    bursts = np.asarray(bursts, dtype=np.int64).reshape(batch, -1, 2)
+    bursts = np.array(bursts, dtype=np.int64, order="C").reshape(batch, -1, 2)
     n_bursts = np.full(batch, bursts.shape[1], dtype=np.int64)
-    xi = np.broadcast_to(np.asarray(xi, dtype=float), (batch, 3))
-    v = np.broadcast_to(np.asarray(v, dtype=float), (batch, 3))
+    # Writable C-ordered copies, whatever was passed: another layout or a read-only view
+    # would be another argument type, which compiles the loop once more.
+    xi = np.array(np.broadcast_to(np.asarray(xi, dtype=float), (batch, 3)), order="C")
+    v = np.array(np.broadcast_to(np.asarray(v, dtype=float), (batch, 3)), order="C")
     if not (np.all(np.isfinite(xi)) and np.all(np.isfinite(v))):
         raise ConfigError("xi and v must be finite")
     cfg = pack_filter_config(sc)
@@ -547,23 +552,24 @@ def run_segment(
     n_updates = state.n_updates.copy()
     phi_top, sigma, sigma_fresh = state.phi_top.copy(), state.sigma.copy(), state.sigma_fresh.copy()
     status = state.diverged.astype(np.int64)
-    dist = NO_DISTURBANCE if disturbance is None else np.asarray(disturbance, dtype=float)
+    dist = np.array(NO_DISTURBANCE if disturbance is None else disturbance, dtype=float,
+                    order="C")
     if dist.shape != (DISTURBANCE_SIZE,):
         raise ConfigError(f"disturbance must be a packed ({DISTURBANCE_SIZE},) vector "
                           f"(dynamics.Disturbance.pack()), got shape {dist.shape}")
-    if batch > LANES:
-        kernel = _segment_batch
-    elif batch > HALF_LANES and nb.get_num_threads() > 1:
-        kernel = _segment_halves
-    else:
-        kernel = _segment_single
-    kernel(
+    args = (
         Truth(y_true, sc.inertia_true_array, dist),
         Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
         np.array([cfg]), n_updates, sigma_fresh, status,
     )
+    if batch > LANES:
+        _segment_tasks(*args, LANES)
+    elif batch > 1 and nb.get_num_threads() > 1:  # the cores share a batch one task would hold
+        _segment_tasks(*args, 1 if batch <= HALF_LANES else HALF_LANES)
+    else:
+        _segment_single(*args)
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
         step=state.step + n_steps, diverged=status != STATUS_OK, phi_top=phi_top, sigma=sigma,

@@ -73,24 +73,54 @@ def test_with_rows_replaces_only_those_runs_and_copies():
     np.testing.assert_array_equal(state.with_rows(mask, state.select(mask)).x, state.x)
 
 
+def test_the_loop_is_compiled_once_whatever_arrays_the_caller_passes():
+    """A burst direction and xi shared by the runs (broadcast, read-only views), per-run
+    arrays, non-contiguous slices, Fortran-ordered arrays and a read-only disturbance all reach
+    the compiled loop as the same argument types: each other type would compile the loop
+    (minutes) once more."""
+    from inertia_gym import simulation
+    from inertia_gym.dynamics import NO_DISTURBANCE
+
+    sc = Scenario()
+    batch = 2
+    rngs = [np.random.default_rng(s) for s in range(batch)]
+    state = initial_state(sc, rngs)
+    kernels = (simulation._segment_single, simulation._segment_tasks)
+    run_segment(sc, state, 20, np.zeros((batch, 1, 2)), np.tile([0.1, 1.0, 1.0], (batch, 1)),
+                np.eye(3)[:batch], rngs)
+    compiled = [list(k.signatures) for k in kernels]
+    read_only = np.array(NO_DISTURBANCE)
+    read_only.flags.writeable = False
+    wide = np.zeros((batch, 3, 2), dtype=np.int32)
+    run_segment(sc, state, 20, wide[:, ::3], np.array([0.1, 1.0, 1.0]), np.eye(3)[0], rngs,
+                disturbance=read_only)
+    run_segment(sc, state, 20, np.zeros((batch, 1, 2)), np.ones((batch, 6))[:, ::2],
+                np.eye(4)[:batch, :3], rngs)
+    run_segment(sc, state, 20, np.zeros((batch, 1, 2)), np.asfortranarray(np.ones((batch, 3))),
+                np.asfortranarray(np.eye(3)[:batch]), rngs)
+    assert [list(k.signatures) for k in kernels] == compiled
+
+
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
-@pytest.mark.parametrize("tasks", ["LANES", "HALF_LANES"])
+@pytest.mark.parametrize("tasks", ["LANES", "HALF_LANES", "one run"])
 def test_a_batch_runs_each_run_exactly_as_alone(estimator, tasks):
-    """The compiled loop advances runs in lock-step, LANES per task (HALF_LANES per task when a
-    batch of at most LANES runs is split over threads): every run of a batch (more runs than
-    one task holds, unequal lengths, one of zero steps, one diverged) gives bit for bit what it
-    gives alone."""
+    """The compiled loop advances runs in lock-step, LANES per task (when a batch of at most
+    LANES runs is split over threads: HALF_LANES per task, or one run per task on one lane when
+    it has at most HALF_LANES runs): every run of a batch (more runs than one task holds,
+    unequal lengths, one of zero steps, one diverged) gives bit for bit what it gives alone."""
     import numba
 
     from inertia_gym.simulation import HALF_LANES, LANES
 
-    if tasks == "HALF_LANES" and numba.get_num_threads() < 2:
+    if tasks != "LANES" and numba.get_num_threads() < 2:
         pytest.skip("a batch of at most LANES runs is split only over two or more threads")
     sc = Scenario(estimator=estimator)
-    batch = LANES + 3 if tasks == "LANES" else HALF_LANES + 3
+    batch = {"LANES": LANES + 3, "HALF_LANES": HALF_LANES + 3, "one run": HALF_LANES}[tasks]
     rngs = [np.random.default_rng(s) for s in range(batch)]
     state = initial_state(sc, rngs)
-    state = state.with_rows([4], dataclasses.replace(state.select(4), diverged=np.array([True])))
+    diverged = batch - 1
+    state = state.with_rows([diverged], dataclasses.replace(state.select(diverged),
+                                                            diverged=np.array([True])))
     n_steps = [300 + 37 * r for r in range(batch)]
     n_steps[2] = 0
     bursts = np.array([[[5 * r, 5 * r + 40], [200, 230]] for r in range(batch)])
