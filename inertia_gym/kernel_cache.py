@@ -6,9 +6,8 @@ the EKF step (estimation/ekf.py) and the integrator (dynamics.py) into itself, s
 to either the cached loop would go on running the old code. Here the cache goes to a folder
 named by a hash of every source file of the package that defines kernels: any edit to one of
 them starts from an empty cache (one compile, nearly all of it the simulation loop: about
-3 minutes on a 2-core machine, 5-7 minutes in a cold `inertia-gym optimize`, whose deeper
-Python stack makes CPython 3.11 thrash its frame-stack chunks; README) and nothing stale is
-ever run.
+3 minutes on a 2-core machine, in a thread of its own, simulation.compile_loop; README) and
+nothing stale is ever run.
 
 :func:`use_source_keyed_cache` must run before the first kernel module is imported;
 ``inertia_gym/__init__.py`` calls it. The folder is ``<package>/__pycache__/numba-<hash>`` (or

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import threading
 
 import numba as nb
 import numpy as np
@@ -489,6 +490,52 @@ def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, s
                        first, stop, LANES)
 
 
+#: Set once the loop's kernels are compiled (or loaded) in this process: compile_loop()'s flag.
+_loop_ready = threading.Event()
+_loop_lock = threading.Lock()
+#: Batches that reach each of the loop's two kernels: one run (_segment_single) and more than
+#: LANES (_segment_tasks, which holds the one-lane and the LANES-lane task alike).
+_KERNEL_BATCHES = (1, LANES + 1)
+
+
+def compile_loop() -> None:
+    """Compile (or load from numba's on-disk cache) the simulation loop's kernels in a thread of
+    their own, and return when they are ready; later calls return at once. :func:`run_segment`
+    calls it first, so whoever advances runs gets the compile from a fresh stack.
+
+    Why a thread: numba compiles recursively, and CPython 3.11 frees a frame-stack chunk each
+    time the stack pops back over the chunk's start. Started deep in a caller's stack (the
+    CLI's optimize: agent, env, episode, run_segment), the compile crossed such a border so
+    often that it spent 170 s of system time and 20 M page faults on it: a cold short optimize
+    took 401 s against 238 s with the compile in this thread (README). A new thread's stack
+    starts empty, whoever calls.
+    """
+    if _loop_ready.is_set():
+        return
+    with _loop_lock:
+        if _loop_ready.is_set():
+            return
+        failure: list[BaseException] = []
+
+        def advance_tiny_batches():
+            try:
+                sc = Scenario()
+                for batch in _KERNEL_BATCHES:
+                    rngs = [np.random.default_rng(r) for r in range(batch)]
+                    _advance_segment(sc, initial_state(sc, rngs), 1, np.zeros((batch, 0, 2)),
+                                     [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], rngs, record_steps=False,
+                                     disturbance=None)
+            except BaseException as exc:  # re-raised in the caller's thread
+                failure.append(exc)
+
+        thread = threading.Thread(target=advance_tiny_batches, name="inertia-gym-compile")
+        thread.start()
+        thread.join()
+        if failure:
+            raise failure[0]
+        _loop_ready.set()
+
+
 def run_segment(
     sc: Scenario,
     state: SimState,
@@ -510,8 +557,17 @@ def run_segment(
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
     disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth,
     or None.
-    Runs that had diverged are left untouched.
+    Runs that had diverged are left untouched. The loop's kernels are compiled on the first
+    call (:func:`compile_loop`).
     """
+    compile_loop()
+    return _advance_segment(sc, state, n_steps, bursts, xi, v, rngs, record_steps=record_steps,
+                            disturbance=disturbance)
+
+
+def _advance_segment(sc: Scenario, state: SimState, n_steps, bursts, xi, v, rngs, *,
+                     record_steps: bool, disturbance) -> tuple[SimState, Trace]:
+    """:func:`run_segment` without its compile_loop() call (which calls this)."""
     batch = state.batch
     n_steps = np.broadcast_to(np.asarray(n_steps, dtype=np.int64), (batch,)).copy()
     if np.any(n_steps < 0) or not np.any(n_steps > 0):

@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
 from inertia_gym.scenario import Scenario
 from inertia_gym.simulation import _measurement_schedule, initial_state, run_segment
@@ -71,6 +72,44 @@ def test_with_rows_replaces_only_those_runs_and_copies():
     assert not np.array_equal(merged.x, state.x)
     mask = np.array([False, True, False, True])
     np.testing.assert_array_equal(state.with_rows(mask, state.select(mask)).x, state.x)
+
+
+def test_compile_loop_readies_every_kernel_that_runs_of_any_batch_reach():
+    """After compile_loop() no run_segment compiles the loop again, whatever the batch: the
+    compile happens in compile_loop's own thread, from a fresh stack (CPython 3.11 thrashes its
+    frame-stack chunks when numba compiles deep in a caller's stack: README)."""
+    from inertia_gym import simulation
+
+    simulation.compile_loop()
+    kernels = (simulation._segment_single, simulation._segment_tasks)
+    compiled = [list(k.signatures) for k in kernels]
+    assert all(len(signatures) == 1 for signatures in compiled)
+    sc = Scenario()
+    for batch in (1, 3, simulation.HALF_LANES + 2, simulation.LANES + 3):
+        rngs = [np.random.default_rng(s) for s in range(batch)]
+        run_segment(sc, initial_state(sc, rngs), 5, np.zeros((batch, 1, 2)), [0.1, 1.0, 1.0],
+                    np.eye(3)[0], rngs)
+    assert [list(k.signatures) for k in kernels] == compiled
+
+
+def test_a_failure_while_compiling_the_loop_reaches_the_caller(monkeypatch):
+    """An error inside compile_loop's thread is raised in the caller's, and the loop is not
+    marked ready (the next call tries again)."""
+    from inertia_gym import simulation
+
+    def broken(*args, **kwargs):
+        raise ConfigError("no compiler here")
+
+    was_ready = simulation._loop_ready.is_set()
+    simulation._loop_ready.clear()
+    monkeypatch.setattr(simulation, "_advance_segment", broken)
+    try:
+        with pytest.raises(ConfigError, match="no compiler here"):
+            simulation.compile_loop()
+        assert not simulation._loop_ready.is_set()
+    finally:
+        if was_ready:
+            simulation._loop_ready.set()
 
 
 def test_the_loop_is_compiled_once_whatever_arrays_the_caller_passes():
