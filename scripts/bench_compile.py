@@ -5,8 +5,9 @@ segment through each path of ``simulation.run_segment``: one run, runs split one
 HALF_LANES per task over the threads (when there are two or more), and more than LANES runs;
 then a second child does the same with the cache the first one wrote. Each child prints the
 wall time (s) of each path's first call; the first child's is the compile, the second's the
-load from disk. Prints one JSON line: cold and cached seconds per path, their totals and the
-ratio.
+load from disk. Since run_segment calls simulation.compile_loop(), the first path's call
+compiles (or loads) both kernels and the later paths' first calls only run. Prints one JSON
+line: cold and cached seconds per path, their totals and the ratio.
 
     PYTHONPATH=. .venv/bin/python scripts/bench_compile.py        (about 3 minutes)
 """
