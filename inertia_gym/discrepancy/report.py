@@ -57,7 +57,7 @@ BEYOND_CATALOGUE = 5.0
 #: scrambled Sobol sequence (seeded) mapped to normal quantiles. Their 2.5/97.5 percentiles come
 #: within 2 % of the exact interval where the ratios are linear in the parameters; 400
 #: pseudo-random draws, as before, missed it by up to 12 % (a racquet flip with drag: half-width
-#: 3.45e-4 against 3.92e-4; tests/discrepancy/test_report.py).
+#: 3.45e-4 against 3.92e-4; tests/discrepancy/test_fit.py).
 RATIO_DRAWS_LOG2 = 9
 
 
