@@ -324,8 +324,8 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     else:
         means = np.stack([np.bincount(row[keep], w[keep, i]) / np.bincount(row[keep]) for i in range(3)], 1)
         sigma = np.maximum(estimate_white_noise(means if means.shape[0] > 8 else w), 1e-9)
-        source = ("estimated from the data (third differences)" if block == 1 else
-                  f"estimated from the data (third differences of {block}-sample means)")
+        source = ("estimated from the data (differences of order 3 to 6)" if block == 1 else
+                  f"estimated from the data (differences of order 3 to 6 of {block}-sample means)")
     nominal = rec.inertia_nominal
     has_momentum = rec.has_momentum
     excited = rec.has_torque or has_momentum

@@ -752,15 +752,15 @@ def free_flight_windows(t, w) -> list[tuple[int, int]] | None:
     any body frame: the rates cannot change faster than |w|^2 / sqrt(3) (a free body moves no
     faster than it spins). A hand holding, throwing or catching the body breaks the bound. A row
     passes where the rates' local slope (a least-squares line through FLIGHT_SLOPE_ROWS samples)
-    is within the bound plus FLIGHT_NOISE_Z times the slope's noise (third differences' level
-    over the record). A flight is a run of passing rows, less the slope's half-width at each end
-    (the rows an impulse there reaches), of at least FLIGHT_MIN_ROWS rows, turning the body at
-    least FLIGHT_MIN_TURN rad, where the bound exceeds the noise allowance on most rows (a body
-    at rest or turned slowly in the hand passes on noise alone), and across no dropout (an
-    interval over GAP_FACTOR times the median: phyphox paused, say, while the hand moved the
-    body): [] where the bound is broken or a dropout falls and no span qualifies; None also
-    for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the same motion run k times faster
-    (t / k, w k, its noise k) gives the same rows.
+    is within the bound plus FLIGHT_NOISE_Z times the slope's noise (the white-noise level of
+    the record, sensors.estimate_white_noise). A flight is a run of passing rows, less the
+    slope's half-width at each end (the rows an impulse there reaches), of at least
+    FLIGHT_MIN_ROWS rows, turning the body at least FLIGHT_MIN_TURN rad, where the bound exceeds
+    the noise allowance on most rows (a body at rest or turned slowly in the hand passes on noise
+    alone), and across no dropout (an interval over GAP_FACTOR times the median: phyphox paused,
+    say, while the hand moved the body): [] where the bound is broken or a dropout falls and no
+    span qualifies; None also for fewer than FLIGHT_SLOPE_ROWS rows. Free of units: the same
+    motion run k times faster (t / k, w k, its noise k) gives the same rows.
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
     half = FLIGHT_SLOPE_ROWS // 2

@@ -491,12 +491,13 @@ def test_the_search_led_by_the_runner_up_finds_a_better_explanation(racquet_toss
 
 
 def test_an_explanation_from_another_search_is_led_by_what_explains_most_alone(rotor_throw):
-    """Rotor throw Empty_LOG00189 with the rotor's momentum withheld: the search led by the
-    runner-up finds the better explanation, a flexible mode then the time-varying momentum
-    (1200.1 against 1208.5 in BIC with each named effect's margin, measured at 34bcef4; at
-    first a constant torque then the momentum). It is listed led by the effect of the best
-    single-effect fit among those it holds, the momentum, which alone explains far more."""
-    rec = dataclasses.replace(rotor_throw("Empty_LOG00189"), h=None)
+    """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the search led by the
+    runner-up finds the better explanation, a constant torque then the time-varying momentum
+    (Empty_LOG00189 showed it until the noise level was read where the motion is fast for the
+    sampling, sensors.estimate_white_noise; Empty_LOG00187 shows it too). It is listed led by
+    the effect of the best single-effect fit among those it holds, the momentum, which alone
+    explains far more."""
+    rec = dataclasses.replace(rotor_throw("Empty_LOG00180"), h=None)
     d, nominal, singles, _, chosen = _fits(rec)
     assert chosen.fit.names[0] != "internal_momentum"  # the order the other search added them
     listed = [name for name, _ in chosen.added]
