@@ -625,8 +625,9 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
 
 def _impulse_noise(rec: Recording) -> np.ndarray:
     """(3,) rad/s: the gyro noise that whitens the residual and the rates where impulses are
-    located: the sidecar's gyro_sigma, else the third-difference level of the unclipped rows
-    (not a fit's residual level: a misfit inflates it and hides the impulse).
+    located: the sidecar's gyro_sigma, else the difference-based level of the unclipped rows
+    (sensors.estimate_white_noise; not a fit's residual level: a misfit inflates it and hides
+    the impulse).
     """
     if "gyro_sigma" in rec.meta:
         return np.full(3, float(rec.meta["gyro_sigma"]))
@@ -692,7 +693,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     theta0 = equation_error_theta(prob.t_grid, rec.w, prob.tau_grid, prob.h_grid,
                                   trace=trace_ref if trace_ref is not None else 1.0, usable=usable)
     phi0 = phi_from_inertia(nearest_realizable(inertia_from_theta(theta0)))
-    # Against the noise the fit did not produce: the sidecar's, or the third-difference level
+    # Against the noise the fit did not produce: the sidecar's, or the difference-based level
     # (the residuals' own level would make the ratio 1 by construction).
     reference = sigma_w if sigma_w is not None else np.maximum(estimate_white_noise(prob.z_w), 1e-12)
     if method == "ml":
