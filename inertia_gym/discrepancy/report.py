@@ -49,9 +49,9 @@ RATIO_SPREAD = 0.1
 #: Residual rms / noise (worst axis) above which the explanation is reported as short of the
 #: recording: physics the catalogue lacks is at work, and the effects named are at best part of
 #: what is missing. The own and Basilisk harnesses end at most at 3.6 and the racquet tosses the
-#: catalogue explains at 2.1-4.3 (coloured noise); racquet round 1's spins about the handle stay
-#: at 17-45 whatever is added, and the real rotor throws, their rotor named, at 12-123 (a 4-kHz
-#: gyro whose noise is far below what the model leaves).
+#: catalogue explains (round 2) at 2.3-4.3 (coloured noise); racquet round 1 stays at 18.7-104
+#: whatever is added, and the real rotor throws, their rotor named, at 19.7-169 (a 4-kHz gyro
+#: whose noise is far below what the model leaves; README).
 BEYOND_CATALOGUE = 5.0
 #: Draws of a fit's parameters behind the ratios' intervals: 2**RATIO_DRAWS_LOG2 points of a
 #: scrambled Sobol sequence (seeded) mapped to normal quantiles. Their 2.5/97.5 percentiles come
