@@ -1463,21 +1463,23 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     mode fit better by 85 with every row counted); the final explanations' BICs then decide,
     each effect an explanation claims charged the significance margin, as the forward selection
     charges it: an explanation that names one more effect must fit better by
-    SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. An explanation found by
-    another search lists first the effect that explains most alone (_led_by_best_single), as
-    the first search does.
+    SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. The explanation is
+    listed led by the effect that explains most alone (_led_by_best_single): the first search's
+    own lead, unless the backward check dropped it or another search found the explanation.
     """
     first = _search(d, nominal, singles, max_effects)
-    simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
-    if not first.chain or all(f == simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
+    if not first.chain:
         return first
-    plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
-                                      for f in singles]))
     best = first
-    for other in (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1)):
-        if other.chain and _claims_cost(other.fit) < _claims_cost(best.fit) - TIE_BIC:
-            best = other
-    return best if best is first else _led_by_best_single(best, d, nominal, singles)
+    simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
+    if any(f != simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
+        plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
+                                          for f in singles]))
+        others = (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1))
+        for other in others:
+            if other.chain and _claims_cost(other.fit) < _claims_cost(best.fit) - TIE_BIC:
+                best = other
+    return _led_by_best_single(best, d, nominal, singles)
 
 
 def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> Explanation:
@@ -1485,7 +1487,7 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     one ranked first among the single-effect fits, each in its best form: the ranking the report's
     `effects` lists and the first search starts from), the others in the order the search added
     them, as a search led by the best single effect lists them; the chain's prefixes refitted in
-    expl's forms to give what each adds, its compound fit kept.
+    expl's forms to give what each adds, its compound fit kept. expl itself where it is so led.
 
     Ranked in their best forms, not in expl's: racquet round 1 segment 0's explanation (an
     inertia change, then a constant drag) was listed led by the inertia change, whose single fit
@@ -1496,7 +1498,7 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     by_name = {f.name: f for f in singles}
     rank = {f.name: i for i, f in enumerate(ranked(singles))}
     lead = min(final.names, key=rank.__getitem__)
-    if lead == final.names[0]:
+    if lead == expl.added[0][0]:  # listed so already (its compound fit may hold them in another order)
         return expl
     alone = {n: _alone(by_name[n], form, d, nominal) for n, form in zip(final.names, final.forms)}
     order = [final.names.index(lead)] + [i for i, n in enumerate(final.names) if n != lead]

@@ -22,8 +22,13 @@ from inertia_gym.discrepancy.fit import (
     MAX_EFFECTS,
     SIGNIFICANT_DELTA_BIC,
     TIE_BIC,
+    Explanation,
     Layout,
+    _added,
+    _alone,
+    _chain,
     _claims_cost,
+    _led_by_best_single,
     _search,
     fit_effect,
     fit_nominal,
@@ -494,6 +499,27 @@ def test_the_search_led_by_the_runner_up_finds_a_better_explanation(racquet_toss
     assert _claims_cost(runner_up.fit) < _claims_cost(first.fit) - TIE_BIC
     assert _claims_cost(chosen.fit) <= _claims_cost(runner_up.fit) + TIE_BIC
     assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
+
+
+def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
+    """The same compound explanation listed the other way round (as another search, or a
+    backward check that dropped the first search's lead, can leave it) is listed again led by its
+    effect ranked first among the single fits: the compound fit kept, the prefix refitted, and
+    the ΔBICs along the new chain adding up to the whole gain."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
+                                seed=1000)
+    d, nominal, singles, _, chosen = _fits(_concealed(rec))
+    assert sorted(chosen.fit.names) == ["constant_body_torque", "gyro_bias"]
+    assert chosen.fit.names[0] == singles[0].name  # the selection's own listing
+    names, forms = chosen.fit.names[::-1], chosen.fit.forms[::-1]
+    by_name = {f.name: f for f in singles}
+    chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
+    backwards = Explanation(tuple(chain), _added(nominal, chain, names), {})
+    led = _led_by_best_single(backwards, d, nominal, singles)
+    assert [name for name, _ in led.added] == list(chosen.fit.names)
+    assert led.fit is backwards.fit  # the compound fit kept, only its listing changed
+    assert sum(gain for _, gain in led.added) == pytest.approx(nominal.bic - backwards.fit.bic)
+    assert _led_by_best_single(led, d, nominal, singles) is led
 
 
 def test_an_explanation_from_another_search_is_led_by_what_explains_most_alone(rotor_throw, monkeypatch):
