@@ -56,7 +56,7 @@ BEYOND_CATALOGUE = 5.0
 #: Residual rms / noise (every axis, the fitted parameters' degrees of freedom restored) below
 #: which a noise level read from the data is reported as reading high: a fit cannot leave much
 #: less than the noise, but motion fast for the sampling passes for noise in the differences
-#: (a 1-s toss at 15 rad/s sampled at 25 Hz read 1.3-3.3x its noise; its fit 0.25-0.68x).
+#: (a 1-s toss at 15 rad/s sampled at 25-33 Hz read 1.3-3.3x its noise; its fit 0.25-0.68x).
 NOISE_READ_HIGH = 0.8
 #: Draws of a fit's parameters behind the ratios' intervals: 2**RATIO_DRAWS_LOG2 points of a
 #: scrambled Sobol sequence (seeded) mapped to normal quantiles. Their 2.5/97.5 percentiles come
