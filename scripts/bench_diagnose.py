@@ -51,16 +51,19 @@ def long_recording() -> Recording:
     return dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k != "effect"})
 
 
-def toss() -> Recording:
-    """1 s at 100 Hz of a racquet flipping at 15 rad/s with quadratic drag, gyro only."""
+def toss(every: int = 10, sidecar: bool = True) -> Recording:
+    """1 s of a racquet flipping at 15 rad/s with quadratic drag, gyro only (noise 5e-3 rad/s),
+    simulated at 1 kHz and sampled every `every`-th step (100 Hz by default); the noise level
+    in a sidecar (gyro_sigma) or, with sidecar=False, left for diagnose to read from the data.
+    """
     from inertia_gym.discrepancy.effects import Effect
 
     drag = Effect("aero_drag", {"c": np.diag([4e-5, 3e-5, 2e-6])})
     q, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.array([0.3, 15.0, 0.4]), RACQUET,
                           np.zeros((1000, 3)), 1e-3, drag)
-    idx = np.arange(0, 1001, 10)
+    idx = np.arange(0, 1001, every)
     noise = np.random.default_rng(0).normal(0, 0.005, (idx.size, 3))
-    return Recording(idx * 1e-3, w[idx] + noise, None, None, {"gyro_sigma": 0.005}, "toss")
+    return Recording(idx * 1e-3, w[idx] + noise, None, None, {"gyro_sigma": 0.005} if sidecar else {}, "toss")
 
 
 def timed(fn, repeat: int) -> tuple[float, object]:

@@ -2,15 +2,17 @@
 report's flag where the fit says that level reads high."""
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy.effects import Effect
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import NOISE_READ_HIGH, diagnose, markdown
-from inertia_gym.discrepancy.synthetic import simulate_truth
 from inertia_gym.sensors import NOISE_ORDERS, estimate_white_noise
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from bench_diagnose import toss as bench_toss  # noqa: E402
 
 
 @pytest.mark.parametrize("k", NOISE_ORDERS)
@@ -63,24 +65,14 @@ def test_a_recording_too_short_for_higher_orders_uses_the_third():
     assert np.array_equal(estimate_white_noise(w), level3)
 
 
-def _drag_toss(step: int, sidecar: bool):
-    """A 1-s racquet-like toss (15 rad/s about the intermediate axis, quadratic drag) simulated at
-    2 kHz and sampled every `step`-th point, gyro noise 5e-3 rad/s; sigma in a sidecar or not."""
-    drag = Effect("aero_drag", {"c": np.diag([4e-5, 3e-5, 2e-6])})
-    _, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.array([0.3, 15.0, 0.4]),
-                          np.diag([20.7e-3, 19.5e-3, 1.39e-3]), np.zeros((2000, 3)), 5e-4, drag)
-    idx = np.arange(0, 2001, step)
-    noise = np.random.default_rng(0).normal(0.0, 5e-3, (idx.size, 3))
-    return Recording(idx * 5e-4, w[idx] + noise, None, None, {"gyro_sigma": 5e-3} if sidecar else {}, "toss")
-
-
-@pytest.mark.parametrize("step, sidecar, expected",
-                         [(80, False, True), (20, False, False), (80, True, False)])
-def test_the_report_says_where_the_noise_level_read_from_the_data_reads_high(step, sidecar, expected):
-    """At 25 Hz a toss turning at 15 rad/s moves too much between samples for the differences to
-    read its noise (they read it 1.3-3.3x high), and the fit leaves well under that level: the
-    report says so. At 100 Hz the level is right, and a sidecar's level is never flagged."""
-    report, _ = diagnose(_drag_toss(step, sidecar))
+@pytest.mark.parametrize("every, sidecar, expected",
+                         [(40, False, True), (10, False, False), (40, True, False)])
+def test_the_report_says_where_the_noise_level_read_from_the_data_reads_high(every, sidecar, expected):
+    """The speed bench's 1-s toss at 15 rad/s (scripts/bench_diagnose.py): at 25 Hz it moves too
+    much between samples for the differences to read its noise (they read it 2.3-3.3x high), and
+    the fit leaves well under that level: the report says so. At 100 Hz the level is right, and a
+    sidecar's level is never flagged."""
+    report, _ = diagnose(bench_toss(every, sidecar))
     assert report["fit_after"]["valid"]
     assert report["noise"]["read_high"] is expected
     assert ("reads high" in markdown(report, [])) is expected
