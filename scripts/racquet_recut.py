@@ -46,7 +46,7 @@ def recut(t, w, window, name: str) -> dict:
     try:
         report, _ = diagnose(rec)
         after = report["fit_after"]
-        row |= {"lead": report["explanation"][0]["name"] if report["explanation"] else None,
+        row |= {"lead": report["explanation"][0]["name"] if report["explanation"] else "none",
                 "before": round(max(report["fit_before"]["rms_over_noise"]), 1),
                 "after": round(max(after["rms_over_noise"]), 1) if after["valid"] else None,
                 "ratios": np.round(after["principal_ratios"][1:], 3).tolist() if after["valid"] else None}
@@ -59,6 +59,29 @@ def recut(t, w, window, name: str) -> dict:
     except (RecordingError, EstimatorDivergedError) as err:
         row["identify_refused"] = str(err)
     return row
+
+
+def summarize(rows: list[dict], failures: list[str]) -> dict:
+    """The counts over all cuts: rows as recut() gives them (a cut whose diagnosis names no
+    effect leads with "none"), failures the one-line tracebacks of the cuts that raised."""
+    fitted = [r for r in rows if r.get("after") is not None]
+    leads = collections.Counter((r["cut"].split()[0], r["lead"]) for r in fitted)
+    fall = [r["before"] / r["after"] for r in fitted]
+    spread = collections.defaultdict(list)
+    for r in rows:
+        if "identify_ratios" in r:
+            spread[r["cut"].rsplit(" ", 2)[0]].append(r["identify_ratios"])
+    return {
+        "cuts": len(rows) + len(failures), "diagnose_valid": len(fitted),
+        "diagnose_refused": sum("diagnose_refused" in r for r in rows),
+        "identify_results": sum("identify_ratios" in r for r in rows),
+        "identify_refused": sum("identify_refused" in r for r in rows),
+        "other_failures": len(failures),
+        "leading": {f"{k[0]} {k[1]}": v for k, v in sorted(leads.items())},
+        "rms_fall_median": round(float(np.median(fall)), 1) if fall else None,
+        "rms_fall_below_3x": int(np.sum(np.array(fall) < 3.0)),
+        "identify_ratio_spread_max": round(max(float(np.ptp(np.array(v), axis=0).max())
+                                               for v in spread.values()), 3) if spread else None}
 
 
 def main() -> None:
@@ -86,24 +109,7 @@ def main() -> None:
                     print(failures[-1])
                     continue
                 print(json.dumps(rows[-1]), flush=True)
-    fitted = [r for r in rows if r.get("after") is not None]
-    leads = collections.Counter((r["cut"].split()[0], r["lead"]) for r in fitted)
-    fall = [r["before"] / r["after"] for r in fitted]
-    spread = collections.defaultdict(list)
-    for r in rows:
-        if "identify_ratios" in r:
-            spread[r["cut"].rsplit(" ", 2)[0]].append(r["identify_ratios"])
-    print(json.dumps({
-        "cuts": len(rows) + len(failures), "diagnose_valid": len(fitted),
-        "diagnose_refused": sum("diagnose_refused" in r for r in rows),
-        "identify_results": sum("identify_ratios" in r for r in rows),
-        "identify_refused": sum("identify_refused" in r for r in rows),
-        "other_failures": len(failures),
-        "leading": {f"{k[0]} {k[1]}": v for k, v in sorted(leads.items())},
-        "rms_fall_median": round(float(np.median(fall)), 1) if fall else None,
-        "rms_fall_below_3x": int(np.sum(np.array(fall) < 3.0)),
-        "identify_ratio_spread_max": round(max(float(np.ptp(np.array(v), axis=0).max())
-                                               for v in spread.values()), 3) if spread else None}))
+    print(json.dumps(summarize(rows, failures)))
 
 
 if __name__ == "__main__":
