@@ -34,8 +34,8 @@ def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]
     one-line reason)].
 
     Keys: recordings, refused [{name, reason}], rows [{name, series, leading, explanation,
-    valid, worst_before, worst_after, principal_ratios, beyond_catalogue}], the keys of
-    _diagnoses over them all, and groups: where the recordings fall into several series
+    valid, worst_before, worst_after, principal_ratios, beyond_catalogue, invariants_reading}],
+    the keys of _diagnoses over them all, and groups: where the recordings fall into several series
     (series_name: a folder of several bodies' throws, say), [{name, names, the keys of
     _diagnoses}] per series, else [].
     """
@@ -43,7 +43,8 @@ def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]
              "explanation": [e["name"] for e in r["explanation"]], "valid": bool(r["fit_after"]["valid"]),
              "worst_before": _worst(r["fit_before"]), "worst_after": _worst(r["fit_after"]),
              "principal_ratios": r["fit_after"]["principal_ratios"],
-             "beyond_catalogue": bool(r["beyond_catalogue"])} for name, r in done]
+             "beyond_catalogue": bool(r["beyond_catalogue"]),
+             "invariants_reading": _reading(r)} for name, r in done]
     return _across(done, refused, rows, _diagnoses)
 
 
@@ -62,11 +63,21 @@ def _lead(report: dict) -> str:
     return report["explanation"][0]["name"] if report["explanation"] else "none"
 
 
+def _reading(report: dict) -> str:
+    """What a report's invariants say of the missing torque (report.invariants' `reading`), or
+    "not applicable" where an input changes them.
+    """
+    inv = report.get("invariants") or {}
+    return inv.get("reading", "not applicable") if inv.get("applicable") else "not applicable"
+
+
 def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     """diagnosed, leading_effects {effect: count} (the first effect of each explanation; "none"
     where none is selected), most_common_lead {name, count, share} (share of the diagnosed),
-    valid_fits, beyond_catalogue (count), worst_rms_over_noise {before_median, after_median,
-    fall} (each recording's worst axis; fall = before / after of the medians), principal_ratios
+    valid_fits, beyond_catalogue (count), invariants_readings {reading: count} (what the drifts
+    of |H| and of the energy say of the missing torque, model-free but for the inertia),
+    worst_rms_over_noise {before_median, after_median, fall} (each recording's worst axis;
+    fall = before / after of the medians), principal_ratios
     (the body's shape from the fits after, shape_combined(); each fit's covariance taken as
     diagonal, from its 95 % intervals).
     """
@@ -87,6 +98,7 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
                              "share": top[1] / len(reports) if reports else None},
         "valid_fits": sum(bool(r["fit_after"]["valid"]) for r in reports),
         "beyond_catalogue": sum(bool(r["beyond_catalogue"]) for r in reports),
+        "invariants_readings": dict(collections.Counter(_reading(r) for r in reports).most_common()),
         "worst_rms_over_noise": {"before_median": median_before, "after_median": median_after,
                                  "fall": median_before / median_after if median_before and median_after
                                  else None},
@@ -271,7 +283,10 @@ def _diagnoses_lines(result: dict) -> list[str]:
     worst = result["worst_rms_over_noise"]
     lines = [f"- Leading effect of the explanation, of {n} diagnosed: {leads}.",
              f"- A valid fit on {result['valid_fits']} of {n}; beyond the catalogue (the explanation "
-             f"leaves a large misfit) on {result['beyond_catalogue']}."]
+             f"leaves a large misfit) on {result['beyond_catalogue']}.",
+             "- The missing torque as the drifts of |H| and of the energy read it (the invariants): "
+             + ", ".join(f"{name} on {count}" for name, count in result["invariants_readings"].items())
+             + "."]
     if worst["fall"] is not None:
         lines.append(f"- Worst-axis rms over the noise, median: {worst['before_median']:.3g} before, "
                      f"{worst['after_median']:.3g} after ({worst['fall']:.3g}x lower).")

@@ -24,8 +24,9 @@ and a statement of the noise model:
 The filters (``ekf``, ``ukf``) run the paper's estimator once over the rows (estimation/
 filters.py), with the same start; their covariance is the filter's own.
 
-The scale: without a known torque and without a changing internal momentum h, torque-free motion
-fixes the inertia only up to a factor. Then the scale is not fitted; the inertia is reported
+The scale: without a known torque and without a known internal momentum h that is not zero
+(changing, or constant: a rotor at constant speed), torque-free motion fixes the inertia only up
+to a factor. Then the scale is not fitted; the inertia is reported
 normalised to the sidecar's nominal trace (or to trace 1) with ``scale_identified: false`` and
 the covariance of the normalised inertia (ratios only).
 """
@@ -525,7 +526,7 @@ def problem_from_recording(rec: Recording, sigma_w=None, fit_bias: bool | None =
     n = t.size
     tau = rec.tau if rec.tau is not None else np.zeros((n, 3))
     h = rec.h if rec.h is not None else np.zeros((n, 3))
-    forced = bool(np.any(tau != 0.0)) or bool(np.ptp(h, axis=0).max() > 0.0)
+    forced = rec.sees_scale
     clipped = clipped_rows(rec)
     meas = np.flatnonzero(~clipped)
     if sigma_w is None:
@@ -743,7 +744,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                              "check the units of the torque (N·m) and the momentum (kg·m²/s) "
                              "columns, or the nominal; a torque in mN·m makes the inertia 1000x")
     else:
-        notes.append("neither a torque nor a changing internal momentum acts: the inertia is "
+        notes.append("neither a torque nor a known internal momentum acts: the inertia is "
                      "identified up to scale; it is reported normalised to trace "
                      f"{TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
                      + ("(the nominal's)" if trace_ref is not None else "(no nominal given)"))

@@ -115,19 +115,24 @@ def test_the_shapes_covariance_is_the_delta_method_of_the_inertias():
     assert np.all(cov[0] == 0) and np.all(cov[:, 0] == 0)
 
 
-def _report(lead, before, after, ratios, valid=True, half=0.01):
+def _report(lead, before, after, ratios, valid=True, half=0.01, reading=None):
     fit_after = {"valid": valid, "rms_over_noise": after if valid else None,
                  "principal_ratios": ratios if valid else None,
                  "principal_ratios_ci95": None if not valid else
                  [[r - half * (k > 0), r + half * (k > 0)] for k, r in enumerate(ratios)]}
     return {"explanation": [{"name": n} for n in lead], "beyond_catalogue": not valid or max(after) > 20,
-            "fit_before": {"rms_over_noise": before}, "fit_after": fit_after}
+            "fit_before": {"rms_over_noise": before}, "fit_after": fit_after,
+            "invariants": ({"applicable": False} if reading is None
+                           else {"applicable": True, "reading": reading})}
 
 
 def test_diagnoses_across_counts_leads_and_compares_fits():
-    done = [("a", _report(["viscous_damping", "flexible_mode"], [50, 10, 5], [2, 1, 1], [1, 0.93, 0.07])),
-            ("b", _report(["viscous_damping"], [80, 20, 9], [3, 2, 1], [1, 0.94, 0.066])),
-            ("c", _report(["internal_momentum"], [200, 9, 9], [30, 2, 2], [1, 0.8, 0.2])),
+    drag = "against the angular momentum"
+    done = [("a", _report(["viscous_damping", "flexible_mode"], [50, 10, 5], [2, 1, 1], [1, 0.93, 0.07],
+                          reading=drag)),
+            ("b", _report(["viscous_damping"], [80, 20, 9], [3, 2, 1], [1, 0.94, 0.066], reading=drag)),
+            ("c", _report(["internal_momentum"], [200, 9, 9], [30, 2, 2], [1, 0.8, 0.2],
+                          reading="adds to the rotation")),
             ("d", _report([], [1.1, 1.0, 0.9], [1.1, 1.0, 0.9], [1, 0.92, 0.07], valid=False))]
     out = diagnoses_across(done, [("e", "too short")])
     assert out["recordings"] == 5 and out["diagnosed"] == 4
@@ -135,6 +140,9 @@ def test_diagnoses_across_counts_leads_and_compares_fits():
     assert out["leading_effects"] == {"viscous_damping": 2, "internal_momentum": 1, "none": 1}
     assert out["most_common_lead"] == {"name": "viscous_damping", "count": 2, "share": 0.5}
     assert out["valid_fits"] == 3 and out["beyond_catalogue"] == 2
+    assert out["invariants_readings"] == {drag: 2, "adds to the rotation": 1, "not applicable": 1}
+    assert [row["invariants_reading"] for row in out["rows"]] == [drag, drag, "adds to the rotation",
+                                                                   "not applicable"]
     # worst axes: before 50, 80, 200, 1.1 (median 65); after 2, 3, 30 (the invalid fit has none)
     assert out["worst_rms_over_noise"] == {"before_median": 65.0, "after_median": 3.0, "fall": 65.0 / 3.0}
     shape = out["principal_ratios"]  # the valid fits' shapes: c's far from a's and b's
@@ -143,6 +151,7 @@ def test_diagnoses_across_counts_leads_and_compares_fits():
     text = diagnoses_markdown(out)
     assert "`viscous_damping` on 2 (50%)" in text and "Refused: 1 (e: too short)" in text
     assert "65 before, 3 after (21.7x lower)" in text and "understates its error" in text
+    assert f"(the invariants): {drag} on 2, adds to the rotation on 1, not applicable on 1." in text
 
 
 def test_identifications_across_combines_the_shape_and_the_moments_where_scaled():

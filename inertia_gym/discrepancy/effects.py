@@ -1037,7 +1037,7 @@ class InertiaOffset(EffectModel):
     Every other model holds the user's nominal inertia as given (fit.py); this effect fits J in
     the positive-definite log-Cholesky parameterization p = phi (estimation.inertia_param: never
     indefinite), each step projected onto the inertias a body can have (realizable_phi), its
-    overall scale too where a known torque or changing momentum shows it, else
+    overall scale too where a known torque or a known momentum shows it, else
     its shape at the nominal's trace. The comparison of the fitted J with the nominal (% per
     principal moment, axis rotation) is report.inertia_comparison.
     """

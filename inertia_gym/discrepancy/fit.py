@@ -120,11 +120,11 @@ class Data:
     sample (-1: left out); row_seg (n_rows,) segment of each row; row_scale (n_rows,) noise of a
     row's mean relative to a full block's; sigma (3,) rad/s noise of a full block's mean;
     inertia0: the sidecar's nominal (3, 3) kg·m², held in every model but inertia_offset, or
-    None (the inertia is then fitted in every model); scale_fixed: neither a known torque nor a
-    changing known momentum acts, so a fitted inertia's trace is pinned to trace0 kg·m² (the
-    nominal's, or 1); omega_ref rad/s, j_ref kg·m², tau_ref N·m, dt s (median sample interval),
-    duration s: scales for starts and step sizes; block: samples per row; notes: what was left
-    out and how the noise was set (reported).
+    None (the inertia is then fitted in every model); scale_fixed: neither a known torque acts
+    nor a known momentum that is not zero (Recording.sees_scale), so a fitted inertia's trace is
+    pinned to trace0 kg·m² (the nominal's, or 1); omega_ref rad/s, j_ref kg·m², tau_ref N·m, dt s
+    (median sample interval), duration s: scales for starts and step sizes; block: samples per
+    row; notes: what was left out and how the noise was set (reported).
     """
 
     t: np.ndarray
@@ -197,8 +197,8 @@ class Data:
 
     @property
     def excited(self) -> bool:
-        """A known torque or a changing known momentum: the inertia's scale is seen."""
-        return self.has_torque or self.has_momentum
+        """The inertia's scale is seen: a known torque, or a known momentum that is not zero."""
+        return not self.scale_fixed
 
     @property
     def n_rows(self) -> int:
@@ -328,7 +328,7 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
                   f"estimated from the data (differences of order 3 to 6 of {block}-sample means)")
     nominal = rec.inertia_nominal
     has_momentum = rec.has_momentum
-    excited = rec.has_torque or has_momentum
+    excited = rec.sees_scale
     trace0 = float(np.trace(nominal)) if nominal is not None else 1.0
     # the body's rate, at least the gyro's noise (a body at rest: the rate the gyro can resolve)
     omega_ref = max(float(np.median(np.linalg.norm(w, axis=1))), float(sigma.mean()))

@@ -113,7 +113,8 @@ class Recording:
         or None. Last so that positional construction (t, w, q, tau, meta, name) still works.
 
     Properties: ``has_torque`` (a non-zero commanded torque), ``has_momentum`` (h present and
-    not constant: only a changing h carries information on the inertia's scale),
+    not constant: an input that changes the motion's invariants), ``sees_scale`` (a torque, or a
+    known h that is not zero: either fixes the inertia's scale),
     ``inertia_nominal`` (from the sidecar).
 
     """
@@ -135,6 +136,14 @@ class Recording:
     def has_momentum(self) -> bool:
         """True when a known internal momentum h is present and not constant over the recording."""
         return self.h is not None and bool(np.ptp(self.h, axis=0).max() > 0)
+
+    @property
+    def sees_scale(self) -> bool:
+        """True when the data fix the inertia's scale: a commanded torque, or a known internal
+        momentum that is not zero, constant or not (J w_dot = -w x (J w + h): scaling J without
+        h changes the motion wherever h is not zero; a rotor at constant speed fixes it too).
+        """
+        return self.has_torque or (self.h is not None and bool(np.any(self.h != 0.0)))
 
     @property
     def inertia_nominal(self) -> np.ndarray | None:

@@ -99,18 +99,35 @@ def spectrum(r, dt_row: float):
     return f, p
 
 
+#: a ratio of the energy's relative drift to |H|'s within this factor of the references reads as a
+#: drag (the references are means over the record of ratios that move with the rotation)
+DRAG_RATIO_TOLERANCE = 1.15
+
+
 def invariants(d: Data, fit: Fit) -> dict:
-    """Drift of |H| = |J w| and of E = w.J w / 2 (fitted J) over the recording, when torque-free.
+    """Drift of |H| = |J w + h| and of the rotational energy E = w.J w / 2 (fitted J, known
+    internal momentum h) over the recording, when torque-free; and what the drift says of the
+    torque missing from the model.
 
     An external torque changes |H|; an internal effect (dissipation) changes E but keeps |H|.
     Drift is the fitted linear change over the recording relative to the mean, with a z-score.
+    Where both fall, their ratio (dE/E) / (d|H|/|H|) tells the torque's direction: a torque tau
+    gives w.tau / E against (H.tau) / |H|^2 at each instant, so one against the angular
+    momentum (tau = -k H: a drag -k J w, every motion slowed alike) gives w.H / E (2 where h = 0)
+    and one against the rates (tau = -c w) |w|^2 |H|^2 / (E H.w) (>= 2); both references are
+    averaged over the rows (`against_momentum_ratio`, `against_rates_ratio`), and `reading` names
+    the nearer where the ratio lies within DRAG_RATIO_TOLERANCE of them, says which the torque
+    drains beyond a drag where it lies outside (energy: dissipation inside the body besides), or
+    says it adds to the rotation where E or |H| grows.
     """
-    if d.excited:
+    if d.has_torque or d.has_momentum:
         return {"applicable": False, "reason": "commanded torque or a changing known momentum acts"}
     w = d.w
-    jw = w @ fit.inertia.T + (0.0 if d.h is None else d.h)
-    series = {"momentum": np.linalg.norm(jw, axis=1), "energy": 0.5 * np.sum(w * jw, 1)}
-    out = {"applicable": True}
+    jw = w @ fit.inertia.T
+    big_h = jw + (0.0 if d.h is None else d.h)
+    energy = 0.5 * np.sum(w * jw, 1)
+    series = {"momentum": np.linalg.norm(big_h, axis=1), "energy": energy}
+    out: dict = {"applicable": True}
     t = d.t - d.t[0]
     for key, y in series.items():
         a = np.vstack([t, np.ones_like(t)]).T
@@ -123,8 +140,53 @@ def invariants(d: Data, fit: Fit) -> dict:
     dm, de = abs(out["momentum"]["z"]) > 5, abs(out["energy"]["z"]) > 5
     out["verdict"] = ("external (|H| drifts)" if dm else "internal (energy drifts, |H| kept)" if de
                       else "no drift")
+    out |= _torque_reading(out, w, big_h, energy, dm, de)
     out["series"] = {k: v for k, v in series.items()}
     return out
+
+
+def _torque_reading(inv: dict, w, big_h, energy, drifts_h: bool, drifts_e: bool) -> dict:
+    """invariants()' reading of the missing torque from the drifts (see there): the observed
+    ratio, the two references and the words' key.
+    """
+    h_dot_w = np.sum(big_h * w, 1)
+    ok = (energy > 0) & (h_dot_w > 0)
+    if not ok.any():
+        return {"energy_per_momentum": None, "against_momentum_ratio": None,
+                "against_rates_ratio": None, "reading": "not read (no rotation)"}
+    along_h = float(np.mean(h_dot_w[ok] / energy[ok]))
+    along_w = float(np.mean(np.sum(w * w, 1)[ok] * np.sum(big_h * big_h, 1)[ok]
+                            / (energy[ok] * h_dot_w[ok])))
+    e_rel, h_rel = inv["energy"]["relative_drift"], inv["momentum"]["relative_drift"]
+    ratio = e_rel / h_rel if drifts_h else None
+    if not drifts_h:
+        reading = "internal" if drifts_e else "none"
+    elif h_rel > 0 or (drifts_e and e_rel > 0):
+        reading = "adds to the rotation"
+    elif not drifts_e:
+        reading = "drains |H|, energy kept"
+    elif ratio > DRAG_RATIO_TOLERANCE * max(along_h, along_w):
+        reading = "drains the energy beyond a drag"
+    elif ratio < min(along_h, along_w) / DRAG_RATIO_TOLERANCE:
+        reading = "drains |H| beyond a drag"
+    elif abs(np.log(ratio / along_h)) <= abs(np.log(ratio / along_w)):
+        reading = "against the angular momentum"
+    else:
+        reading = "against the rates"
+    return {"energy_per_momentum": ratio, "against_momentum_ratio": along_h,
+            "against_rates_ratio": along_w, "reading": reading}
+
+
+def _read_with_both(explained: dict, rigid: dict) -> dict:
+    """The invariants read with the explanation's inertia, their reading kept only where the
+    rigid fit's inertia reads the same (a fit that leaves more than noise may have moved the
+    inertia, and |J w| and w.J w / 2 move with it); else `reading` is "uncertain" and
+    `readings` gives both.
+    """
+    if not explained.get("applicable") or explained["reading"] == rigid["reading"]:
+        return explained
+    return {**explained, "reading": "uncertain",
+            "readings": {"rigid fit": rigid["reading"], "explanation": explained["reading"]}}
 
 
 def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
@@ -292,7 +354,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     after = before if best is nominal else _fit_summary(best, d)
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
-    inv = invariants(d, nominal)
+    inv = invariants(d, best)
+    if best is not nominal and unexplained:  # neither inertia is sure: read with both
+        inv = _read_with_both(inv, invariants(d, nominal))
     report = {
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
@@ -479,7 +543,7 @@ def _explanation_words(report: dict) -> str:
                          f"{np.round(cmp['percent_change'], 1).tolist()} % (ascending), principal "
                          f"axes turn by {np.round(cmp['axis_rotation_deg'], 1).tolist()} deg"
                          + ("" if cmp["scale_compared"] else
-                            " (no torque or changing momentum: shapes compared at the nominal's "
+                            " (no torque or known momentum: shapes compared at the nominal's "
                             "trace)") + ".")
             for c in e["confounded_with"]:
                 text += f"\n\n{e['name']} is confounded with {c['with']}: {c['reason']}."
@@ -491,7 +555,7 @@ def _explanation_words(report: dict) -> str:
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
     if not report["scale_identified"]:
-        text += ("\n\nNo commanded torque or changing known momentum: the data fix the inertia only up "
+        text += ("\n\nNo commanded torque or known internal momentum: the data fix the inertia only up "
                  "to a common factor, "
                  + ("so the fitted torques, momenta and damping are in units of the sidecar's "
                     "nominal inertia and scale with it if it is wrong."
@@ -554,6 +618,48 @@ def _noise_words(report: dict) -> list[str]:
             "on it"]
 
 
+def _invariants_words(inv: dict) -> str:
+    """The invariants' drifts and their reading of the missing torque, in words."""
+    if not inv.get("applicable"):
+        return f"Invariants: not read ({inv.get('reason', 'not applicable')})."
+
+    def drift(key: str, name: str) -> str:
+        rel = inv[key]["relative_drift"]
+        return f"{name} {'grows' if rel > 0 else 'falls'} {abs(rel):.1%} (z {inv[key]['z']:.0f})"
+
+    head = (f"Invariants (torque-free they hold; the rigid fit's inertia): over the record "
+            f"{drift('momentum', '|H|')} and {drift('energy', 'the rotational energy')}")
+    reading = inv["reading"]
+    plain = {
+        "none": "neither drifts beyond the noise: no torque acts that these rows would show.",
+        "internal": "the energy drifts and |H| is kept: physics inside the body (dissipation, "
+                    "a moving part), not an external torque.",
+        "adds to the rotation": "a torque adds to the rotation: no drag does that.",
+        "drains |H|, energy kept": "|H| falls while the energy holds: an external torque, neither "
+                                   "a drag against the rates nor one against the angular momentum.",
+        "not read (no rotation)": "too little rotation to read the drifts.",
+    }
+    if reading in plain:
+        return f"{head}: {plain[reading]}"
+    if reading == "uncertain":
+        both = inv["readings"]
+        return (f"{head} (the explanation's inertia): what this says of the missing torque depends "
+                f"on the inertia, which neither fit pins (both leave more than noise): with the "
+                f"rigid fit's it reads {both['rigid fit']!r}, with the explanation's "
+                f"{both['explanation']!r}.")
+    along_h, along_w = inv["against_momentum_ratio"], inv["against_rates_ratio"]
+    refs = (f"a torque against the angular momentum (tau = -k H: a drag -k J w, every motion slowed "
+            f"alike) gives {along_h:.2f} here, one against the rates (tau = -c w) {along_w:.2f}")
+    if abs(along_w / along_h - 1) < 0.05:
+        refs += " (the two lie close: the rotation stays near a principal axis)"
+    verdict = {
+        "drains the energy beyond a drag": "faster than either: dissipation inside the body besides",
+        "drains |H| beyond a drag": "slower than either: a torque across the rotation",
+    }.get(reading, f"the missing torque reads as the one {reading}")
+    return (f"{head}: the energy falls {inv['energy_per_momentum']:.2f} times as fast as |H|. "
+            f"{refs[0].upper()}{refs[1:]}: {verdict}.")
+
+
 def _beyond_words(report: dict) -> list[str]:
     """A warning where the explanation leaves the residual over BEYOND_CATALOGUE times the noise."""
     if not report.get("beyond_catalogue"):  # (a report written before the key existed: none)
@@ -604,7 +710,7 @@ def markdown(report: dict, plots: list[str]) -> str:
     for name, why in report["skipped_effects"].items():
         lines.append(f"- not tested: {name}: {why}")
     lines.append(f"\nLocated windows: {report['locations'] or 'none'}")
-    lines.append(f"\nInvariants: {report['invariants']}")
+    lines.append("\n" + _invariants_words(report["invariants"]))
     if report["sparse_terms"]:
         lines.append(f"\nUnexplained residual; sparse-regression terms: {report['sparse_terms']}")
     lines += [""] + [f"![{p}]({p})" for p in plots]

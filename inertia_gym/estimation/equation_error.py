@@ -6,7 +6,7 @@ at both ends of an interval and integrated, needs no derivative of the gyro:
 
     integral (-phi' Omega(w) + phi [w]x Omega(w)) dt  theta  =  integral (phi' h - phi w x h + phi tau) dt
 
-Stacking the three rows of every interval gives A theta = c. With a known torque or a changing h,
+Stacking the three rows of every interval gives A theta = c. With a known torque or a non-zero h,
 c != 0 and the least-squares solution carries the scale; without, c = 0 and theta is the right
 singular vector of A with the smallest singular value, scaled to a given trace. The result is
 projected onto physically valid inertias (positive definite, triangle inequality).
@@ -60,7 +60,7 @@ def equation_error_theta(t, w, tau=None, h=None, trace=1.0, samples_per_window=N
     """Linear estimate of theta (6,) from gyro rates w (n, 3) rad/s at times t (n,) s.
 
     tau (n, 3) N·m held per row, h (n, 3) kg·m²/s (None: zero). trace (kg·m²) fixes the scale
-    when neither torque nor a changing h acts. usable (n,) bool or None: samples that are
+    when neither torque nor a non-zero h acts. usable (n,) bool or None: samples that are
     measurements (a clipped gyro's are not); the windows holding any other are left out, unless
     fewer than MIN_WINDOWS would remain. Returns theta of a valid inertia.
     """

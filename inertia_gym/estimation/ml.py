@@ -243,7 +243,7 @@ class Problem:
     n_sub (G,) integration sub-steps per interval; meas_idx (M,) grid index of each measurement;
     z_w (M, 3) rad/s gyro; z_q (M, 4) unit quaternions or None; sigma_w (3,) rad/s;
     sigma_att rad (per axis of the attitude error); fit_bias: estimate a constant gyro bias;
-    fix_scale: the scale s is not a free parameter (no torque and no changing h); fit_drag:
+    fix_scale: the scale s is not a free parameter (no torque and h zero); fit_drag:
     estimate a body-axis aerodynamic damping c (3,) N·m·s² (external torque -c_i |w| w_i).
     """
 
