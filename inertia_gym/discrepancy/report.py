@@ -627,7 +627,7 @@ def _invariants_words(inv: dict) -> str:
         rel = inv[key]["relative_drift"]
         return f"{name} {'grows' if rel > 0 else 'falls'} {abs(rel):.1%} (z {inv[key]['z']:.0f})"
 
-    head = (f"Invariants (torque-free they hold; the rigid fit's inertia): over the record "
+    head = (f"Invariants (torque-free they hold; read with the inertia of `fit_after`): over the record "
             f"{drift('momentum', '|H|')} and {drift('energy', 'the rotational energy')}")
     reading = inv["reading"]
     plain = {
@@ -643,7 +643,7 @@ def _invariants_words(inv: dict) -> str:
         return f"{head}: {plain[reading]}"
     if reading == "uncertain":
         both = inv["readings"]
-        return (f"{head} (the explanation's inertia): what this says of the missing torque depends "
+        return (f"{head}: what this says of the missing torque depends "
                 f"on the inertia, which neither fit pins (both leave more than noise): with the "
                 f"rigid fit's it reads {both['rigid fit']!r}, with the explanation's "
                 f"{both['explanation']!r}.")
