@@ -98,7 +98,7 @@ def run_case(kind: str, body: str, seed: int) -> dict:
     result = identify(rec)
     wall = time.perf_counter() - t0
     est = result.estimate
-    carries_scale = rec.has_torque or rec.has_momentum
+    carries_scale = rec.sees_scale
     reference = truth if carries_scale else truth * np.trace(est.inertia) / np.trace(truth)
     z = (est.theta - theta_of(reference)) / np.sqrt(np.clip(np.diag(est.theta_cov), 1e-300, None))
     return {"case": case.name, "kind": kind, "body": body, "seed": seed, "samples": int(rec.t.size),

@@ -141,7 +141,11 @@ class EffectModel:
     quadratic drag), ``restarts_on_base`` (the forward selection also tries the effect's own
     starts found on top of the fit it is added to: a mode's frequency screen, which a larger
     effect beside it leads astray when run on the nominal fit alone), ``optional`` (parameters a
-    truth Effect may leave out, with the value they then take).
+    truth Effect may leave out, with the value they then take), ``keeps_invariants`` (the
+    effect acts on the body only as a torque, or as dissipation inside it: |J w + h| and
+    w.J w / 2 of the measured rates stay the body's momentum and energy, so the invariants may
+    be read with its fit's inertia alone; not so for a gyro error, a fitted momentum or mode,
+    an inertia that changes).
     """
 
     name: ClassVar[str]
@@ -160,6 +164,7 @@ class EffectModel:
     varying_ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     restarts_on_base: ClassVar[bool] = False
     optional: ClassVar[dict] = {}
+    keeps_invariants: ClassVar[bool] = False
 
     # --- parameters -------------------------------------------------------------------------
     def draw(self, rng: np.random.Generator, body: Body) -> dict:
@@ -366,6 +371,7 @@ class ConstantBodyTorque(EffectModel):
     """A constant torque fixed in the body (N·m)."""
 
     name, params, size, family = "constant_body_torque", ("torque",), 3, "external torque"
+    keeps_invariants = True
 
     @override
     def draw(self, rng, body):
@@ -527,6 +533,7 @@ class _Drag(EffectModel):
     """
 
     params, size, family = ("c",), 6, "drag"
+    keeps_invariants = True
 
     def _scale(self, d) -> float:
         raise NotImplementedError
@@ -716,6 +723,7 @@ class InternalDissipation(EffectModel):
     """
 
     name, params, size, family = "internal_dissipation", ("d",), 1, "internal motion"
+    keeps_invariants = True
 
     @override
     def draw(self, rng, body):
@@ -845,6 +853,7 @@ class GravityGradient(EffectModel):
     """Torque 3 n^2 r x J r, r the inertial nadir in the body frame; fitted as n * nadir (3,)."""
 
     name, params, size, family = "gravity_gradient", ("orbit_rate", "nadir_inertial"), 3, "external torque"
+    keeps_invariants = True
     needs_attitude = True
 
     @override
@@ -1043,6 +1052,7 @@ class InertiaOffset(EffectModel):
     """
 
     name, params, size, family = "inertia_offset", ("inertia",), 6, "inertia"
+    keeps_invariants = True
     sets_inertia = True
     ambiguities = (("actuator_scale", "the inertia's overall scale trades against the torque "
                     "scale (c J with torque c tau fits the same): only the shape of J, its moment "

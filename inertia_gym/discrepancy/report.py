@@ -102,6 +102,8 @@ def spectrum(r, dt_row: float):
 #: a ratio of the energy's relative drift to |H|'s within this factor of the references reads as a
 #: drag (the references are means over the record of ratios that move with the rotation)
 DRAG_RATIO_TOLERANCE = 1.15
+#: the reading where the drifts cannot be read as a torque's
+NOT_READ = "not read (no rotation, or a known momentum against it)"
 
 
 def invariants(d: Data, fit: Fit) -> dict:
@@ -113,9 +115,10 @@ def invariants(d: Data, fit: Fit) -> dict:
     Drift is the fitted linear change over the recording relative to the mean, with a z-score.
     Where both fall, their ratio (dE/E) / (d|H|/|H|) tells the torque's direction: a torque tau
     gives w.tau / E against (H.tau) / |H|^2 at each instant, so one against the angular
-    momentum (tau = -k H: a drag -k J w, every motion slowed alike) gives w.H / E (2 where h = 0)
-    and one against the rates (tau = -c w) |w|^2 |H|^2 / (E H.w) (>= 2); both references are
-    averaged over the rows (`against_momentum_ratio`, `against_rates_ratio`), and `reading` names
+    momentum (tau = -k H; where h = 0 a drag -k J w, every motion slowed alike) gives w.H / E (2
+    where h = 0) and one against the rates (tau = -c w) |w|^2 |H|^2 / (E H.w) (at least 2 where
+    h = 0); both references are taken from the record's means as the observed ratio is
+    (`against_momentum_ratio`, `against_rates_ratio`, _torque_reading), and `reading` names
     the nearer where the ratio lies within DRAG_RATIO_TOLERANCE of them, says which the torque
     drains beyond a drag where it lies outside (energy: dissipation inside the body besides), or
     says it adds to the rotation where E or |H| grows.
@@ -148,20 +151,28 @@ def invariants(d: Data, fit: Fit) -> dict:
 def _torque_reading(inv: dict, w, big_h, energy, drifts_h: bool, drifts_e: bool) -> dict:
     """invariants()' reading of the missing torque from the drifts (see there): the observed
     ratio, the two references and the words' key.
+
+    The references are taken as the observed ratio is, from the record's means: for tau = -k H,
+    (mean w.H / mean E) over (mean |H| / mean |H|); for tau = -c w, (mean |w|^2 / mean E) over
+    (mean H.w/|H| / mean |H|). Where a known momentum makes mean H.w <= 0 neither drag need
+    drain both, and the reading is not made.
     """
+    norm_h = np.linalg.norm(big_h, axis=1)
     h_dot_w = np.sum(big_h * w, 1)
-    ok = (energy > 0) & (h_dot_w > 0)
-    if not ok.any():
-        return {"energy_per_momentum": None, "against_momentum_ratio": None,
-                "against_rates_ratio": None, "reading": "not read (no rotation)"}
-    along_h = float(np.mean(h_dot_w[ok] / energy[ok]))
-    along_w = float(np.mean(np.sum(w * w, 1)[ok] * np.sum(big_h * big_h, 1)[ok]
-                            / (energy[ok] * h_dot_w[ok])))
-    e_rel, h_rel = inv["energy"]["relative_drift"], inv["momentum"]["relative_drift"]
-    ratio = e_rel / h_rel if drifts_h else None
+    mean_e, mean_hw = float(np.mean(energy)), float(np.mean(h_dot_w))
+    readable = mean_e > 0 and mean_hw > 0
+    along_h = mean_hw / mean_e if readable else None
+    along_w = ((float(np.mean(np.sum(w * w, 1))) / mean_e) / (
+        float(np.mean(h_dot_w / np.maximum(norm_h, 1e-300))) / float(np.mean(norm_h)))
+        if readable else None)
+    out = {"energy_per_momentum": None, "against_momentum_ratio": along_h, "against_rates_ratio": along_w}
     if not drifts_h:
-        reading = "internal" if drifts_e else "none"
-    elif h_rel > 0 or (drifts_e and e_rel > 0):
+        return out | {"reading": "internal" if drifts_e else "none"}
+    if not readable:
+        return out | {"reading": NOT_READ}
+    e_rel, h_rel = inv["energy"]["relative_drift"], inv["momentum"]["relative_drift"]
+    ratio = e_rel / h_rel
+    if h_rel > 0 or (drifts_e and e_rel > 0):
         reading = "adds to the rotation"
     elif not drifts_e:
         reading = "drains |H|, energy kept"
@@ -355,8 +366,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
     inv = invariants(d, best)
-    if best is not nominal and unexplained:  # neither inertia is sure: read with both
-        inv = _read_with_both(inv, invariants(d, nominal))
+    if best is not nominal and (unexplained or not all(REGISTRY[n].keeps_invariants for n in best.names)):
+        inv = _read_with_both(inv, invariants(d, nominal))  # its inertia alone is not sure
     report = {
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
@@ -637,7 +648,7 @@ def _invariants_words(inv: dict) -> str:
         "adds to the rotation": "a torque adds to the rotation: no drag does that.",
         "drains |H|, energy kept": "|H| falls while the energy holds: an external torque, neither "
                                    "a drag against the rates nor one against the angular momentum.",
-        "not read (no rotation)": "too little rotation to read the drifts.",
+        NOT_READ: "too little rotation, or a known internal momentum against it, to read the drifts.",
     }
     if reading in plain:
         return f"{head}: {plain[reading]}"
@@ -648,8 +659,9 @@ def _invariants_words(inv: dict) -> str:
                 f"rigid fit's it reads {both['rigid fit']!r}, with the explanation's "
                 f"{both['explanation']!r}.")
     along_h, along_w = inv["against_momentum_ratio"], inv["against_rates_ratio"]
-    refs = (f"a torque against the angular momentum (tau = -k H: a drag -k J w, every motion slowed "
-            f"alike) gives {along_h:.2f} here, one against the rates (tau = -c w) {along_w:.2f}")
+    refs = (f"a torque against the angular momentum (tau = -k H; without internal momentum a drag "
+            f"-k J w, every motion slowed alike) gives {along_h:.2f} here, one against the rates "
+            f"(tau = -c w) {along_w:.2f}")
     if abs(along_w / along_h - 1) < 0.05:
         refs += " (the two lie close: the rotation stays near a principal axis)"
     verdict = {
