@@ -39,7 +39,7 @@ def diagnoses_across(done: list[tuple[str, dict]], refused: list[tuple[str, str]
     (series_name: a folder of several bodies' throws, say), [{name, names, the keys of
     _diagnoses}] per series, else [].
     """
-    rows = [{"name": name, "series": series_name(name), "leading": _lead(r),
+    rows = [{"name": name, "series": series_name(name), "leading": leading_effect(r),
              "explanation": [e["name"] for e in r["explanation"]], "valid": bool(r["fit_after"]["valid"]),
              "worst_before": _worst(r["fit_before"]), "worst_after": _worst(r["fit_after"]),
              "principal_ratios": r["fit_after"]["principal_ratios"],
@@ -58,7 +58,7 @@ def _across(done: list[tuple[str, dict]], refused: list[tuple[str, str]], rows: 
             **aggregate(done), "groups": _groups(done, aggregate), "rows": rows}
 
 
-def _lead(report: dict) -> str:
+def leading_effect(report: dict) -> str:
     """The first effect of a report's explanation ("none" where none is selected)."""
     return report["explanation"][0]["name"] if report["explanation"] else "none"
 
@@ -86,7 +86,7 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     ratios = shape_combined([f["principal_ratios"] for f in fits],
                             [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
                              for f in fits])
-    leads = collections.Counter(_lead(r) for r in reports)
+    leads = collections.Counter(leading_effect(r) for r in reports)
     top = leads.most_common(1)[0] if reports else ("none", 0)
     before = [w for r in reports if (w := _worst(r["fit_before"])) is not None]
     after = [w for r in reports if (w := _worst(r["fit_after"])) is not None]

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inertia_gym.across import leading_effect
 from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
@@ -46,7 +47,7 @@ def recut(t, w, window, name: str) -> dict:
     try:
         report, _ = diagnose(rec)
         after = report["fit_after"]
-        row |= {"lead": report["explanation"][0]["name"] if report["explanation"] else "none",
+        row |= {"lead": leading_effect(report),
                 "before": round(max(report["fit_before"]["rms_over_noise"]), 1),
                 "after": round(max(after["rms_over_noise"]), 1) if after["valid"] else None,
                 "ratios": np.round(after["principal_ratios"][1:], 3).tolist() if after["valid"] else None}

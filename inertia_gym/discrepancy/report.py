@@ -184,8 +184,7 @@ def _torque_reading(inv: dict, w, big_h, energy, drifts_h: bool, drifts_e: bool)
         reading = "against the angular momentum"
     else:
         reading = "against the rates"
-    return {"energy_per_momentum": ratio, "against_momentum_ratio": along_h,
-            "against_rates_ratio": along_w, "reading": reading}
+    return out | {"energy_per_momentum": ratio, "reading": reading}
 
 
 def _read_with_both(explained: dict, rigid: dict) -> dict:
