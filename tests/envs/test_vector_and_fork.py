@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import SubprocVecEnv
 
 from inertia_gym.envs import ENV_ID
@@ -43,6 +44,7 @@ def test_ppo_trains_through_subproc_vec_env(start_method):
                        env_kwargs={"budget": 8}, vec_env_kwargs={"start_method": start_method})
     try:
         model = PPO("MlpPolicy", vec, n_steps=4, batch_size=8, n_epochs=1, seed=0, device="cpu")
+        model.set_logger(Logger(folder=None, output_formats=[]))  # not an SB3-<time> folder in /tmp
         model.learn(total_timesteps=8)
         assert model.num_timesteps == 8
     finally:
