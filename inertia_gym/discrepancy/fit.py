@@ -1623,10 +1623,10 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     return Explanation(tuple(chain), _added(nominal, chain, chosen), dropped)
 
 
-def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance of the free global entries of fit.x and their indices: the inverse of the
-    Schur complement of the segments' rates in the information J^T J (central differences),
-    times the mean square of the whitened residual where it exceeds 1 (model error widens it).
+def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
+    """The information of the free global entries of fit.x (the Schur complement of the
+    segments' rates in J^T J, central differences), their indices, and the factor the model
+    error widens the covariance by (the whitened residual's mean square where it exceeds 1).
     """
     layout = fit.layout
     free = _free(layout, d)
@@ -1642,7 +1642,15 @@ def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:
     dinv = np.linalg.pinv(dmat)
     info = info - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
     mse = float(np.mean(fit.z ** 2)) if np.all(np.isfinite(fit.z)) else 1.0
-    return np.linalg.pinv(info) * max(1.0, mse), np.flatnonzero(free[:layout.n_global])
+    return info, np.flatnonzero(free[:layout.n_global]), max(1.0, mse)
+
+
+def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of the free global entries of fit.x and their indices: the pseudo-inverse of
+    information(), widened by its model-error factor.
+    """
+    info, idx, widen = information(fit, d)
+    return np.linalg.pinv(info) * widen, idx
 
 
 def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:

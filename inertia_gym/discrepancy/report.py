@@ -24,6 +24,7 @@ from inertia_gym.discrepancy.fit import (
     fit_all,
     fit_nominal,
     impulses,
+    information,
     intervals,
     model_inertia,
     polished,
@@ -41,6 +42,7 @@ from inertia_gym.discrepancy.recordings import (
 )
 from inertia_gym.errors import RecordingError
 from inertia_gym.executors import kernels_own_the_cores
+from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
@@ -64,6 +66,9 @@ NOISE_READ_HIGH = 0.8
 #: pseudo-random draws, as before, missed it by up to 12 % (a racquet flip with drag: half-width
 #: 3.45e-4 against 3.92e-4; tests/discrepancy/test_fit.py).
 RATIO_DRAWS_LOG2 = 9
+#: Directions of a fit's information (scaled to a unit diagonal) with an eigenvalue under this
+#: share of its largest count as unseen (trace_sigma).
+SCALE_RCOND = 1e-12
 
 
 def locate(r, t_mid, sigma, alpha: float = 1e-3) -> list[dict]:
@@ -227,6 +232,57 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     return ratios(fit.inertia).tolist(), np.percentile(drawn, [2.5, 97.5], axis=0).T.tolist()
 
 
+def trace_sigma(fit: Fit, d: Data) -> float:
+    """Relative standard deviation of the trace of the fit's model inertia: the delta method
+    (central differences along each free entry) over the fit's information, widened by its
+    misfit; inf where the information does not see the trace. How well a torque or a known
+    momentum fixes the scale: a momentum far smaller than the body's own, J w, leaves it free
+    in all but name.
+
+    Not from covariance(): its pseudo-inverse gives no variance at all along a direction the
+    information barely sees (a trace that has drifted where the momentum no longer acts), so the
+    information is first scaled to a unit diagonal and a direction under SCALE_RCOND of its
+    largest eigenvalue counts as unseen.
+    """
+    info, idx, widen = information(fit, d)
+    steps = 1e-6 * np.maximum(np.abs(fit.x[idx]), 1.0)
+    grad = np.zeros(idx.size)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for i, (j, h) in enumerate(zip(idx, steps)):
+            up, down = fit.x.copy(), fit.x.copy()
+            up[j] += h
+            down[j] -= h
+            log_traces = np.log([np.trace(model_inertia(fit.layout, x, d)) for x in (up, down)])
+            grad[i] = (log_traces[0] - log_traces[1]) / (2 * h)
+    diag = np.diag(info)
+    if not (np.all(np.isfinite(grad)) and np.all(np.isfinite(info))) or np.any((diag <= 0) & (grad != 0)):
+        return float("inf")
+    seen = diag > 0
+    unit = 1.0 / np.sqrt(diag[seen])
+    values, vectors = np.linalg.eigh(info[np.ix_(seen, seen)] * unit[:, None] * unit[None, :])
+    along = vectors.T @ (grad[seen] * unit)
+    unseen = values <= SCALE_RCOND * values.max()
+    if np.any(np.abs(along[unseen]) > 1e-9 * np.linalg.norm(along)):
+        return float("inf")
+    return float(np.sqrt(widen * np.sum(along[~unseen] ** 2 / values[~unseen])))
+
+
+def scale_identified(d: Data, best: Fit, offset: Fit | None) -> tuple[bool, float | None]:
+    """(whether the data fix the inertia's scale, the relative sigma of the fitted trace or None).
+
+    Seen at all only with a torque or a known momentum that is not zero (d.excited); then fixed
+    where the fitted inertia's trace (best's, or inertia_offset's where the sidecar's nominal is
+    held in the other models) has a relative sigma of at most SCALE_SIGMA_IDENTIFIED, the bound
+    identify applies. None where no valid fit holds a fitted inertia (the nominal held and no
+    inertia_offset fit): the scale then counts as seen wherever d.excited.
+    """
+    fit = best if d.inertia0 is None else offset
+    if not d.excited or fit is None or not np.isfinite(fit.bic):
+        return d.excited, None
+    sigma = trace_sigma(fit, d)
+    return sigma <= SCALE_SIGMA_IDENTIFIED, sigma
+
+
 def normal_draws(log2_count: int, dim: int) -> np.ndarray:
     """(2**log2_count, dim) standard normal draws from a scrambled Sobol sequence (seed 0): the
     same for every call, and far evener in every direction than as many pseudo-random draws.
@@ -358,6 +414,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         for other, reason in REGISTRY[top["name"]].confounded(top["form"] or ""):
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
+    scale_seen, scale_sigma = scale_identified(d, best, offset)
     t_row = d.t_row
     locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
     before = _fit_summary(nominal, d)
@@ -371,13 +428,13 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
-        "explanation": _explanation(chosen, d), "left_out": chosen.dropped,
+        "explanation": _explanation(chosen, d, scale_seen), "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
         "fit_before": before,
         "fit_inertia_fitted": before if offset is None else _fit_summary(offset, d), "fit_after": after,
         "inertia_vs_nominal": None if offset is None else {
             "delta_bic": float(nominal.bic - offset.bic) if np.isfinite(offset.bic) else None,
-            **inertia_comparison(d.inertia0, offset.inertia, d.excited)},
+            **inertia_comparison(d.inertia0, offset.inertia, scale_seen)},
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
         "noise": {"rows": "block means" if d.block > 1 else "samples", "samples_per_row": d.block,
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
@@ -390,7 +447,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
             "source": rec.meta["window_source"]},
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
-        "scale_identified": d.excited,
+        "scale_identified": scale_seen, "scale_sigma": scale_sigma,
+        "scale_seen_by_inputs": d.excited,
         "inertia_nominal_given": d.inertia0 is not None, "inertia_trace_assumed": d.trace0,
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
@@ -403,8 +461,10 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     return report, arrays
 
 
-def _explanation(chosen, d: Data) -> list[dict]:
-    """The selected effects in order: name, params, 95 % intervals, the delta BIC each added."""
+def _explanation(chosen, d: Data, scale_seen: bool) -> list[dict]:
+    """The selected effects in order: name, params, 95 % intervals, the delta BIC each added
+    (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen).
+    """
     if chosen.fit is None:
         return []
     fit = chosen.fit
@@ -422,7 +482,7 @@ def _explanation(chosen, d: Data) -> list[dict]:
                                      for other, why in model.confounded(form)]}
         if name == "inertia_offset":
             entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
-                                                             d.excited)
+                                                             scale_seen)
         out.append(entry)
     return out
 
@@ -564,7 +624,15 @@ def _explanation_words(report: dict) -> str:
                  f"(`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
-    if not report["scale_identified"]:
+    if not report["scale_identified"] and report["scale_seen_by_inputs"]:
+        text += (f"\n\nThe commanded torque or the known internal momentum moves the body too little to "
+                 f"fix the inertia's scale (relative sigma of the fitted trace {report['scale_sigma']:.2g}, "
+                 f"over {SCALE_SIGMA_IDENTIFIED:g}): trust the principal-moment ratios, not the absolute "
+                 "values; every fitted torque (N·m), momentum (kg·m²/s) and damping coefficient scales "
+                 "with the unknown true trace"
+                 + (", and the inertia is compared with the nominal at the nominal's trace."
+                    if report.get("inertia_nominal_given") else "."))
+    elif not report["scale_identified"]:
         text += ("\n\nNo commanded torque or known internal momentum: the data fix the inertia only up "
                  "to a common factor, "
                  + ("so the fitted torques, momenta and damping are in units of the sidecar's "
