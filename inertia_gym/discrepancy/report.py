@@ -66,8 +66,8 @@ NOISE_READ_HIGH = 0.8
 #: pseudo-random draws, as before, missed it by up to 12 % (a racquet flip with drag: half-width
 #: 3.45e-4 against 3.92e-4; tests/discrepancy/test_fit.py).
 RATIO_DRAWS_LOG2 = 9
-#: Directions of a fit's information (scaled to a unit diagonal) with an eigenvalue under this
-#: share of its largest count as unseen (trace_sigma).
+#: The least eigenvalue a fit's information (scaled to a unit diagonal) counts with, as a share
+#: of its largest (trace_sigma).
 SCALE_RCOND = 1e-12
 
 
@@ -241,8 +241,9 @@ def trace_sigma(fit: Fit, d: Data) -> float:
 
     Not from covariance(): its pseudo-inverse gives no variance at all along a direction the
     information barely sees (a trace that has drifted where the momentum no longer acts), so the
-    information is first scaled to a unit diagonal and a direction under SCALE_RCOND of its
-    largest eigenvalue counts as unseen.
+    information is first scaled to a unit diagonal and no eigenvalue counts for less than
+    SCALE_RCOND of its largest: a direction the data do not see gives the trace a variance as
+    large as the gradient's reach into it (a mere rounding error's reach, none worth naming).
     """
     info, idx, widen = information(fit, d)
     steps = 1e-6 * np.maximum(np.abs(fit.x[idx]), 1.0)
@@ -261,10 +262,8 @@ def trace_sigma(fit: Fit, d: Data) -> float:
     unit = 1.0 / np.sqrt(diag[seen])
     values, vectors = np.linalg.eigh(info[np.ix_(seen, seen)] * unit[:, None] * unit[None, :])
     along = vectors.T @ (grad[seen] * unit)
-    unseen = values <= SCALE_RCOND * values.max()
-    if np.any(np.abs(along[unseen]) > 1e-9 * np.linalg.norm(along)):
-        return float("inf")
-    return float(np.sqrt(widen * np.sum(along[~unseen] ** 2 / values[~unseen])))
+    sigma = float(np.sqrt(widen * np.sum(along ** 2 / np.maximum(values, SCALE_RCOND * values.max()))))
+    return sigma if np.isfinite(sigma) else float("inf")
 
 
 def scale_identified(d: Data, best: Fit, offset: Fit | None) -> tuple[bool, float | None]:
@@ -447,7 +446,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
             "source": rec.meta["window_source"]},
         "saturated_samples": d.notes["saturated_samples"],
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
-        "scale_identified": scale_seen, "scale_sigma": scale_sigma,
+        "scale_identified": scale_seen,
+        "scale_sigma": scale_sigma if scale_sigma is None or np.isfinite(scale_sigma) else None,
         "scale_seen_by_inputs": d.excited,
         "inertia_nominal_given": d.inertia0 is not None, "inertia_trace_assumed": d.trace0,
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
@@ -625,9 +625,10 @@ def _explanation_words(report: dict) -> str:
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
     if not report["scale_identified"] and report["scale_seen_by_inputs"]:
-        text += (f"\n\nThe commanded torque or the known internal momentum moves the body too little to "
-                 f"fix the inertia's scale (relative sigma of the fitted trace {report['scale_sigma']:.2g}, "
-                 f"over {SCALE_SIGMA_IDENTIFIED:g}): trust the principal-moment ratios, not the absolute "
+        text += ("\n\nThe commanded torque or the known internal momentum moves the body too little to "
+                 "fix the inertia's scale (relative sigma of the fitted trace "
+                 + (f"{report['scale_sigma']:.2g}" if report["scale_sigma"] is not None else "unbounded")
+                 + f", over {SCALE_SIGMA_IDENTIFIED:g}): trust the principal-moment ratios, not the absolute "
                  "values; every fitted torque (N·m), momentum (kg·m²/s) and damping coefficient scales "
                  "with the unknown true trace"
                  + (", and the inertia is compared with the nominal at the nominal's trace."
