@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
+from scipy import interpolate
 from typing_extensions import override
 
 from inertia_gym.errors import ConfigError
@@ -391,11 +392,14 @@ class InternalMomentum(EffectModel):
     """Stored momentum h relative to the body (kg·m²/s, body frame): w x (J w + h), + h_dot.
 
     Two forms: constant (a wheel spinning steadily: h, 3 numbers) and varying (a rotor along a
-    fixed body axis that spins up or down: h(t) = h + axis * m(t), m piecewise linear through
-    knots at profile_t, m = 0 at the first). The varying vector is
-    [h (3), axis0 (3, held), a, b, profile_t (K, held), profile (K, the first held at 0)]: the
-    axis is normalise(axis0 + a e1 + b e2) with e1, e2 perpendicular to axis0, so it turns
-    smoothly from its start.
+    fixed body axis that spins up or down: h(t) = h + axis * m(t), m the cubic spline (not-a-knot)
+    through knots at profile_t, m = 0 at the first, held at its end values beyond them). The
+    varying vector is [h (3), axis0 (3, held), a, b, profile_t (K, held), profile (K, the first
+    held at 0)]: the axis is normalise(axis0 + a e1 + b e2) with e1, e2 perpendicular to axis0,
+    so it turns smoothly from its start. Until 2026-11-28 m was piecewise linear: a smooth
+    spin-up drawn as straight lines leaves an error periodic at the knots' spacing, which a
+    flexible mode at that frequency then took up (an independent simulator's thrown device,
+    3 of 3 seeds).
     """
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
@@ -506,8 +510,22 @@ class InternalMomentum(EffectModel):
     def momentum(self, params, t):
         if "profile" not in params:
             return None
-        m = np.interp(t, params["profile_t"], params["profile"])
+        m = _spline_basis(np.asarray(params["profile_t"], float).tobytes(),
+                          np.asarray(t, float).tobytes()) @ np.asarray(params["profile"], float)
         return m[:, None] * np.asarray(params["axis"], float)
+
+
+@functools.lru_cache(maxsize=16)
+def _spline_basis(knots: bytes, t: bytes) -> np.ndarray:
+    """(n, K) values at the times t (n,) s of the cubic splines (not-a-knot) through the knots
+    (K,) s, one a knot at 1 and the others 0, held at their end values beyond the knots: a
+    profile's spline at t is this times its K values. Cached (read-only): the knots are held in
+    a fit and t is the model's grid, and building a spline costs ten times the product.
+    """
+    k, times = np.frombuffer(knots), np.frombuffer(t)
+    out = interpolate.CubicSpline(k, np.eye(k.size))(np.clip(times, k[0], k[-1]))
+    out.flags.writeable = False
+    return out
 
 
 def _drag_matrix(value) -> np.ndarray:

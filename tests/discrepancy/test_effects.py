@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicSpline
 
 from inertia_gym.discrepancy.effects import (
     EFFECTS,
@@ -59,8 +60,21 @@ def test_varying_internal_momentum_round_trip():
     back = model.unpack(model.pack(params))
     for key, value in params.items():
         np.testing.assert_allclose(back[key], value, atol=1e-12)
-    h = model.momentum(back, np.array([0.5, 1.5]))
-    np.testing.assert_allclose(h, np.outer([1.0, 1.75], [0.0, 0.6, 0.8]), atol=1e-12)
+    # three knots: the not-a-knot cubic spline is the parabola through them, 3.25 t - 1.25 t^2;
+    # beyond the knots it is held at its end values
+    h = model.momentum(back, np.array([-1.0, 0.5, 1.5, 3.0]))
+    np.testing.assert_allclose(h, np.outer([0.0, 1.3125, 2.0625, 1.5], [0.0, 0.6, 0.8]), atol=1e-12)
+
+
+def test_varying_internal_momentum_is_the_cubic_spline_through_its_knots():
+    # not-a-knot: a cubic through the knots is reproduced exactly, anywhere between them
+    cubic = np.polynomial.Polynomial([0.0, 2.0, -3.0, 0.7])
+    knots_t = np.array([0.0, 0.3, 1.1, 1.6, 2.4, 3.0])
+    params = {"h": np.zeros(3), "axis": np.array([0.6, 0.0, 0.8]), "profile_t": knots_t,
+              "profile": cubic(knots_t)}
+    t = np.linspace(0.0, 3.0, 301)
+    h = REGISTRY["internal_momentum"].momentum(params, t)
+    np.testing.assert_allclose(h, np.outer(cubic(t), params["axis"]), atol=1e-12)
 
 
 # --- an independent reference: scipy's adaptive integrator on the stated equations -----------
@@ -214,24 +228,32 @@ def test_inertia_change_keeps_the_momentum():
 
 
 def test_known_and_varying_internal_momentum():
-    """A rotor's momentum h(t) (piecewise linear) enters as h and h_dot: given as the known
-    momentum (the recording's h columns) or as internal_momentum's varying form, the same body."""
-    axis = np.array([0.0, 0.6, 0.8])
+    """A rotor's momentum h(t) enters as h and h_dot: given as the known momentum (the
+    recording's h columns, linear between rows) as its stated equation says, and as
+    internal_momentum's varying form (the cubic spline through its knots) as that spline read
+    at the simulator's steps; both within the steps' error of the smooth spline itself."""
+    axis, offset = np.array([0.0, 0.6, 0.8]), np.array([1.0, 0.0, -2.0])
     knots_t, knots = np.array([0.0, 0.7, 1.4, 2.0]), np.array([0.0, 30.0, 30.0, 5.0])
+    grid_t = np.arange(N + 1) * DT
+    spline = CubicSpline(knots_t, knots)
+    h_grid = spline(grid_t)[:, None] * axis + offset
 
-    def momentum_at(t):
-        m = np.interp(t, knots_t, knots)
-        slope = np.diff(knots) / np.diff(knots_t)
-        piece = min(np.searchsorted(knots_t, t, "right") - 1, 2)
-        return m * axis + np.array([1.0, 0.0, -2.0]), slope[piece] * axis
+    def known_at(t):  # the rows' values, linear between them
+        i = min(int(t // DT), N - 1)
+        slope = (h_grid[i + 1] - h_grid[i]) / DT
+        return h_grid[i] + (t - grid_t[i]) * slope, slope
 
-    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, momentum_at, breaks=knots_t)
-    h_grid = np.array([momentum_at(t)[0] for t in np.arange(N + 1) * DT])
+    w_ref, q_ref = _reference(T_END, lambda t: TORQUE, known_at, breaks=grid_t)
     w, q = _truth((), momentum=h_grid)
-    np.testing.assert_allclose(w, w_ref, atol=2e-6)
-    effect = Effect("internal_momentum", {"h": [1.0, 0.0, -2.0], "axis": axis, "profile_t": knots_t,
-                                          "profile": knots})
-    _check(effect, w_ref, q_ref)
+    _check((), w_ref, q_ref, momentum=h_grid)
+    effect = Effect("internal_momentum", {"h": offset, "axis": axis, "profile_t": knots_t, "profile": knots})
+    w_varying, q_varying = _truth(effect)
+    np.testing.assert_allclose(w_varying, w, atol=1e-10)
+    np.testing.assert_allclose(q_varying, q, atol=1e-10)
+    w_smooth, q_smooth = _reference(T_END, lambda t: TORQUE, lambda t: (spline(t) * axis + offset,
+                                                                        spline(t, 1) * axis))
+    np.testing.assert_allclose(w_varying, w_smooth, atol=2e-5)
+    np.testing.assert_allclose(q_varying, q_smooth, atol=2e-5)
 
 
 def test_sensor_effects_change_only_the_reading():
