@@ -1456,23 +1456,28 @@ def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
 def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS) -> Explanation:
     """The compound explanation of lowest BIC of up to three searches (_search): over the singles
     as fitted (each effect in its best form), and, where that explanation holds an effect in a
-    richer form than its simplest (internal_momentum or viscous_damping varying), over the
-    singles with every effect in its simplest form and over the singles as fitted led by the
-    runner-up. A rich form can soak up a second effect and lead the greedy search astray (racquet
-    round 1 segment 3: the free momentum profile alone, where the varying drag and a flexible
-    mode fit better by 85 with every row counted); the final explanations' BICs then decide,
-    each effect an explanation claims charged the significance margin, as the forward selection
-    charges it: an explanation that names one more effect must fit better by
-    SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. The explanation is
-    listed led by the effect that explains most alone (_led_by_best_single): the first search's
-    own lead, unless the backward check dropped it or another search found the explanation.
+    richer form than its simplest (internal_momentum or viscous_damping varying) or was led by
+    one (which the backward check then dropped), over the singles with every effect in its
+    simplest form and over the singles as fitted led by the runner-up. A rich form can soak up a
+    second effect and lead the greedy search astray (racquet round 1 segment 3: the free
+    momentum profile alone, where the varying drag and a flexible mode fit better by 85 with
+    every row counted; Basilisk's slosh with a hidden torque: led by the varying momentum, the
+    search added the inertia offset and a mode, then dropped the momentum and ended short of
+    the torque); the final explanations' BICs then decide, each effect an explanation claims
+    charged the significance margin, as the forward selection charges it: an explanation that
+    names one more effect must fit better by SIGNIFICANT_DELTA_BIC to be preferred. Ties go to
+    the earlier search. The explanation is listed led by the effect that explains most alone
+    (_led_by_best_single): the first search's own lead, unless the backward check dropped it or
+    another search found the explanation.
     """
     first = _search(d, nominal, singles, max_effects)
     if not first.chain:
         return first
     best = first
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
-    if any(f != simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
+    lead = next(f for f in singles if np.isfinite(f.bic))  # the first search's lead
+    held = zip((*first.fit.names, lead.name), (*first.fit.forms, lead.forms[0]))
+    if any(f != simplest[n] for n, f in held):
         plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
                                           for f in singles]))
         others = (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1))
