@@ -624,7 +624,7 @@ def _explanation_words(report: dict) -> str:
                  f"(`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
-    if not report["scale_identified"] and report["scale_seen_by_inputs"]:
+    if not report["scale_identified"] and report.get("scale_seen_by_inputs"):
         text += ("\n\nThe commanded torque or the known internal momentum moves the body too little to "
                  "fix the inertia's scale (relative sigma of the fitted trace "
                  + (f"{report['scale_sigma']:.2g}" if report["scale_sigma"] is not None else "unbounded")

@@ -225,6 +225,11 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
     assert "trace was set to 1 kg·m²" in text and "(true trace) / 1" in text
     report["scale_identified"] = True
     assert "trace" not in _explanation_words(report)
+    # a torque or a momentum logged, but too small to fix the scale (scale_sigma over 0.05)
+    weak = report | {"scale_identified": False, "scale_seen_by_inputs": True, "scale_sigma": 0.31}
+    text = _explanation_words(weak)
+    assert "too little to fix the inertia's scale" in text and "0.31" in text and "set to" not in text
+    assert "unbounded" in _explanation_words(weak | {"scale_sigma": None})
 
 
 def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
@@ -486,18 +491,20 @@ def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss
     assert max(report["fit_after"]["rms_over_noise"]) < 0.3 * max(report["fit_before"]["rms_over_noise"])
 
 
-def test_the_search_led_by_the_runner_up_finds_a_better_explanation(racquet_toss):
-    """Racquet round 2 segment 3: the greedy search led by the best single effect, the varying
-    drag, ends where one led by the runner-up ends better, by more than the tie (measured, the
-    rows recounted: 483.1 against 516.1 in BIC with each named effect's margin); select keeps
-    the better explanation. (Round 1 segment 3 had shown it until the modal screen's probes were
-    sized to the body, 8c7c3a1: its momentum alone now beats both searches' pairs.)"""
+def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
+    """Racquet round 2 segment 3: the searches led by the best single effect (the varying drag)
+    and by the runner-up; select keeps an explanation at least as good as either, listed led by
+    the best single effect. With the momentum's piecewise-linear profile the runner-up's search
+    had ended better (483.1 against 516.1 in BIC with each named effect's margin, the rows
+    recounted); with its spline profile (2026-11-28) both end at the varying drag and the varying
+    momentum, 476.6. The runner-up's search finding the better explanation is tested on a rotor
+    throw below and on Basilisk's slosh with a hidden torque (test_basilisk.py)."""
     d, nominal, singles, _, chosen = _fits(racquet_toss("round2", 3))
     first = _search(d, nominal, singles, MAX_EFFECTS)
     runner_up = _search(d, nominal, singles, MAX_EFFECTS, lead=1)
     assert first.fit.names[0] == singles[0].name
-    assert _claims_cost(runner_up.fit) < _claims_cost(first.fit) - TIE_BIC
-    assert _claims_cost(chosen.fit) <= _claims_cost(runner_up.fit) + TIE_BIC
+    assert _claims_cost(chosen.fit) <= min(_claims_cost(first.fit), _claims_cost(runner_up.fit)) + TIE_BIC
+    assert _claims_cost(chosen.fit) < 483.1  # better than either search found with the linear profile
     assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
 
 
