@@ -1456,14 +1456,12 @@ def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
 def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS) -> Explanation:
     """The compound explanation of lowest BIC of up to three searches (_search): over the singles
     as fitted (each effect in its best form), and, where that explanation holds an effect in a
-    richer form than its simplest (internal_momentum or viscous_damping varying) or was led by
-    one (which the backward check then dropped), over the singles with every effect in its
-    simplest form and over the singles as fitted led by the runner-up. A rich form can soak up a
-    second effect and lead the greedy search astray (racquet round 1 segment 3: the free
-    momentum profile alone, where the varying drag and a flexible mode fit better by 85 with
-    every row counted; Basilisk's slosh with a hidden torque: led by the varying momentum, the
-    search added the inertia offset and a mode, then dropped the momentum and ended short of
-    the torque); the final explanations' BICs then decide, each effect an explanation claims
+    richer form than its simplest (internal_momentum or viscous_damping varying), over the
+    singles with every effect in its simplest form and over the singles as fitted led by the
+    runner-up. A rich form can soak up a second effect and lead the greedy search astray (racquet
+    round 1 segment 3: the free momentum profile alone, where the varying drag and a flexible
+    mode fit better by 85 with every row counted); the final explanations' BICs then decide,
+    each effect an explanation claims
     charged the significance margin, as the forward selection charges it: an explanation that
     names one more effect must fit better by SIGNIFICANT_DELTA_BIC to be preferred. Ties go to
     the earlier search. The explanation is listed led by the effect that explains most alone
@@ -1475,9 +1473,7 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
         return first
     best = first
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
-    lead = next(f for f in singles if np.isfinite(f.bic))  # the first search's lead
-    held = zip((*first.fit.names, lead.name), (*first.fit.forms, lead.forms[0]))
-    if any(f != simplest[n] for n, f in held):
+    if any(f != simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
                                           for f in singles]))
         others = (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1))
@@ -1562,7 +1558,12 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
     testable effect is screened at every step, also those that explain nothing alone: a large
     effect can hide a second one. The backward check then refits without each chosen effect and
-    drops any whose removal costs less than the margin, until none does.
+    drops any whose removal costs less than the margin, until none does. Where it dropped one,
+    the forward steps resume from what is left (an effect once dropped is not screened again),
+    then the backward check again, until it drops none: a rich effect taken early can be made
+    redundant by those added after it, and the explanation without it may lack an effect that it
+    had stood in for (Basilisk's slosh with a hidden torque: led by the varying momentum, the
+    search added the inertia offset and a mode, then dropped the momentum, short of the torque).
     """
     by_name = {f.name: f for f in singles}
     ranked = [f for f in singles if np.isfinite(f.bic) and nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC]
@@ -1574,6 +1575,29 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
     current = ranked[lead]
     chain = [current]
     pool = [f.name for f in singles if np.isfinite(f.bic)]
+    removed = []  # the effects the backward checks dropped
+    while True:
+        current, chain = _forward(d, current, chain, by_name, [n for n in pool if n not in removed],
+                                  max_effects)
+        current, chain, now_removed = _backward(d, nominal, current, chain, by_name, dropped)
+        if not now_removed:
+            break
+        removed += now_removed
+    chosen = current.names
+    for name in pool:
+        if name not in chosen and not dropped.get(name, "").startswith("removing"):
+            dropped[name] = (f"alone it improves the BIC by {nominal.bic - by_name[name].bic:.1f}, "
+                             f"and it adds <= {SIGNIFICANT_DELTA_BIC:g} once "
+                             f"{', '.join(chosen)} {'is' if len(chosen) == 1 else 'are'} in")
+    return Explanation(tuple(chain), _added(nominal, chain, chosen), dropped)
+
+
+def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[str],
+             max_effects: int) -> tuple[Fit, list[Fit]]:
+    """_search's forward steps from the fit current (chain: its prefixes): each adds the effect of
+    pool that improves the BIC most, by more than the margin; at most max_effects in all.
+    Returns the last fit and its chain.
+    """
     while len(current.names) < max_effects:
         structured = effective_share(d, current) < 1.0  # the residual left is not white
         trials = fanned(_screened, d, [{"single": by_name[n], "current": current, "structured": structured}
@@ -1593,7 +1617,17 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
         if not current.bic - best.bic > SIGNIFICANT_DELTA_BIC:
             break
         current = best
-        chain.append(best)
+        chain = [*chain, best]
+    return current, chain
+
+
+def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: dict,
+              dropped: dict) -> tuple[Fit, list[Fit], list[str]]:
+    """_search's backward check on the fit current (chain: its prefixes): the explanation without
+    each of its effects, the first whose removal costs at most the margin dropped (its reason
+    written into dropped), until none is. Returns the fit left, its chain, and the names dropped.
+    """
+    removed = []
     changed = len(current.names) > 1
     while changed and len(current.names) > 1:
         changed = False
@@ -1618,14 +1652,9 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
                     dropped[name] = (f"removing it from the explanation costs only "
                                      f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
                     current, chain, changed = rest_chain[-1], rest_chain, True
+                    removed.append(name)
                     break
-    chosen = current.names
-    for name in pool:
-        if name not in chosen and not dropped.get(name, "").startswith("removing"):
-            dropped[name] = (f"alone it improves the BIC by {nominal.bic - by_name[name].bic:.1f}, "
-                             f"and it adds <= {SIGNIFICANT_DELTA_BIC:g} once "
-                             f"{', '.join(chosen)} {'is' if len(chosen) == 1 else 'are'} in")
-    return Explanation(tuple(chain), _added(nominal, chain, chosen), dropped)
+    return current, chain, removed
 
 
 def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:

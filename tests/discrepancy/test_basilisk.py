@@ -235,12 +235,12 @@ def test_identify_on_basilisk_is_accurate_and_its_intervals_cover_at_both_ends_o
 
 @requires_bsk
 @pytest.mark.slow
-def test_a_search_whose_varying_lead_is_dropped_is_searched_again(tmp_path):
+def test_a_search_resumes_after_its_backward_check_drops_its_lead(tmp_path):
     """Slosh with a hidden torque (60 s, the harness's own case): the varying momentum explains
-    most alone and leads the first search, which adds the inertia offset and a mode and then
-    drops the momentum in its backward check, short of the torque. Since 2026-11-28 the other
-    searches run for a search led by a richer form too, and the torque is named (it had ended
-    at the offset alone, 8.6x the noise, once its misfit's correlation recounted the rows)."""
+    most alone and leads the search, which adds the inertia offset and a mode and then drops the
+    momentum in its backward check, short of the torque. The forward steps resume after the
+    drop, and the torque is named (the search had stopped there, and the explanation ended at
+    the offset alone, 8.6x the noise, once its misfit's correlation recounted the rows)."""
     row = harness.run_case(_case("pair_torque_slosh", duration=60.0), tmp_path)
     assert row["correct"], row["named"]
     assert "constant_body_torque" in row["named"]
