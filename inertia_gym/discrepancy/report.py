@@ -348,12 +348,9 @@ def check_enough_rows(rec: Recording, d: Data) -> None:
 def _fits(rec: Recording):
     """Nominal, single-effect and compound fits of a recording, its impulses trimmed.
 
-    Impulses at the ends are located on the nominal fit's residual and, once an effect has taken
-    the smooth misfit away, again (where a small impulse stands out): on the best single-effect
-    fit's residual, and where that shows none, on the compound fit's; a second trim repeats the
-    fits on the trimmed record. The single fit's look spares a compound selection whose only use
-    would be to show that impulse (on 4 of the 6 racquet tosses trimmed again, the best single
-    fit shows the compound fit's trim).
+    Impulses at the ends are located on the nominal fit's residual and, once the explanation
+    has taken the smooth misfit away, again on the compound fit's (where a small impulse stands
+    out); a second trim repeats the fits on the trimmed record.
     Returns (data, nominal, singles ranked, skipped, explanation).
     """
     d = prepare(rec)
@@ -368,13 +365,8 @@ def _fits(rec: Recording):
             d = prepare(rec, trim)
             nominal = fit_nominal(d)
         fits, skipped = fit_all(d, nominal)
-        more = (0, 0)
-        if attempt == 0:  # the best single effect, where it explains enough to be selected
-            lead = next((f for f in fits if nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC), None)
-            more = (0, 0) if lead is None else impulses(d, lead)
-        if not any(more):
-            chosen = select(d, nominal, fits)
-            more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
+        chosen = select(d, nominal, fits)
+        more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
         if not any(more):
             break
         trim = (max(trim[0], more[0]), max(trim[1], more[1]))

@@ -298,29 +298,6 @@ def test_impulses_at_the_ends_are_trimmed_and_a_drift_is_not():
     assert report["trimmed"] == [] and report["best_effect"] == "constant_body_torque"
 
 
-def test_an_end_impulse_the_best_single_fit_shows_is_trimmed_before_any_selection(monkeypatch):
-    """A toss with strong drag and a catch at its end that the rigid fit's misfit hides (its
-    residual shows no impulse) and the drag's single fit shows: the record is trimmed on that
-    fit's residual, and the compound selection runs only on the trimmed record."""
-    from inertia_gym.discrepancy import report as R
-
-    drag = Effect("aero_drag", {"c": np.diag([1.6e-4, 1.2e-4, 8e-6])})
-    rec = _toss((0.3, 15.0, 0.4), sigma=0.005, effects=drag)
-    w = rec.w.copy()
-    w[-3:] += 0.15 * np.array([1.0, -0.8, 0.6])  # the catch
-    rec = dataclasses.replace(rec, w=w)
-    d = F.prepare(rec)
-    assert F.impulses(d, F.fit_nominal(d)) == (0, 0)  # hidden from the rigid fit
-    selected_on = []
-    select = R.select
-    monkeypatch.setattr(R, "select", lambda d, *a, **k: selected_on.append(d.n_rows) or select(d, *a, **k))
-    report, _ = diagnose(rec)
-    assert {e["where"]: e["samples"] for e in report["trimmed"]} == {"end": 3}
-    assert selected_on and set(selected_on) == {d.n_rows - 3}
-    assert report["best_effect"] in ("viscous_damping", "aero_drag")
-    assert max(report["fit_after"]["rms_over_noise"]) < 1.3
-
-
 def _rotor_recording(seed=5):
     """A slowly tumbling body with a rotor spinning up and down along a random axis, logged."""
     sc = Scenario(omega0=(0.3, 2.0, -0.4), tau_max=50.0, gyro_sigma=0.005)
