@@ -773,6 +773,26 @@ def test_retimed_takes_the_clock_for_software_stamps_and_keeps_stamps_that_are_r
     assert retimed(sampled) is sampled
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_stamps_that_are_right_are_kept_on_a_slow_body_whose_noise_dominates(seed):
+    """10 minutes at 10 Hz of a slow tumble (0.1 rad/s) whose torque bursts change the rates by
+    about the noise over the stamps' scatter (+-30 % of the interval): sampled at the instants
+    its stamps record, the stamps are kept (uneven spacing amplifies the noise in the
+    interpolation test; unscaled, it had the clock win on every seed); stamped off a regular
+    sensor, the clock is taken."""
+    def rates(t):  # 5-s bursts every minute, 0.004 rad/s^2
+        burst = np.clip(t[:, None] - np.arange(20.0, 570.0, 60.0), 0.0, 5.0).sum(1)
+        return np.stack([0.1 + 0.004 * burst, 0.05 + 0.0 * t, -0.02 - 0.003 * burst], 1)
+    rng = np.random.default_rng(seed)
+    clock = 0.1 * np.arange(6000)
+    scatter = rng.uniform(-0.03, 0.03, clock.size)
+    noise = rng.normal(0.0, 1e-4, (clock.size, 3))
+    sampled = Recording(clock + scatter, rates(clock + scatter) + noise, name="true stamps")
+    assert retimed(sampled) is sampled
+    stamped = Recording(clock + scatter, rates(clock) + noise, name="software stamps")
+    assert "retimed" in retimed(stamped).meta
+
+
 @pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
 def test_real_recordings_keep_their_time_stamps():
     """The real throws (4 kHz) and racquet tosses (100 Hz) stamp a regular clock: nothing to place."""
