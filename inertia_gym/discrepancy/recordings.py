@@ -252,11 +252,12 @@ def interpolation_residual(t, w) -> np.ndarray:
     """(n - 4, 3) rad/s: by how much each interior gyro sample w (n, 3) misses the cubic through
     its two neighbours on either side, placed at the times t (n,), over the square root of
     1 + the sum of the cubic's squared weights: white gyro noise then misses by its own level
-    whatever the spacing. Smaller where t says better when the samples were taken. (Unscaled,
-    unevenly spaced nodes amplify the noise more than even ones, and a slowly moving body
-    sampled at the uneven instants its stamps record read as better fitted by an even clock:
-    a clean record then placed there was read as an internal momentum, an independent audit's
-    smallsat at 10 Hz, stamps right within +-30 % of the interval.)
+    whatever the spacing. Smaller where t says better when the samples were taken.
+
+    Unscaled, unevenly spaced nodes amplify the noise more than even ones, and a slowly moving
+    body sampled at the uneven instants its stamps record read as better fitted by an even
+    clock: a clean record then placed there was read as an internal momentum (an independent
+    audit's smallsat at 10 Hz, stamps right within +-30 % of the interval).
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
     reach = int(CUBIC_NODES.max())

@@ -575,6 +575,15 @@ def _fmt(values) -> str:
     return "no valid fit" if values is None else str(np.round(values, 2).tolist())
 
 
+def _significant(values, digits: int = 4):
+    """Nested lists of floats: values (any shape) rounded to `digits` significant digits, so that
+    a 5e-4 kg·m² body's parameters and a 2e-5 rad/s noise level stay readable (fixed decimals
+    printed them as 0.0).
+    """
+    rounded = np.vectorize(lambda v: float(f"{v:.{digits}g}"), otypes=[float])
+    return rounded(np.asarray(values, float)).tolist()
+
+
 #: Parameters with more numbers than this are told by their count and range (a momentum
 #: profile's knots), not number by number.
 LISTED_NUMBERS = 6
@@ -590,8 +599,8 @@ def _param_words(name: str, value, ci: dict) -> str:
     if value.size > LISTED_NUMBERS:
         text = f"{name}: {value.size} values from {value.min():.4g} to {value.max():.4g}"
         return text + ("" if held else f" (95 % half-widths up to {np.max(hi - lo) / 2:.4g})")
-    text = f"{name} = {np.round(value, 4).tolist()}"
-    return text + ("" if held else f" [{np.round(lo, 4).tolist()}, {np.round(hi, 4).tolist()}]")
+    text = f"{name} = {_significant(value)}"
+    return text + ("" if held else f" [{_significant(lo)}, {_significant(hi)}]")
 
 
 def _explanation_words(report: dict) -> str:
@@ -764,7 +773,7 @@ def markdown(report: dict, plots: list[str]) -> str:
     """A readable summary of one report."""
     lines = [f"# Diagnosis of {report['recording']}", "",
              f"- samples: {report['samples']}, duration {report['duration_s']:.2f} s",
-             f"- gyro noise: {np.round(report['gyro_sigma'], 4).tolist()} rad/s "
+             f"- gyro noise: {_significant(report['gyro_sigma'], 3)} rad/s "
              f"({report['gyro_sigma_source']})", *_noise_words(report),
              f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
              f"**{report['best_effect'] or 'none significant'}**",
@@ -779,7 +788,7 @@ def markdown(report: dict, plots: list[str]) -> str:
         lines[-1:-1] = [f"- {note}"]
     lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
     for e in report["effects"]:
-        params = {k: np.round(v, 4).tolist() for k, v in e["params"].items()}
+        params = {k: _significant(v) for k, v in e["params"].items()}
         delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
         lines.append(f"| {e['name']} | {delta} | {e['significant']} | {params} |")
     lines += ["", _explanation_words(report)]

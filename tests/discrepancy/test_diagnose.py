@@ -263,6 +263,26 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
     assert page.count("cannot be told apart") == 1 and "'aero_drag']: close BIC" in page
 
 
+def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
+    """A 5e-4 kg·m² device's torque (1.234e-6 N·m) and a 2e-5 rad/s noise level are written to
+    significant digits, not to fixed decimals (which printed them as 0.0)."""
+    torque = {"name": "constant_body_torque", "form": None, "delta_bic": 40.0,
+              "params": {"torque": [1.23456e-6, -2.5e-7, 0.0]},
+              "ci95": {"torque": {"lo": [1.1e-6, -3.0e-7, -1e-8], "hi": [1.3e-6, -2.0e-7, 1e-8]}},
+              "confounded_with": []}
+    report = {"explanation": [torque], "left_out": {}, "scale_identified": True, "ambiguous": []}
+    assert "torque = [1.235e-06, -2.5e-07, 0.0] [[1.1e-06, -3e-07, -1e-08], [1.3e-06, -2e-07, 1e-08]]" \
+        in _explanation_words(report)
+    noise = [2.04e-5, 3.33e-5, 2e-5]
+    page = markdown({"recording": "r", "samples": 1, "duration_s": 1.0, "gyro_sigma": noise,
+                     "gyro_sigma_source": "sidecar", "mismatch_detected": True, "best_effect": None,
+                     "fit_before": {"rms_over_noise": [1.0] * 3}, "fit_after": {"rms_over_noise": [1.0] * 3},
+                     "effects": [{**torque, "significant": True}], "skipped_effects": {}, "locations": [],
+                     "invariants": {}, "sparse_terms": [], **report}, [])
+    assert "gyro noise: [2.04e-05, 3.33e-05, 2e-05] rad/s" in page
+    assert "'torque': [1.235e-06, -2.5e-07, 0.0]" in page
+
+
 def test_inertia_comparison_against_its_definition():
     nominal = np.diag([1.0, 2.0, 3.0])
     turn = np.array([[np.cos(0.1), -np.sin(0.1), 0.0], [np.sin(0.1), np.cos(0.1), 0.0], [0, 0, 1]])
