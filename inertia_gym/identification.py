@@ -63,7 +63,7 @@ from inertia_gym.estimation.inertia_param import (
 )
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.sensors import estimate_white_noise
+from inertia_gym.sensors import estimate_white_noise, stated_noise_note
 
 METHODS = ("ml", "ekf", "ukf")
 #: The scale counts as identified when its relative standard deviation is at most this.
@@ -767,6 +767,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     if "window_source" in rec.meta:
         window = window_note(*rec.meta["window"], rec.meta["window_source"])
         notes += [window] if window else []
+    stated = None if sigma_w is None else stated_noise_note(rec.w[meas], sigma_w)
+    notes += [stated] if stated else []
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

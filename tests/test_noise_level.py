@@ -1,6 +1,7 @@
 """sensors.estimate_white_noise: the gyro's white-noise level read from the data; and the
 report's flag where the fit says that level reads high."""
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from inertia_gym.discrepancy.report import NOISE_READ_HIGH, diagnose, markdown
-from inertia_gym.sensors import NOISE_ORDERS, estimate_white_noise
+from inertia_gym.sensors import NOISE_ORDERS, estimate_white_noise, stated_noise_note
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 from bench_diagnose import toss as bench_toss  # noqa: E402
@@ -79,3 +80,33 @@ def test_the_report_says_where_the_noise_level_read_from_the_data_reads_high(eve
     if expected:
         assert max(report["fit_after"]["rms_over_noise"]) < NOISE_READ_HIGH
         assert report["noise"]["sigma"][0] > 1.2 * 5e-3
+
+
+@pytest.mark.parametrize("factor, expected", [(1.0, None), (1 / 3, "leave it out"), (3.0, "coloured noise")])
+def test_a_sidecar_level_the_samples_disagree_with_is_said(factor, expected):
+    """The bench's 1-s toss (noise 5e-3 rad/s) with its sidecar's gyro_sigma as given, 3x too
+    small or 3x too large: the samples' own level (estimate_white_noise) disagrees with the last
+    two, and stated_noise_note says which way; a 2x margin keeps the true level silent."""
+    rec = bench_toss()
+    stated = np.full(3, 5e-3 * factor)
+    note = stated_noise_note(rec.w, stated)
+    if expected is None:
+        assert note is None
+    else:
+        ratios = [float(r) for r in note.split("rad/s, ")[1].split(" times")[0].split(", ")]
+        assert expected in note and np.allclose(ratios, 1 / factor, rtol=0.25)
+
+
+def test_diagnose_and_identify_say_a_sidecar_level_3x_too_small():
+    """The level is in the sidecar and 3x too small: diagnose's report (noise.sidecar_disagrees)
+    and summary, and identify's notes, say so; at the true level both stay silent."""
+    from inertia_gym import identify
+
+    rec = bench_toss()
+    low = dataclasses.replace(rec, meta={**rec.meta, "gyro_sigma": 5e-3 / 3})
+    report, _ = diagnose(low)
+    assert "leave it out" in report["noise"]["sidecar_disagrees"]
+    assert "the sidecar's noise level disagrees with the data's" in markdown(report, [])
+    assert any("high-frequency scatter" in n for n in identify(low).notes)
+    assert diagnose(rec)[0]["noise"]["sidecar_disagrees"] is None
+    assert not any("high-frequency scatter" in n for n in identify(rec).notes)

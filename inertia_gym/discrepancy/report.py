@@ -43,6 +43,7 @@ from inertia_gym.discrepancy.recordings import (
 from inertia_gym.errors import RecordingError
 from inertia_gym.executors import kernels_own_the_cores
 from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED
+from inertia_gym.sensors import stated_noise_note
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
@@ -437,7 +438,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
         "noise": {"rows": "block means" if d.block > 1 else "samples", "samples_per_row": d.block,
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
-                  "independent_row_share": d.effective_share, "read_high": _noise_reads_high(best, d)},
+                  "independent_row_share": d.effective_share, "read_high": _noise_reads_high(best, d),
+                  "sidecar_disagrees": None if d.sigma_source != "sidecar"
+                  else stated_noise_note(d.w[d.row >= 0], d.sigma)},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
@@ -695,8 +698,13 @@ def _shape_words(report: dict) -> list[str]:
 
 
 def _noise_words(report: dict) -> list[str]:
-    """A warning where the noise level read from the data reads high (_noise_reads_high)."""
-    if not report.get("noise", {}).get("read_high"):  # (a report written before the key existed)
+    """A warning where the noise level read from the data reads high (_noise_reads_high), or the
+    sidecar's level disagrees with the samples' (sensors.stated_noise_note).
+    """
+    noise = report.get("noise", {})  # (a report written before the keys existed has neither)
+    if noise.get("sidecar_disagrees"):
+        return [f"- **the sidecar's noise level disagrees with the data's**: {noise['sidecar_disagrees']}"]
+    if not noise.get("read_high"):
         return []
     return ["- **the noise level read from the data reads high**: the best fit leaves "
             f"{_fmt(report['fit_after']['rms_over_noise'])} of it, under {NOISE_READ_HIGH:g} on every "
