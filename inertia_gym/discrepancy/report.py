@@ -411,7 +411,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                 ambiguous.append({"effects": [top["name"], e["name"]],
                                   "reason": f"delta BIC differs by {top['delta_bic'] - e['delta_bic']:.1f}"
                                             f" < {AMBIGUOUS_DELTA_BIC}"})
-        for other, reason in REGISTRY[top["name"]].confounded(top["form"] or ""):
+        for other, reason in _live_ambiguities(top["name"], top["form"] or "", skipped):
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     scale_seen, scale_sigma = scale_identified(d, best, offset)
@@ -428,7 +428,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
-        "explanation": _explanation(chosen, d, scale_seen), "left_out": chosen.dropped,
+        "explanation": _explanation(chosen, d, scale_seen, skipped), "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
         "fit_before": before,
         "fit_inertia_fitted": before if offset is None else _fit_summary(offset, d), "fit_after": after,
@@ -464,9 +464,18 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     return report, arrays
 
 
-def _explanation(chosen, d: Data, scale_seen: bool) -> list[dict]:
+def _live_ambiguities(name: str, form: str, skipped: dict) -> list[tuple[str, str]]:
+    """The effect's known ambiguities in that form (EffectModel.confounded) but those with an
+    effect the recording cannot test (in skipped: an inertia offset trades against a torque
+    scale only where a torque is commanded).
+    """
+    return [(other, why) for other, why in REGISTRY[name].confounded(form) if other not in skipped]
+
+
+def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict) -> list[dict]:
     """The selected effects in order: name, params, 95 % intervals, the delta BIC each added
-    (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen).
+    (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen),
+    the ambiguities the recording leaves open (_live_ambiguities; skipped: the effects it cannot test).
     """
     if chosen.fit is None:
         return []
@@ -482,7 +491,7 @@ def _explanation(chosen, d: Data, scale_seen: bool) -> list[dict]:
                           for k, v in ci[name].items()},
                  "delta_bic": added,
                  "confounded_with": [{"with": other, "reason": why}
-                                     for other, why in model.confounded(form)]}
+                                     for other, why in _live_ambiguities(name, form, skipped)]}
         if name == "inertia_offset":
             entry["inertia_vs_nominal"] = inertia_comparison(d.inertia0, named[name]["inertia"],
                                                              scale_seen)

@@ -577,3 +577,16 @@ def test_a_window_in_a_sidecar_is_not_taken_for_a_free_flight_window(hand_tosses
     rec = Recording(t[keep], w[keep], meta={"window": [0.0, 1.0]}, name="toss")
     report, _ = diagnose(rec)
     assert report["free_flight_window"] is None and report["fit_after"]["valid"]
+
+
+@pytest.mark.parametrize("torque", [False, True])
+def test_an_ambiguity_with_an_effect_the_recording_cannot_test_is_not_said(torque):
+    """A wrong nominal inertia: with torque bursts its overall scale trades against the torque's
+    (actuator_scale), and the report says so; with no torque commanded, actuator_scale cannot be
+    tested and no such trade is said (an independent audit found it said on a torque-free throw)."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, "inertia_offset", seed=3, torque=torque)
+    report, _ = diagnose(_concealed(rec))
+    (entry,) = [e for e in report["explanation"] if e["name"] == "inertia_offset"]
+    said = {c["with"] for c in entry["confounded_with"]}
+    assert ("actuator_scale" in said) is torque
+    assert ("actuator_scale" in report["skipped_effects"]) is not torque
