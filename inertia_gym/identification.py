@@ -767,7 +767,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     if "window_source" in rec.meta:
         window = window_note(*rec.meta["window"], rec.meta["window_source"])
         notes += [window] if window else []
-    stated = None if sigma_w is None else stated_noise_note(rec.w[meas], sigma_w)
+    stated = None if sigma_w is None else stated_noise_note(rec.w[meas], sigma_w, rms)
     notes += [stated] if stated else []
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "

@@ -164,25 +164,30 @@ def estimate_white_noise(w) -> np.ndarray:
 NOISE_DISAGREE = 2.0
 
 
-def stated_noise_note(w, stated) -> str | None:
+def stated_noise_note(w, stated, residual_rms) -> str | None:
     """A sentence where gyro samples w (n, 3) rad/s read a white-noise level (estimate_white_noise)
     over NOISE_DISAGREE times the stated level (3,) rad/s (a sidecar's gyro_sigma), or under
-    1/NOISE_DISAGREE of it, on every axis; None where they agree.
+    1/NOISE_DISAGREE of it, on every axis, and the best fit's residual rms (3,) rad/s is beyond
+    the same factor the same way (motion fast for the sampling raises the differences' level
+    alone; a residual at the stated level says it is right); None where they agree.
 
     The stated level sets the intervals' width and the noise-based flags: stated 3x too small,
     the residual reads as 3x the noise, a mismatch; 3x too large, the intervals are 3x wider
     than the data need (an independent audit: neither was said). A level read under the stated
     one can be right: a coloured noise (the rotor throws' vibration at 200-260 Hz, sampled at
-    4 kHz, reads 0.02-0.3 of their in-flight gyro_sigma) or a low-passed gyro reads so too.
+    4 kHz, reads 0.02-0.3 of their in-flight gyro_sigma, which their residuals exceed) or a
+    low-passed gyro reads so too.
     """
     read = estimate_white_noise(w)
-    ratio = read / np.asarray(stated, float)
-    high, low = np.all(ratio > NOISE_DISAGREE), np.all(ratio < 1.0 / NOISE_DISAGREE)
+    ratio, fit_ratio = read / np.asarray(stated, float), np.asarray(residual_rms, float) / stated
+    high = np.all(ratio > NOISE_DISAGREE) and np.all(fit_ratio > NOISE_DISAGREE)
+    low = np.all(ratio < 1.0 / NOISE_DISAGREE) and np.all(fit_ratio < 1.0 / NOISE_DISAGREE)
     if not (high or low):
         return None
     said = (f"the samples' own high-frequency scatter reads a white-noise level of "
             f"({', '.join(f'{v:.3g}' for v in read)}) rad/s, {', '.join(f'{r:.2g}' for r in ratio)} times "
-            f"the sidecar's gyro_sigma ({float(np.mean(stated)):.3g} rad/s)")
+            f"the sidecar's gyro_sigma ({float(np.mean(stated)):.3g} rad/s), and the best fit leaves "
+            f"{', '.join(f'{r:.2g}' for r in fit_ratio)} times it")
     if high:
         return (said + ": residuals read that much high against the sidecar's level (a mismatch that "
                 "is only noise); check it (a noise density in rad/s/sqrt(Hz) is not a level: times "

@@ -89,12 +89,15 @@ def test_a_sidecar_level_the_samples_disagree_with_is_said(factor, expected):
     two, and stated_noise_note says which way; a 2x margin keeps the true level silent."""
     rec = bench_toss()
     stated = np.full(3, 5e-3 * factor)
-    note = stated_noise_note(rec.w, stated)
+    residual_rms = np.full(3, 5e-3)  # a fit to the noise
+    note = stated_noise_note(rec.w, stated, residual_rms)
     if expected is None:
         assert note is None
     else:
         ratios = [float(r) for r in note.split("rad/s, ")[1].split(" times")[0].split(", ")]
         assert expected in note and np.allclose(ratios, 1 / factor, rtol=0.25)
+        # a fit that leaves the stated level (the differences read high from fast motion, say)
+        assert stated_noise_note(rec.w, stated, stated) is None
 
 
 def test_diagnose_and_identify_say_a_sidecar_level_3x_too_small():

@@ -440,7 +440,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
                   "independent_row_share": d.effective_share, "read_high": _noise_reads_high(best, d),
                   "sidecar_disagrees": None if d.sigma_source != "sidecar"
-                  else stated_noise_note(d.w[d.row >= 0], d.sigma)},
+                  else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0)))},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
