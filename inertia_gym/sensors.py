@@ -179,7 +179,8 @@ def stated_noise_note(w, stated, residual_rms) -> str | None:
     low-passed gyro reads so too.
     """
     read = estimate_white_noise(w)
-    ratio, fit_ratio = read / np.asarray(stated, float), np.asarray(residual_rms, float) / stated
+    stated = np.asarray(stated, float)
+    ratio, fit_ratio = read / stated, np.asarray(residual_rms, float) / stated
     high = np.all(ratio > NOISE_DISAGREE) and np.all(fit_ratio > NOISE_DISAGREE)
     low = np.all(ratio < 1.0 / NOISE_DISAGREE) and np.all(fit_ratio < 1.0 / NOISE_DISAGREE)
     if not (high or low):
