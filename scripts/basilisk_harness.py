@@ -38,6 +38,8 @@ from inertia_gym.discrepancy.report import diagnose
 #   momentum, exactly `internal_momentum`.
 # - hidden_torque: a constant body-frame torque: `constant_body_torque`.
 # - gyro_bias, gyro_scale: added to the reading: `gyro_bias`, `gyro_scale`.
+# - gyro_drift: a bias random walk added to the reading: `gyro_bias` (its varying form, on a record
+#   long enough for it).
 MASS_LEFT_OUT = ("inertia_offset", "flexible_mode", "internal_dissipation")
 ACCEPTED = {
     "slosh": MASS_LEFT_OUT,
@@ -46,6 +48,7 @@ ACCEPTED = {
     "hidden_torque": ("constant_body_torque",),
     "gyro_bias": ("gyro_bias",),
     "gyro_scale": ("gyro_scale",),
+    "gyro_drift": ("gyro_bias",),
 }
 
 #: Hub classes: mass kg and size m; the hub inertia is mass * size^2 * SHAPE.
@@ -82,6 +85,8 @@ def components(case: SpacecraftCase) -> list[str]:
         out.append("gyro_bias")
     if any(case.gyro_scale):
         out.append("gyro_scale")
+    if case.gyro_bias_walk:
+        out.append("gyro_drift")
     return out
 
 
@@ -140,7 +145,7 @@ def torque(body: str, accel: float, seed: int) -> tuple:
 
 
 def cases(duration: float) -> list[SpacecraftCase]:
-    """The harness's cases: 16 controls, 37 single concealed components, 8 pairs."""
+    """The harness's cases: 17 controls, 38 single concealed components, 10 pairs."""
     d = dict(duration=duration)
     c = [
         base("control_cubesat_free", "cubesat", 1, False, **d),
@@ -218,6 +223,19 @@ def cases(duration: float) -> list[SpacecraftCase]:
     c.append(dataclasses.replace(slow, omega0=tuple((np.asarray(slow.omega0) * 0.02 / RATE).tolist()),
                                  burst_torque=slow.burst_torque * 0.02, sample_dt=0.5,
                                  duration=20 * duration, gyro_sigma=2e-5))
+    # ten times as long at 2 Hz: long enough for a bias that drifts (knots 30 s apart); a control
+    # of that length, bias random walks of about 4 and 6 noise levels over the record, and one
+    # beside a hidden torque
+    long = dict(duration=10 * duration, sample_dt=0.5)
+    walk = SpacecraftCase.gyro_sigma / np.sqrt(long["duration"])  # 1 noise level over the record
+    c += [
+        base("control_smallsat_long_free", "smallsat", 91, False, **long),
+        base("drift_smallsat_long_free", "smallsat", 92, False, gyro_bias_walk=4 * walk, **long),
+        base("drift_bus_long_bursts", "bus", 93, True, gyro_bias_walk=6 * walk, gyro_bias=(4e-4, -3e-4, 2e-4),
+             **long),
+        base("pair_drift_torque_long", "smallsat", 94, False, gyro_bias_walk=4 * walk,
+             hidden_torque=torque("smallsat", 1e-4, 94), **long),
+    ]
     for body, seed in (("stage", 900), ("device", 950)):  # the extremes of scale, one case of each kind
         c += [
             base(f"control_{body}_free", body, seed + 1, False, **d),

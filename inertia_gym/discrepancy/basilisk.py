@@ -8,7 +8,8 @@ does not. Here a spacecraft hub (``spacecraft.Spacecraft``) carries any of
   recording's h columns, h = sum Js Omega g_s, speed relative to the body) or hidden;
 - an external torque (``extForceTorque``): commanded bursts (the recording's tau columns) and a
   hidden constant body-frame torque;
-and the gyro reading gets a seeded white noise, optionally a bias and a per-axis scale error.
+and the gyro reading gets a seeded white noise, optionally a bias, a bias random walk (a bias
+that drifts) and a per-axis scale error.
 
 The recording looks like a hardware log with a user's sidecar: ``inertia_nominal`` is the hub's
 inertia about its own centre of mass, what a user with a hub-only model would write (Basilisk's
@@ -105,7 +106,10 @@ class SpacecraftCase:
     integration_dt s (Basilisk's RK4 step; sample_dt must be a multiple); gyro_sigma rad/s;
     quat_sigma (attitude noise; None: no attitude columns); burst_torque N·m commanded bursts
     (0: none; seeded schedule, 2-6 s on and off); hidden_torque (3,) N·m constant, body frame;
-    gyro_bias (3,) rad/s and gyro_scale (3,) (reading = (1 + scale) w + bias + noise); slosh,
+    gyro_bias (3,) rad/s and gyro_scale (3,) (reading = (1 + scale) w + bias + noise);
+    gyro_bias_walk rad/s/sqrt(s): a bias random walk on each axis (bias instability) added to the
+    reading, from its own seeded stream (the cumulative sum of Gaussian steps, zero at the first
+    row); slosh,
     panels: tuples of Slosh / Panel; wheels: Wheels or None; seed for noise and schedules.
     """
 
@@ -123,6 +127,7 @@ class SpacecraftCase:
     hidden_torque: tuple = (0.0, 0.0, 0.0)
     gyro_bias: tuple = (0.0, 0.0, 0.0)
     gyro_scale: tuple = (0.0, 0.0, 0.0)
+    gyro_bias_walk: float = 0.0
     slosh: tuple = ()
     panels: tuple = ()
     wheels: Wheels | None = None
@@ -341,6 +346,11 @@ def simulate(case: SpacecraftCase) -> BasiliskRun:
         h_rel = (speeds * np.asarray(case.wheels.js, float)) @ axes
     gyro = w_true * (1.0 + np.asarray(case.gyro_scale)) + np.asarray(case.gyro_bias) \
         + rng.normal(0.0, case.gyro_sigma, (n, 3))
+    if case.gyro_bias_walk:
+        steps = np.random.default_rng([case.seed, 1]).normal(
+            0.0, case.gyro_bias_walk * np.sqrt(case.sample_dt), (n, 3))
+        steps[0] = 0.0
+        gyro = gyro + np.cumsum(steps, axis=0)
     q_meas = None
     if case.quat_sigma is not None:
         q_meas = q_true + rng.normal(0.0, case.quat_sigma, (n, 4))
@@ -379,7 +389,7 @@ def _truth(case: SpacecraftCase, h0: np.ndarray, w0: np.ndarray) -> dict:
              "slosh": [dataclasses.asdict(s) for s in case.slosh],
              "panels": [dataclasses.asdict(p) for p in case.panels],
              "hidden_torque": list(case.hidden_torque), "gyro_bias": list(case.gyro_bias),
-             "gyro_scale": list(case.gyro_scale), "seed": case.seed}
+             "gyro_scale": list(case.gyro_scale), "gyro_bias_walk": case.gyro_bias_walk, "seed": case.seed}
     if case.wheels is not None:
         truth["wheels"] = dataclasses.asdict(case.wheels)
         axes = np.asarray(case.wheels.axes, float)

@@ -291,8 +291,8 @@ class EffectModel:
         """
         return None
 
-    def gyro(self, params: dict, w: np.ndarray) -> np.ndarray:
-        """Gyro output (n, 3) from true rates w (n, 3)."""
+    def gyro(self, params: dict, w: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Gyro output (n, 3) from true rates w (n, 3) at the sample times t (n,) s."""
         return w
 
     def true_inertia(self, params: dict):
@@ -314,23 +314,107 @@ def register(cls):
     return cls
 
 
+#: Shortest spacing (s) of the knots of a drifting gyro bias: a gyro's bias wanders over tens of
+#: seconds to hours (the flat of its Allan deviation, temperature), so over a shorter record it
+#: is a constant, and a bias free to change faster would stand in for the body's own motion
+#: (hence also one turn of the body at least between knots).
+BIAS_KNOT_SPACING_S = 30.0
+
+
 @register
 class GyroBias(EffectModel):
-    """Gyro reads w + b (b rad/s per axis)."""
+    """Gyro reads w + b (b rad/s per axis). Two forms: constant b, and varying (a bias that
+    drifts: bias instability, temperature), b + m(t) with m per axis the cubic spline
+    (not-a-knot) through knots at profile_t, m = 0 at the first; only on records long enough for
+    knots BIAS_KNOT_SPACING_S and one turn of the body (2 pi / omega_ref) apart, ROWS_PER_KNOT
+    rows each, KNOTS in number. The varying
+    vector is [b (3), profile_t (K, held), profile (K x 3 row by row, the first row held at 0)].
+    """
 
     name, params, size, family = "gyro_bias", ("bias",), 3, "gyro error"
+    ROWS_PER_KNOT, KNOTS = 25, (4, 16)
+    varying_ambiguities = (("internal_momentum", (
+        "a bias that drifts and a momentum that changes slowly both move the rates the gyro "
+        "reads by a slowly changing amount; a momentum also turns the body's spin, which on a "
+        "slowly turning body is small: where the body has no rotor, read it as the gyro")),
+                           ("gyro_scale", (
+        "a scale factor that drifts multiplies the rates by a slowly changing amount; where the "
+        "rates the body turns at change little over the record, that is a bias that drifts")),)
 
     @override
     def draw(self, rng, body):
         return {"bias": _signed(rng, 3.0, 10.0, 3) * body.gyro_sigma}
 
     @override
-    def typical(self, form, d):
-        return np.full(3, float(np.mean(d.sigma)))
+    def knots(self, d):
+        spacing = max(BIAS_KNOT_SPACING_S, 2.0 * np.pi / d.omega_ref)
+        k = min(d.n_rows // self.ROWS_PER_KNOT, int(d.duration // spacing))
+        return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
 
     @override
-    def gyro(self, params, w):
-        return w + np.asarray(params["bias"], float)
+    def forms(self, d):
+        return ("", "varying") if self.knots(d) else ("",)
+
+    @override
+    def form_size(self, form, d):
+        return 3 if form != "varying" else 3 + 4 * self.knots(d)
+
+    @override
+    def unpack(self, p):
+        if p.size == 3:
+            return {"bias": np.array(p)}
+        k = (p.size - 3) // 4
+        return {"bias": np.array(p[:3]), "profile_t": np.array(p[3:3 + k]),
+                "profile": np.array(p[3 + k:]).reshape(k, 3)}
+
+    @override
+    def pack(self, params):
+        bias = np.broadcast_to(np.ravel(np.asarray(params["bias"], float)), (3,)).copy()
+        if "profile" not in params:
+            return bias
+        return np.concatenate([bias, np.asarray(params["profile_t"], float),
+                               np.ravel(np.asarray(params["profile"], float))])
+
+    def _flat(self, d) -> np.ndarray:
+        """The varying form's knots and no drift (4K,)."""
+        k = self.knots(d)
+        return np.concatenate([np.linspace(d.t[0], d.t[-1], k), np.zeros(3 * k)])
+
+    @override
+    def held(self, form, d):
+        out = np.zeros(self.form_size(form, d), bool)
+        if form == "varying":
+            out[3:3 + self.knots(d) + 3] = True  # knot times, and m = 0 at the first knot
+        return out
+
+    @override
+    def typical(self, form, d):
+        sigma = float(np.mean(d.sigma))
+        if form != "varying":
+            return np.full(3, sigma)
+        k = self.knots(d)
+        return np.concatenate([np.full(3, sigma), np.ones(k), np.full(3 * k, sigma)])
+
+    @override
+    def starts(self, form, d, probe):
+        return [np.zeros(3)] if form != "varying" else [np.r_[np.zeros(3), self._flat(d)]]
+
+    @override
+    def neutral(self, form, d, base):
+        return np.zeros(3) if form != "varying" else np.r_[np.zeros(3), self._flat(d)]
+
+    @override
+    def nested(self, form, d, p):
+        return np.r_[p[:3], self._flat(d)] if form == "varying" else None
+
+    @override
+    def gyro(self, params, w, t):
+        out = w + np.asarray(params["bias"], float)
+        if "profile" not in params:
+            return out
+        basis = _spline_basis(np.asarray(params["profile_t"], float).tobytes(),
+                              np.ascontiguousarray(t, float).tobytes())
+        return out + basis @ np.asarray(params["profile"], float)
 
 
 #: Largest gyro scale-factor error fitted, per axis (relative).
@@ -363,7 +447,7 @@ class GyroScale(EffectModel):
         return np.full(3, 0.01)
 
     @override
-    def gyro(self, params, w):
+    def gyro(self, params, w, t):
         return w * (1.0 + np.asarray(params["scale"], float))
 
 

@@ -485,7 +485,7 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
     y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)
     out = simulate(grid, seg_pos, y0, terms)[..., 4:]
-    return np.stack([gyro_output(p, w) for p, w in zip(parts, out)])
+    return np.stack([gyro_output(p, w, d.t) for p, w in zip(parts, out)])
 
 
 def _row_means(d: Data, values) -> np.ndarray:

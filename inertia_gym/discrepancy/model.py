@@ -152,10 +152,12 @@ def _ones(steps: int) -> np.ndarray:
     return out
 
 
-def gyro_output(effects, w) -> np.ndarray:
-    """What the gyro reads (n, 3) of the true rates w (n, 3) under the effects' sensor terms."""
+def gyro_output(effects, w, t) -> np.ndarray:
+    """What the gyro reads (n, 3) of the true rates w (n, 3) at the sample times t (n,) s under
+    the effects' sensor terms.
+    """
     for model, params in effects:
-        w = model.gyro(params, w)
+        w = model.gyro(params, w, t)
     return w
 
 

@@ -54,9 +54,11 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effects=(), momen
     return out[:, :4], out[:, 4:]
 
 
-def gyro_reading(w, effects=()) -> np.ndarray:
-    """Noise-free gyro output (n, 3) from true rates w (n, 3) under the effects' sensor terms."""
-    return gyro_output([(e.model, e.params) for e in _effects_tuple(effects)], w)
+def gyro_reading(t, w, effects=()) -> np.ndarray:
+    """Noise-free gyro output (n, 3) from true rates w (n, 3) at times t (n,) s under the
+    effects' sensor terms.
+    """
+    return gyro_output([(e.model, e.params) for e in _effects_tuple(effects)], w, t)
 
 
 def burst_schedule(n: int, dt: float, tau_max: float, rng: np.random.Generator, every: int = 1) -> np.ndarray:
@@ -162,7 +164,7 @@ def simulate_recording(scenario: Scenario, duration: float, effect_name: str | l
         h_rows = momentum[idx]
     q, w = simulate_truth(euler_to_quat(scenario.attitude0_euler_deg), np.asarray(scenario.omega0),
                           inertia, tau, dt, effects, momentum)
-    gyro = gyro_reading(w[idx], effects) + gyro_noise
+    gyro = gyro_reading(idx * dt, w[idx], effects) + gyro_noise
     qm = q[idx] + quat_noise
     qm /= np.linalg.norm(qm, axis=1, keepdims=True)
     qm *= np.sign(qm[:, :1] + 1e-300)

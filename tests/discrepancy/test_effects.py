@@ -258,9 +258,10 @@ def test_known_and_varying_internal_momentum():
 
 def test_sensor_effects_change_only_the_reading():
     w = np.array([[1.0, -2.0, 0.5], [0.3, 0.1, -0.2]])
-    np.testing.assert_allclose(gyro_reading(w, Effect("gyro_bias", {"bias": [0.1, 0.2, -0.3]})),
+    t = np.array([0.0, 0.1])
+    np.testing.assert_allclose(gyro_reading(t, w, Effect("gyro_bias", {"bias": [0.1, 0.2, -0.3]})),
                                w + [0.1, 0.2, -0.3])
-    np.testing.assert_allclose(gyro_reading(w, Effect("gyro_scale", {"scale": [0.01, -0.02, 0.03]})),
+    np.testing.assert_allclose(gyro_reading(t, w, Effect("gyro_scale", {"scale": [0.01, -0.02, 0.03]})),
                                w * [1.01, 0.98, 1.03])
 
 

@@ -1,0 +1,87 @@
+"""A gyro bias that drifts (gyro_bias's varying form): its reading against its definition, the
+records it is fitted on, and a bias random walk (not the model's spline) read as it, blind.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import interpolate
+
+from inertia_gym.discrepancy.effects import BIAS_KNOT_SPACING_S, REGISTRY, Effect
+from inertia_gym.discrepancy.fit import prepare
+from inertia_gym.discrepancy.recordings import Recording
+from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.discrepancy.synthetic import gyro_reading, simulate_recording
+from inertia_gym.scenario import Scenario
+
+GYRO = REGISTRY["gyro_bias"]
+SLOW = Scenario(omega0=(0.05, 0.3, 0.04), dt=0.05)
+
+
+def test_a_drifting_bias_reads_as_the_not_a_knot_spline_through_its_knots_held_beyond_them():
+    knots = np.array([10.0, 40.0, 70.0, 100.0, 130.0])
+    profile = np.array([[0.0, 0.0, 0.0], [1.0, -2.0, 0.5], [3.0, 1.0, -1.0], [2.0, 0.0, 0.0],
+                        [-1.0, 4.0, 2.0]]) * 1e-3
+    bias = np.array([0.1, -0.2, 0.3])
+    t = np.linspace(0.0, 140.0, 57)
+    w = np.random.default_rng(0).normal(size=(t.size, 3))
+    read = gyro_reading(t, w, Effect("gyro_bias", {"bias": bias, "profile_t": knots, "profile": profile}))
+    drift = np.stack([interpolate.CubicSpline(knots, profile[:, i], bc_type="not-a-knot")(
+        np.clip(t, knots[0], knots[-1])) for i in range(3)], axis=1)
+    np.testing.assert_allclose(read, w + bias + drift, rtol=0, atol=1e-12)
+    before = t <= knots[0]  # m = 0 at the first knot and before it
+    np.testing.assert_allclose(read[before] - w[before], np.tile(bias, (before.sum(), 1)), atol=1e-12)
+    # the vector packs and unpacks losslessly
+    params = {"bias": bias, "profile_t": knots, "profile": profile}
+    back = GYRO.unpack(GYRO.pack(params))
+    for key in params:
+        np.testing.assert_array_equal(back[key], params[key])
+
+
+def _record(duration, sample_dt, seed, walk=0.0, bias=(0.0, 0.0, 0.0), scenario=SLOW):
+    """The scenario's body (by default tumbling at 0.3 rad/s) with no torque for duration s at
+    sample_dt s, its gyro reading plus a bias random walk of `walk` rad/s/sqrt(s) per axis (a
+    cumulative sum of Gaussian steps, not a spline) and a constant bias (rad/s); the sidecar
+    without its truth.
+    """
+    rec, _ = simulate_recording(scenario, duration, None, seed=seed, torque=False, sample_dt=sample_dt)
+    rng = np.random.default_rng(seed + 1000)
+    steps = rng.normal(0.0, walk * np.sqrt(np.diff(rec.t, prepend=rec.t[0]))[:, None], rec.w.shape)
+    meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects")}
+    return Recording(rec.t, rec.w + np.cumsum(steps, axis=0) + np.asarray(bias), None, None, meta, "drift")
+
+
+@pytest.mark.parametrize("duration, sample_dt, rate, knots", [
+    (60.0, 1.0, 0.3, 0), (119.0, 1.0, 0.3, 0), (120.0, 1.0, 0.3, 4), (200.0, 1.0, 0.3, 6),
+    (900.0, 1.0, 0.3, 16),  # 30 s apart (a turn takes 21 s), at most 16
+    (200.0, 2.0, 0.3, 4),  # 25 rows apart
+    (900.0, 2.0, 0.03, 4),  # a turn (209 s) apart
+    (600.0, 2.0, 0.02, 0)])  # a turn takes 314 s: too few
+def test_the_drift_is_fitted_only_where_the_record_holds_4_knots_30_s_25_rows_and_a_turn_apart(
+        duration, sample_dt, rate, knots):
+    slow = Scenario(omega0=tuple(np.asarray(SLOW.omega0) * rate / np.linalg.norm(SLOW.omega0)), dt=0.05,
+                    gyro_sigma=1e-3)  # the rate read over the noise
+    rec = _record(duration, sample_dt, seed=1, scenario=slow)
+    d = prepare(rec)
+    assert BIAS_KNOT_SPACING_S == 30.0
+    assert GYRO.knots(d) == knots
+    assert GYRO.forms(d) == (("", "varying") if knots else ("",))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_bias_random_walk_is_read_as_a_drifting_gyro_bias_and_a_constant_one_as_constant(seed):
+    duration, sample_dt = 300.0, 0.5
+    sigma = SLOW.gyro_sigma
+    walk = 4.0 * sigma / np.sqrt(duration)  # about 4 sigma of drift over the record per axis
+    drifting = _record(duration, sample_dt, seed, walk=walk, bias=(3 * sigma, -2 * sigma, 0.0))
+    report, _ = diagnose(drifting)
+    lead = report["explanation"][0]
+    assert (lead["name"], lead["form"]) == ("gyro_bias", "varying")
+    assert max(report["fit_after"]["rms_over_noise"]) < 1.15
+    assert not report["beyond_catalogue"]
+    # the same body with a bias that does not drift: the constant form, nothing else
+    steady = _record(duration, sample_dt, seed, bias=(5 * sigma, -4 * sigma, 3 * sigma))
+    report, _ = diagnose(steady)
+    assert [(e["name"], e["form"]) for e in report["explanation"]] == [("gyro_bias", None)]
