@@ -63,7 +63,12 @@ from inertia_gym.estimation.inertia_param import (
 )
 from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.sensors import estimate_white_noise, stated_noise_note
+from inertia_gym.sensors import (
+    estimate_white_noise,
+    quantisation_note,
+    stated_gyro_level,
+    stated_noise_note,
+)
 
 METHODS = ("ml", "ekf", "ukf")
 #: The scale counts as identified when its relative standard deviation is at most this.
@@ -631,7 +636,7 @@ def _impulse_noise(rec: Recording) -> np.ndarray:
     the impulse).
     """
     if "gyro_sigma" in rec.meta:
-        return np.full(3, float(rec.meta["gyro_sigma"]))
+        return stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)])
     return np.maximum(estimate_white_noise(rec.w[~clipped_rows(rec)]), 1e-12)
 
 
@@ -682,7 +687,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     t0 = time.perf_counter()
     _check_recording(rec)
     if "gyro_sigma" in rec.meta:
-        sigma_w, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar gyro_sigma"
+        sigma_w, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w), "sidecar gyro_sigma"
     else:
         sigma_w, source = None, "estimated from the residuals"
     prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
@@ -767,8 +772,10 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     if "window_source" in rec.meta:
         window = window_note(*rec.meta["window"], rec.meta["window_source"])
         notes += [window] if window else []
-    stated = None if sigma_w is None else stated_noise_note(rec.w[meas], sigma_w, rms)
-    notes += [stated] if stated else []
+    if sigma_w is not None:
+        stated = [quantisation_note(float(rec.meta["gyro_sigma"]), rec.w),
+                  stated_noise_note(rec.w[meas], sigma_w, rms)]
+        notes += [note for note in stated if note]
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

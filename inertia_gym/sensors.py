@@ -146,6 +146,11 @@ def estimate_white_noise(w) -> np.ndarray:
     that is k = 3; where it is not, its own k-th differences, of size (rate x interval)^k, inflate
     the low orders' level: a phone's third differences on a racquet flipping at 30 rad/s at
     100 Hz read 31-44 mrad/s where the sixth read 2-3.5 (README, noise level).
+
+    Never under the rounding error of the samples' quantisation, q / sqrt(12) (q from
+    quantisation_step): on a lattice coarse for the noise most differences are exactly zero and
+    their median reads nothing (an independent audit: 0 on one axis of a gyro quantised in steps
+    of 10 sigma).
     """
     w = np.asarray(w, float)
     orders = [k for k in NOISE_ORDERS if w.shape[0] > k + 2] or [min(NOISE_ORDERS)]
@@ -156,7 +161,62 @@ def estimate_white_noise(w) -> np.ndarray:
         levels.append(mad / math.sqrt(math.comb(2 * k, k)))
     levels = np.array(levels)  # (orders, 3)
     on_plateau = levels <= NOISE_PLATEAU * levels.min(axis=0)
-    return levels[np.argmax(on_plateau, axis=0), np.arange(levels.shape[1])]
+    level = levels[np.argmax(on_plateau, axis=0), np.arange(levels.shape[1])]
+    return np.maximum(level, quantisation_step(w) / math.sqrt(12.0))
+
+
+#: A gap between an axis's distinct values counts as a whole number of quantisation steps when
+#: within this share of a step of one; gaps of more steps than QUANTUM_MAX_STEPS are not checked
+#: (the values a log was written with round them by more).
+QUANTUM_TOLERANCE = 0.05
+QUANTUM_MAX_STEPS = 100
+
+
+def quantisation_step(w) -> np.ndarray:
+    """(3,) rad/s: per axis, the step q of the lattice the gyro samples w (n, 3) lie on (an
+    offset plus whole multiples of q: an ADC's least significant bit, or the digits a log was
+    written with), 0 where they lie on none. From the gaps between the axis's distinct values:
+    the least gaps (under 1.5x the least) give q; every gap of up to QUANTUM_MAX_STEPS steps
+    must be a whole number of steps within QUANTUM_TOLERANCE, and those gaps must be at least
+    half of all (values written to full precision have gaps of no common step).
+    """
+    w = np.asarray(w, float)
+    out = np.zeros(w.shape[1])
+    for i in range(w.shape[1]):
+        values = np.unique(w[np.isfinite(w[:, i]), i])
+        if values.size < 3:
+            continue
+        gaps = np.diff(values)
+        q = float(np.mean(gaps[gaps < 1.5 * gaps.min()]))
+        steps = gaps / q
+        near = steps <= QUANTUM_MAX_STEPS
+        if near.mean() >= 0.5 and np.all(np.abs(steps[near] - np.round(steps[near])) < QUANTUM_TOLERANCE):
+            out[i] = q
+    return out
+
+
+def stated_gyro_level(stated, w) -> np.ndarray:
+    """(3,) rad/s: a stated gyro noise level (a sidecar's gyro_sigma, a number or (3,)) with the
+    rounding error of the samples w (n, 3) added: sqrt(stated^2 + q^2 / 12) per axis, q their
+    quantisation step (quantisation_step; a data sheet's noise leaves out the telemetry's
+    least significant bit, which on a coarse lattice is most of the error).
+    """
+    stated = np.broadcast_to(np.asarray(stated, float), (3,))
+    return np.sqrt(stated ** 2 + quantisation_step(w) ** 2 / 12.0)
+
+
+def quantisation_note(stated, w) -> str | None:
+    """A sentence where the samples' quantisation raises a stated level (3,) rad/s by over 1 %
+    (stated_gyro_level), None otherwise.
+    """
+    stated = np.broadcast_to(np.asarray(stated, float), (3,))
+    level = stated_gyro_level(stated, w)
+    if not np.any(level > 1.01 * stated):
+        return None
+    steps = ", ".join(f"{v:.3g}" for v in quantisation_step(w))
+    return (f"the gyro samples are quantised in steps of ({steps}) rad/s; their rounding error "
+            f"(step / sqrt(12)) is added to the sidecar's gyro_sigma: "
+            f"({', '.join(f'{v:.3g}' for v in level)}) rad/s")
 
 
 #: A stated gyro noise level and the level the samples' differences read disagree where one is

@@ -52,7 +52,7 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.sensors import estimate_white_noise
+from inertia_gym.sensors import estimate_white_noise, quantisation_step, stated_gyro_level
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
@@ -314,13 +314,16 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     block = max(1, int(1.0 / (dt * keep_rate)))
     seg = _segments(t, w, int(keep.sum()) // block, max_turn, MIN_SEGMENT_ROWS, block)
     row, row_seg, row_scale = _rows(seg, keep, block)
+    # the step of the lattice the samples lie on (rows of one sample each: a mean of several is not)
+    quantum = quantisation_step(w[keep]) if block == 1 else np.zeros(3)
     notes = {"block": block, "saturated_samples": int(clipped.any(axis=1).sum()),
-             "trimmed": [int(trim[0]), int(trim[1])], "segments": int(seg.size - 1)}
+             "trimmed": [int(trim[0]), int(trim[1])], "segments": int(seg.size - 1),
+             "quantisation_step": quantum}
     if clipped.any():
         notes["saturation_rad_s"] = [float(np.abs(w[clipped[:, i], i]).min()) if clipped[:, i].any()
                                      else None for i in range(3)]
     if block == 1 and "gyro_sigma" in rec.meta:
-        sigma, source = np.full(3, float(rec.meta["gyro_sigma"])), "sidecar"
+        sigma, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), w[keep]), "sidecar"
     else:
         means = np.stack([np.bincount(row[keep], w[keep, i]) / np.bincount(row[keep]) for i in range(3)], 1)
         sigma = np.maximum(estimate_white_noise(means if means.shape[0] > 8 else w), 1e-9)

@@ -43,7 +43,7 @@ from inertia_gym.discrepancy.recordings import (
 from inertia_gym.errors import RecordingError
 from inertia_gym.executors import kernels_own_the_cores
 from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED
-from inertia_gym.sensors import stated_noise_note
+from inertia_gym.sensors import quantisation_note, stated_noise_note
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.
 RECOUNT_BELOW = 0.8
@@ -416,7 +416,10 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     scale_seen, scale_sigma = scale_identified(d, best, offset)
     t_row = d.t_row
-    locations = locate(nominal.r, t_row, d.sigma * d.row_scale[:, None])
+    # a rounding error stays near one value while the rate dwells within a step: over a window its
+    # mean square reaches q^2 / 4, not the q^2 / 12 of the level (sensors.stated_gyro_level)
+    rounding = np.sqrt(d.sigma ** 2 + d.notes["quantisation_step"] ** 2 / 6.0)
+    locations = locate(nominal.r, t_row, rounding * d.row_scale[:, None])
     before = _fit_summary(nominal, d)
     after = before if best is nominal else _fit_summary(best, d)
     unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
@@ -440,7 +443,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
                   "independent_row_share": d.effective_share, "read_high": _noise_reads_high(best, d),
                   "sidecar_disagrees": None if d.sigma_source != "sidecar"
-                  else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0)))},
+                  else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0))),
+                  "quantisation": None if d.sigma_source != "sidecar"
+                  else quantisation_note(float(rec.meta["gyro_sigma"]), d.w[d.row >= 0])},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
@@ -708,14 +713,17 @@ def _shape_words(report: dict) -> list[str]:
 
 def _noise_words(report: dict) -> list[str]:
     """A warning where the noise level read from the data reads high (_noise_reads_high), or the
-    sidecar's level disagrees with the samples' (sensors.stated_noise_note).
+    sidecar's level disagrees with the samples' (sensors.stated_noise_note); after the line that
+    the samples' quantisation was added to the sidecar's level, where it was.
     """
     noise = report.get("noise", {})  # (a report written before the keys existed has neither)
+    said = [f"- {noise['quantisation']}"] if noise.get("quantisation") else []
     if noise.get("sidecar_disagrees"):
-        return [f"- **the sidecar's noise level disagrees with the data's**: {noise['sidecar_disagrees']}"]
+        return said + ["- **the sidecar's noise level disagrees with the data's**: "
+                       f"{noise['sidecar_disagrees']}"]
     if not noise.get("read_high"):
-        return []
-    return ["- **the noise level read from the data reads high**: the best fit leaves "
+        return said
+    return said + ["- **the noise level read from the data reads high**: the best fit leaves "
             f"{_fmt(report['fit_after']['rms_over_noise'])} of it, under {NOISE_READ_HIGH:g} on every "
             "axis: motion fast for the sampling passed for noise (give the gyro's `gyro_sigma` in a "
             "sidecar); every rms / noise here reads that much low, and the noise-based flags "
