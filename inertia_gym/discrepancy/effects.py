@@ -198,8 +198,10 @@ class EffectModel:
 
     # --- fit set-up -------------------------------------------------------------------------
     def forms(self, d) -> tuple[str, ...]:
-        """The forms this effect is fitted in on d (a constant and a time-varying one, say)."""
-        return ("",)
+        """The forms this effect is fitted in on d: its simplest, "", and where it has knots on d
+        (knots), also "varying", its time-varying form.
+        """
+        return ("", "varying") if self.knots(d) else ("",)
 
     def form_size(self, form: str, d) -> int:
         """Length of p in that form."""
@@ -350,10 +352,6 @@ class GyroBias(EffectModel):
         spacing = max(BIAS_KNOT_SPACING_S, 2.0 * np.pi / d.omega_ref)
         k = min(d.n_rows // self.ROWS_PER_KNOT, int(d.duration // spacing))
         return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
-
-    @override
-    def forms(self, d):
-        return ("", "varying") if self.knots(d) else ("",)
 
     @override
     def form_size(self, form, d):
@@ -712,10 +710,6 @@ class ViscousDamping(_Drag):
     @override
     def draw(self, rng, body):
         return {"c": np.diag(rng.uniform(0.004, 0.015, 3) * body.j)}
-
-    @override
-    def forms(self, d):
-        return ("", "varying") if self.knots(d) else ("",)
 
     @override
     def form_size(self, form, d):
