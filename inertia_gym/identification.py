@@ -687,7 +687,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     t0 = time.perf_counter()
     _check_recording(rec)
     if "gyro_sigma" in rec.meta:
-        sigma_w, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w), "sidecar gyro_sigma"
+        sigma_w = stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)])
+        source = "sidecar gyro_sigma"
     else:
         sigma_w, source = None, "estimated from the residuals"
     prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
@@ -773,7 +774,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
         window = window_note(*rec.meta["window"], rec.meta["window_source"])
         notes += [window] if window else []
     if sigma_w is not None:
-        stated = [quantisation_note(float(rec.meta["gyro_sigma"]), rec.w),
+        stated = [quantisation_note(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)]),
                   stated_noise_note(rec.w[meas], sigma_w, rms)]
         notes += [note for note in stated if note]
     if rms_over_noise > RIGID_MISFIT:

@@ -167,24 +167,29 @@ def estimate_white_noise(w) -> np.ndarray:
 
 #: A gap between an axis's distinct values counts as a whole number of quantisation steps when
 #: within this share of a step of one; gaps of more steps than QUANTUM_MAX_STEPS are not checked
-#: (the values a log was written with round them by more).
+#: (the values a log was written with round them by more). QUANTUM_MIN_VALUES distinct values
+#: at least: on 3-5 values of a continuous reading the gaps fall near whole multiples of the
+#: least by chance (0.4-15 % of axes, an independent review's Monte Carlo).
 QUANTUM_TOLERANCE = 0.05
 QUANTUM_MAX_STEPS = 100
+QUANTUM_MIN_VALUES = 8
 
 
 def quantisation_step(w) -> np.ndarray:
     """(3,) rad/s: per axis, the step q of the lattice the gyro samples w (n, 3) lie on (an
     offset plus whole multiples of q: an ADC's least significant bit, or the digits a log was
-    written with), 0 where they lie on none. From the gaps between the axis's distinct values:
-    the least gaps (under 1.5x the least) give q; every gap of up to QUANTUM_MAX_STEPS steps
-    must be a whole number of steps within QUANTUM_TOLERANCE, and those gaps must be at least
-    half of all (values written to full precision have gaps of no common step).
+    written with), 0 where they lie on none. From the gaps between the axis's (at least
+    QUANTUM_MIN_VALUES) distinct values: the least gaps (under 1.5x the least) give q; every gap
+    of up to QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE,
+    and those gaps must be at least half of all (values written to full precision have gaps of
+    no common step). An axis read off the lattice anywhere (a glitch, an interpolated sample)
+    gets 0: its level is then the stated one, as before.
     """
     w = np.asarray(w, float)
     out = np.zeros(w.shape[1])
     for i in range(w.shape[1]):
         values = np.unique(w[np.isfinite(w[:, i]), i])
-        if values.size < 3:
+        if values.size < QUANTUM_MIN_VALUES:
             continue
         gaps = np.diff(values)
         q = float(np.mean(gaps[gaps < 1.5 * gaps.min()]))

@@ -50,6 +50,9 @@ ACCEPTED = {
     "gyro_scale": ("gyro_scale",),
     "gyro_drift": ("gyro_bias",),
 }
+#: Components that count only in one form of their accepted effect: a drift is the bias's varying
+#: form (its constant form leaves the walk in the residual).
+FORM = {"gyro_drift": "varying"}
 
 #: Hub classes: mass kg and size m; the hub inertia is mass * size^2 * SHAPE.
 #: From a thrown device (largest moment 1e-4 kg·m²) to an upper stage (1e4 kg·m²).
@@ -264,12 +267,16 @@ def named_effects(report: dict, count: int) -> list[str]:
 
 def score(case: SpacecraftCase, report: dict) -> dict:
     """Correctness of one report (see ACCEPTED): a control must name nothing and detect no
-    mismatch; a single component must lead; each component of a pair must be among the names given.
+    mismatch; a single component must lead; each component of a pair must be among the names
+    given; a component in FORM, in that form in the explanation.
     """
     parts = components(case)
     significant = [e for e in report["effects"] if e["significant"]]
     named = named_effects(report, max(1, len(parts)))
-    if not parts:
+    forms = {(e["name"], e.get("form")) for e in report.get("explanation") or []}
+    if any((name, FORM[p]) not in forms for p in parts if p in FORM for name in ACCEPTED[p]):
+        correct = False
+    elif not parts:
         correct = not significant and not report.get("explanation") and not report["mismatch_detected"]
     elif len(parts) == 1:
         correct = bool(named) and named[0] in ACCEPTED[parts[0]]

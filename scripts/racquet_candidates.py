@@ -185,7 +185,7 @@ class GyroMatrix(E.EffectModel):
         return np.full(6, 0.01)
 
     @override
-    def gyro(self, params, w):
+    def gyro(self, params, w, t):
         e = np.asarray(params["e"], float)
         return w + w @ np.array([[e[0], e[3], e[4]], [e[3], e[1], e[5]], [e[4], e[5], e[2]]])
 

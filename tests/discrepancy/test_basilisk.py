@@ -150,6 +150,14 @@ def test_score_follows_the_accepted_table():
     assert not harness.score(pair, report("gyro_bias", "constant_body_torque",
                                           explanation=["gyro_bias"]))["correct"]
     assert harness.components(pair) == ["hidden_torque", "gyro_bias"]
+    # a drifting bias counts only in the bias's varying form
+    drift = _case("drift_smallsat_long_free")
+    assert harness.components(drift) == ["gyro_drift"]
+    def drifting(form):
+        return report("gyro_bias") | {"explanation": [{"name": "gyro_bias", "form": form}]}
+
+    assert harness.score(drift, drifting("varying"))["correct"]
+    assert not harness.score(drift, drifting(None))["correct"]
 
 
 # ------------------------------------------------------------------------------------------
@@ -254,10 +262,11 @@ def test_a_bias_random_walk_is_added_to_the_reading_from_its_own_stream():
     still = simulate(dataclasses.replace(case, gyro_bias_walk=0.0))
     walk = run.recording.w - still.recording.w  # the same white noise: the walk alone
     np.testing.assert_array_equal(walk[0], 0.0)
-    steps = np.diff(walk, axis=0)  # 599 x 3 Gaussian steps of walk * sqrt(dt)
+    steps = np.diff(walk, axis=0)  # 600 x 3 Gaussian steps of walk * sqrt(dt)
     assert np.std(steps) == pytest.approx(case.gyro_bias_walk * np.sqrt(case.sample_dt), rel=0.1)
     assert abs(np.mean(steps)) < 4 * np.std(steps) / np.sqrt(steps.size)
     np.testing.assert_array_equal(still.truth_w, run.truth_w)
+    np.testing.assert_array_equal(still.recording.q, run.recording.q)  # the main stream untouched
 
 
 @requires_bsk

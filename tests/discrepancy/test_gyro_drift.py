@@ -39,6 +39,19 @@ def test_a_drifting_bias_reads_as_the_not_a_knot_spline_through_its_knots_held_b
         np.testing.assert_array_equal(back[key], params[key])
 
 
+def test_the_varying_vector_holds_its_knot_times_and_first_row_and_starts_at_the_constant_bias():
+    d = prepare(_record(300.0, 1.0, seed=1))
+    k = GYRO.knots(d)
+    assert k == 10
+    assert np.flatnonzero(GYRO.held("varying", d)).tolist() == list(range(3, 3 + k + 3))
+    assert GYRO.form_size("varying", d) == 3 + 4 * k
+    bias = np.array([1e-3, -2e-3, 5e-4])
+    w = np.random.default_rng(2).normal(size=(d.t.size, 3))
+    nested = GYRO.unpack(GYRO.nested("varying", d, bias))
+    np.testing.assert_array_equal(GYRO.gyro(nested, w, d.t), GYRO.gyro({"bias": bias}, w, d.t))
+    np.testing.assert_array_equal(GYRO.gyro(GYRO.unpack(GYRO.neutral("varying", d, None)), w, d.t), w)
+
+
 def _record(duration, sample_dt, seed, walk=0.0, bias=(0.0, 0.0, 0.0), scenario=SLOW):
     """The scenario's body (by default tumbling at 0.3 rad/s) with no torque for duration s at
     sample_dt s, its gyro reading plus a bias random walk of `walk` rad/s/sqrt(s) per axis (a
