@@ -182,8 +182,10 @@ def quantisation_step(w) -> np.ndarray:
     QUANTUM_MIN_VALUES) distinct values: the least gaps (under 1.5x the least) give q; every gap
     of up to QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE,
     and those gaps must be at least half of all (values written to full precision have gaps of
-    no common step). An axis read off the lattice anywhere (a glitch, an interpolated sample)
-    gets 0: its level is then the stated one, as before.
+    no common step); and the values must repeat or skip steps (gaps of more than one size): a
+    smooth noise-free reading sampled evenly (a ramp) has equal gaps and no repeats, and no
+    rounding. An axis read off the lattice anywhere (a glitch, an interpolated sample) gets 0:
+    its level is then the stated one, as before.
     """
     w = np.asarray(w, float)
     out = np.zeros(w.shape[1])
@@ -195,7 +197,9 @@ def quantisation_step(w) -> np.ndarray:
         q = float(np.mean(gaps[gaps < 1.5 * gaps.min()]))
         steps = gaps / q
         near = steps <= QUANTUM_MAX_STEPS
-        if near.mean() >= 0.5 and np.all(np.abs(steps[near] - np.round(steps[near])) < QUANTUM_TOLERANCE):
+        whole = np.round(steps[near])
+        lattice = near.mean() >= 0.5 and np.all(np.abs(steps[near] - whole) < QUANTUM_TOLERANCE)
+        if lattice and (values.size < np.count_nonzero(np.isfinite(w[:, i])) or np.ptp(whole) > 0):
             out[i] = q
     return out
 

@@ -128,6 +128,10 @@ def test_quantisation_step_reads_a_lattice_and_none_where_values_are_written_in_
     assert np.all(quantisation_step(signal) == 0.0)  # full precision
     assert np.all(quantisation_step(np.array([[float(f"{v:.10g}") for v in row] for row in signal])) == 0.0)
     assert np.all(quantisation_step(np.ones((50, 3))) == 0.0)  # one value: no step to read
+    ramp = np.outer(np.arange(150) * 0.1, [1.0, -2.0, 0.5])  # evenly spaced, each value once
+    assert np.all(quantisation_step(ramp) == 0.0)
+    slow = np.round(ramp / 10 / 0.03) * 0.03  # a tenth as fast, read in steps of 0.03: repeats
+    np.testing.assert_allclose(quantisation_step(slow), 0.03, rtol=1e-9)
 
 
 def test_a_coarse_lattice_reads_its_rounding_error_not_nothing():
