@@ -66,6 +66,7 @@ from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import (
     estimate_white_noise,
     quantisation_note,
+    quantisation_step,
     stated_gyro_level,
     stated_noise_note,
 )
@@ -636,7 +637,7 @@ def _impulse_noise(rec: Recording) -> np.ndarray:
     the impulse).
     """
     if "gyro_sigma" in rec.meta:
-        return stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)])
+        return stated_gyro_level(float(rec.meta["gyro_sigma"]), quantisation_step(rec.w[~clipped_rows(rec)]))
     return np.maximum(estimate_white_noise(rec.w[~clipped_rows(rec)]), 1e-12)
 
 
@@ -687,8 +688,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     t0 = time.perf_counter()
     _check_recording(rec)
     if "gyro_sigma" in rec.meta:
-        sigma_w = stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)])
-        source = "sidecar gyro_sigma"
+        step = quantisation_step(rec.w[~clipped_rows(rec)])
+        sigma_w, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), step), "sidecar gyro_sigma"
     else:
         sigma_w, source = None, "estimated from the residuals"
     prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
@@ -774,9 +775,9 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
         window = window_note(*rec.meta["window"], rec.meta["window_source"])
         notes += [window] if window else []
     if sigma_w is not None:
-        stated = [quantisation_note(float(rec.meta["gyro_sigma"]), rec.w[~clipped_rows(rec)]),
-                  stated_noise_note(rec.w[meas], sigma_w, rms)]
-        notes += [note for note in stated if note]
+        said = [quantisation_note(float(rec.meta["gyro_sigma"]), step),
+                stated_noise_note(rec.w[meas], sigma_w, rms)]
+        notes += [note for note in said if note]
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "

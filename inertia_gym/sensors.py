@@ -204,25 +204,25 @@ def quantisation_step(w) -> np.ndarray:
     return out
 
 
-def stated_gyro_level(stated, w) -> np.ndarray:
+def stated_gyro_level(stated, step) -> np.ndarray:
     """(3,) rad/s: a stated gyro noise level (a sidecar's gyro_sigma, a number or (3,)) with the
-    rounding error of the samples w (n, 3) added: sqrt(stated^2 + q^2 / 12) per axis, q their
-    quantisation step (quantisation_step; a data sheet's noise leaves out the telemetry's
-    least significant bit, which on a coarse lattice is most of the error).
+    rounding error of samples quantised in steps `step` (3,) rad/s added (quantisation_step; 0:
+    none): sqrt(stated^2 + step^2 / 12) per axis (a data sheet's noise leaves out the
+    telemetry's least significant bit, which on a coarse lattice is most of the error).
     """
     stated = np.broadcast_to(np.asarray(stated, float), (3,))
-    return np.sqrt(stated ** 2 + quantisation_step(w) ** 2 / 12.0)
+    return np.sqrt(stated ** 2 + np.asarray(step, float) ** 2 / 12.0)
 
 
-def quantisation_note(stated, w) -> str | None:
-    """A sentence where the samples' quantisation raises a stated level (3,) rad/s by over 1 %
-    (stated_gyro_level), None otherwise.
+def quantisation_note(stated, step) -> str | None:
+    """A sentence where the quantisation in steps `step` (3,) rad/s raises a stated level
+    (stated_gyro_level) by over 1 %, None otherwise.
     """
     stated = np.broadcast_to(np.asarray(stated, float), (3,))
-    level = stated_gyro_level(stated, w)
+    level = stated_gyro_level(stated, step)
     if not np.any(level > 1.01 * stated):
         return None
-    steps = ", ".join(f"{v:.3g}" for v in quantisation_step(w))
+    steps = ", ".join(f"{v:.3g}" for v in step)
     return (f"the gyro samples are quantised in steps of ({steps}) rad/s; their rounding error "
             f"(step / sqrt(12)) is added to the sidecar's gyro_sigma: "
             f"({', '.join(f'{v:.3g}' for v in level)}) rad/s")

@@ -54,7 +54,7 @@ from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_iner
 from inertia_gym.identification import identify, problem_from_recording  # noqa: E402
 from inertia_gym.information import inertia_from_theta  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
-from inertia_gym.sensors import stated_gyro_level  # noqa: E402
+from inertia_gym.sensors import quantisation_step, stated_gyro_level  # noqa: E402
 
 SMALL_BODY = [[5.2e-4, 0.0, 0.0], [0.0, 2.2e-4, 0.0], [0.0, 0.0, 5.2e-4]]
 #: Residual returned to the peer where the model's trajectory is not finite.
@@ -81,7 +81,8 @@ def case_recording(name: str, duration_a: float):
 
 def start_and_problem(rec):
     """The problem and start identify() builds: (prob, p0 (n,), q_ref (4,))."""
-    sigma_w = stated_gyro_level(float(rec.meta["gyro_sigma"]), rec.w) if "gyro_sigma" in rec.meta else None
+    sigma_w = (stated_gyro_level(float(rec.meta["gyro_sigma"]), quantisation_step(rec.w))
+               if "gyro_sigma" in rec.meta else None)
     prob = problem_from_recording(rec, sigma_w, None)
     nominal = rec.inertia_nominal
     trace = float(np.trace(nominal)) if nominal is not None else 1.0

@@ -323,7 +323,7 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
         notes["saturation_rad_s"] = [float(np.abs(w[clipped[:, i], i]).min()) if clipped[:, i].any()
                                      else None for i in range(3)]
     if block == 1 and "gyro_sigma" in rec.meta:
-        sigma, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), w[keep]), "sidecar"
+        sigma, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), quantum), "sidecar"
     else:
         means = np.stack([np.bincount(row[keep], w[keep, i]) / np.bincount(row[keep]) for i in range(3)], 1)
         sigma = np.maximum(estimate_white_noise(means if means.shape[0] > 8 else w), 1e-9)

@@ -445,7 +445,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "sidecar_disagrees": None if d.sigma_source != "sidecar"
                   else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0))),
                   "quantisation": None if d.sigma_source != "sidecar"
-                  else quantisation_note(float(rec.meta["gyro_sigma"]), d.w[d.row >= 0])},
+                  else quantisation_note(float(rec.meta["gyro_sigma"]), d.notes["quantisation_step"])},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
