@@ -188,13 +188,17 @@ class EffectModel:
         return self.ambiguities + (self.varying_ambiguities if form == "varying" else ())
 
     def knots(self, d) -> int:
-        """Knots of the varying form's time profile on d: one per ROWS_PER_KNOT residual rows
-        within KNOTS (0: too few rows for it, or the effect has no varying form).
+        """Knots of the varying form's time profile on d: as many as knot_room allows, within
+        KNOTS (0: too few for it, or the effect has no varying form).
         """
         if not self.ROWS_PER_KNOT:
             return 0
-        k = d.n_rows // self.ROWS_PER_KNOT
+        k = self.knot_room(d)
         return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
+
+    def knot_room(self, d) -> int:
+        """Knots d has room for: one per ROWS_PER_KNOT residual rows."""
+        return d.n_rows // self.ROWS_PER_KNOT
 
     # --- fit set-up -------------------------------------------------------------------------
     def forms(self, d) -> tuple[str, ...]:
@@ -348,10 +352,9 @@ class GyroBias(EffectModel):
         return {"bias": _signed(rng, 3.0, 10.0, 3) * body.gyro_sigma}
 
     @override
-    def knots(self, d):
+    def knot_room(self, d):
         spacing = max(BIAS_KNOT_SPACING_S, 2.0 * np.pi / d.omega_ref)
-        k = min(d.n_rows // self.ROWS_PER_KNOT, int(d.duration // spacing))
-        return 0 if k < self.KNOTS[0] else min(k, self.KNOTS[1])
+        return min(super().knot_room(d), int(d.duration // spacing))
 
     @override
     def form_size(self, form, d):
