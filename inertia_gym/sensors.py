@@ -173,35 +173,80 @@ def estimate_white_noise(w) -> np.ndarray:
 QUANTUM_TOLERANCE = 0.05
 QUANTUM_MAX_STEPS = 100
 QUANTUM_MIN_VALUES = 8
+#: Samples off the lattice that an axis may hold and still be read as quantised: this share of
+#: its samples, and one at least (a glitch, a sample a logger interpolated or wrote in full).
+QUANTUM_OFF_SHARE = 0.01
+#: The step is read from the least gap that recurs, as often as this share of the commonest gap
+#: size at least: the pieces a value off the lattice splits a gap into recur by chance, rarely.
+QUANTUM_SUPPORT = 0.25
 
 
 def quantisation_step(w) -> np.ndarray:
     """(3,) rad/s: per axis, the step q of the lattice the gyro samples w (n, 3) lie on (an
     offset plus whole multiples of q: an ADC's least significant bit, or the digits a log was
     written with), 0 where they lie on none. From the gaps between the axis's (at least
-    QUANTUM_MIN_VALUES) distinct values: the least gaps (under 1.5x the least) give q; every gap
-    of up to QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE,
-    and those gaps must be at least half of all (values written to full precision have gaps of
-    no common step); and the values must repeat or skip steps (gaps of more than one size): a
-    smooth noise-free reading sampled evenly (a ramp) has equal gaps and no repeats, and no
-    rounding. An axis read off the lattice anywhere (a glitch, an interpolated sample) gets 0:
-    its level is then the stated one, as before.
+    QUANTUM_MIN_VALUES) distinct values: the least gap that recurs (as often as QUANTUM_SUPPORT
+    of the commonest gap size, counting the gaps within QUANTUM_TOLERANCE of it) and those gaps
+    give q (their mean); every gap of up to
+    QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE, and those
+    gaps must be at least half of all (values written to full precision have gaps of no common
+    step); and the values must repeat or skip steps (gaps of more than one size): a smooth
+    noise-free reading sampled evenly (a ramp) has equal gaps and no repeats, and no rounding.
+    A few samples read off the lattice (a glitch, a sample a logger interpolated: at most
+    QUANTUM_OFF_SHARE of the axis's samples, one at least) are passed over (_off_lattice); an
+    axis with more gets 0: its level is then the stated one, as before.
     """
     w = np.asarray(w, float)
     out = np.zeros(w.shape[1])
     for i in range(w.shape[1]):
-        values = np.unique(w[np.isfinite(w[:, i]), i])
+        finite = w[np.isfinite(w[:, i]), i]
+        values, counts = np.unique(finite, return_counts=True)
         if values.size < QUANTUM_MIN_VALUES:
             continue
         gaps = np.diff(values)
-        q = float(np.mean(gaps[gaps < 1.5 * gaps.min()]))
+        ordered = np.sort(gaps)  # each gap's support: the gaps within QUANTUM_TOLERANCE of it
+        support = (np.searchsorted(ordered, ordered * (1.0 + QUANTUM_TOLERANCE), side="right")
+                   - np.searchsorted(ordered, ordered * (1.0 - QUANTUM_TOLERANCE)))
+        common = np.flatnonzero(support >= max(2.0, QUANTUM_SUPPORT * support.max()))
+        if common.size == 0:
+            continue
+        least = ordered[common[0]]
+        q = float(np.mean(gaps[np.abs(gaps - least) <= QUANTUM_TOLERANCE * least]))
         steps = gaps / q
         near = steps <= QUANTUM_MAX_STEPS
-        whole = np.round(steps[near])
-        lattice = near.mean() >= 0.5 and np.all(np.abs(steps[near] - whole) < QUANTUM_TOLERANCE)
-        if lattice and (values.size < np.count_nonzero(np.isfinite(w[:, i])) or np.ptp(whole) > 0):
+        off = min(_off_lattice(steps), _off_lattice(steps[::-1], reverse=True), key=len)
+        on = np.ones(values.size, bool)
+        on[list(off)] = False
+        kept = np.diff(values[on]) / q  # the gaps between the values on the lattice
+        whole = np.round(kept[kept <= QUANTUM_MAX_STEPS])
+        allowed = max(1.0, QUANTUM_OFF_SHARE * finite.size)
+        lattice = near.mean() >= 0.5 and counts[~on].sum() <= allowed and whole.size > 0
+        if lattice and (on.sum() < finite.size - counts[~on].sum() or np.ptp(whole) > 0):
             out[i] = q
     return out
+
+
+def _off_lattice(steps, reverse: bool = False) -> list[int]:
+    """Indices of the distinct values (sorted, len(steps) + 1 of them) read off the lattice,
+    from their gaps in steps (steps, (m,)): walking from the first value (from the last where
+    reverse, steps then given last gap first), a gap that is not a whole number of steps
+    (within QUANTUM_TOLERANCE) marks the value it reaches as off, and the gaps are summed until
+    the sum is whole again (the value reached then is on the lattice). Gaps summing to over
+    QUANTUM_MAX_STEPS are not checked: the walk starts afresh.
+    """
+    off, pending, total = [], [], 0.0
+    for j, s in enumerate(steps):
+        total += s
+        reached = steps.size - 1 - j if reverse else j + 1
+        if total > QUANTUM_MAX_STEPS:  # unchecked: what it reached counts as on, what led there not
+            off += pending
+            pending, total = [], 0.0
+        elif abs(total - round(total)) < QUANTUM_TOLERANCE:
+            off += pending
+            pending, total = [], 0.0
+        else:
+            pending.append(reached)
+    return off + pending
 
 
 def stated_gyro_level(stated, step) -> np.ndarray:

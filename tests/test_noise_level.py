@@ -12,7 +12,13 @@ import pytest
 from inertia_gym.discrepancy.report import NOISE_READ_HIGH, diagnose, markdown
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.scenario import Scenario
-from inertia_gym.sensors import NOISE_ORDERS, estimate_white_noise, quantisation_step, stated_noise_note
+from inertia_gym.sensors import (
+    NOISE_ORDERS,
+    QUANTUM_OFF_SHARE,
+    estimate_white_noise,
+    quantisation_step,
+    stated_noise_note,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 from bench_diagnose import toss as bench_toss  # noqa: E402
@@ -133,6 +139,29 @@ def test_quantisation_step_reads_a_lattice_and_none_where_values_are_written_in_
     slow = np.round(ramp / 10 / 0.03) * 0.03  # a tenth as fast, read in steps of 0.03: repeats
     np.testing.assert_allclose(quantisation_step(slow), 0.03, rtol=1e-9)
 
+
+def test_a_lattice_with_a_few_samples_off_it_still_reads_its_step():
+    """A glitch or an interpolated sample had set the whole axis's step to 0 (the last session's
+    open item): now up to QUANTUM_OFF_SHARE of the samples may lie off the lattice, anywhere in
+    its range (at either end too), and a far spike is passed over; more than that reads 0."""
+    rng = np.random.default_rng(5)
+    signal = np.cumsum(rng.normal(0.0, 3e-3, (2000, 3)), axis=0) + 0.3
+    q = np.array([1e-3, 2.5e-4, 1.0653e-3])
+    lattice = np.round(signal / q) * q + [0.0, 0.1, -0.2]
+    allowed = int(QUANTUM_OFF_SHARE * signal.shape[0])
+    for count in (1, allowed):
+        off = lattice.copy()
+        rows = rng.choice(signal.shape[0], count, replace=False)
+        off[rows] += rng.uniform(0.1, 0.9, (count, 3)) * q  # between two steps
+        np.testing.assert_allclose(quantisation_step(off), q, rtol=1e-6)
+    off[rng.choice(np.setdiff1d(np.arange(signal.shape[0]), rows), 1)] += 0.5 * q  # one too many
+    assert np.all(quantisation_step(off) == 0.0)
+    ends = lattice.copy()
+    ends[np.argmin(ends[:, 0]), 0] -= 0.37 * q[0]  # below the least value, above the greatest
+    ends[np.argmax(ends[:, 1]), 1] += 0.37 * q[1]
+    ends[7, 2] = 50.0  # a spike far beyond the range
+    np.testing.assert_allclose(quantisation_step(ends), q, rtol=1e-6)
+    assert np.all(quantisation_step(signal) == 0.0)  # full precision still reads none
 
 def test_a_coarse_lattice_reads_its_rounding_error_not_nothing():
     """A slow signal with white noise of 1e-4 rad/s read in steps of 10x that: most differences
