@@ -445,6 +445,18 @@ def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path
     assert len(err.splitlines()) == 1 and "clipped at its full scale in 2001 of 2001 rows" in err
 
 
+def test_a_gyro_both_quantised_and_clipped_is_fitted_at_its_rounding_error_without_the_clipped_rows():
+    """The 0.5-s throw read in steps of 0.05 rad/s (5x its noise) and clipped at 18 rad/s (a step
+    of the lattice, 24 % of the rows): both are said, the step is read from the rows kept, the
+    fit is at the level with the rounding added, and the moments are within their intervals."""
+    rec, sc = _throw(3)
+    res = identify(dataclasses.replace(rec, w=np.clip(np.round(rec.w / 0.05) * 0.05, -18.0, 18.0)))
+    assert any(note.startswith("the gyro clipped at its full scale (x 18 rad/s) in") for note in res.notes)
+    assert any("quantised in steps of (0.05, 0.05, 0.05) rad/s" in note for note in res.notes), res.notes
+    assert 0.8 < res.rms_over_noise < 1.2
+    moments, half = res.estimate.principal()[:2]
+    assert np.all(np.abs(moments - np.linalg.eigvalsh(sc.inertia_true_array)) <= half)
+
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_a_clipped_real_throw_says_why_the_filter_error_estimate_is_not_used():
     """Empty_LOG00179 with a full scale of 0.97x its peak: the filter-error estimate needs every
