@@ -115,12 +115,17 @@ def test_the_shapes_covariance_is_the_delta_method_of_the_inertias():
     assert np.all(cov[0] == 0) and np.all(cov[:, 0] == 0)
 
 
-def _report(lead, before, after, ratios, valid=True, half=0.01, reading=None):
+def _report(lead, before, after, ratios, valid=True, half=0.01, reading=None, singles=None, params=None):
+    """A report.json dict as diagnose writes it, with what the summaries read: singles {effect:
+    its single-effect delta BIC (None: no valid fit)}, params {effect: its params in the
+    explanation}."""
     fit_after = {"valid": valid, "rms_over_noise": after if valid else None,
                  "principal_ratios": ratios if valid else None,
                  "principal_ratios_ci95": None if not valid else
                  [[r - half * (k > 0), r + half * (k > 0)] for k, r in enumerate(ratios)]}
-    return {"explanation": [{"name": n} for n in lead], "beyond_catalogue": not valid or max(after) > 20,
+    return {"explanation": [{"name": n, "params": (params or {}).get(n, {})} for n in lead],
+            "effects": [{"name": n, "delta_bic": v} for n, v in (singles or {}).items()],
+            "beyond_catalogue": not valid or max(after) > 20,
             "fit_before": {"rms_over_noise": before}, "fit_after": fit_after,
             "invariants": ({"applicable": False} if reading is None
                            else {"applicable": True, "reading": reading})}
@@ -153,6 +158,55 @@ def test_diagnoses_across_counts_leads_and_compares_fits():
     assert "65 before, 3 after (21.7x lower)" in text and "understates its error" in text
     assert f"(the invariants): {drag} on 2, adds to the rotation on 1, not applicable on 1." in text
 
+
+def test_pooled_delta_bic_sums_each_effects_single_fits_over_the_recordings():
+    """Independent recordings' BICs add: an effect in every recording (its parameters each one's
+    own) beats none by the sum of its single-effect delta BICs. One toss's lead (the momentum on
+    c) can lose to what the rest say together; an effect without a valid fit on a recording
+    (None) is not pooled."""
+    done = [("a", _report(["viscous_damping"], [50] * 3, [2] * 3, [1, 0.93, 0.07],
+                          singles={"viscous_damping": 300.0, "internal_momentum": 100.0, "gyro_bias": 5.0})),
+            ("b", _report(["viscous_damping"], [50] * 3, [2] * 3, [1, 0.93, 0.07],
+                          singles={"viscous_damping": 250.0, "internal_momentum": 150.0, "gyro_bias": None})),
+            ("c", _report(["internal_momentum"], [50] * 3, [2] * 3, [1, 0.93, 0.07],
+                          singles={"internal_momentum": 120.0, "viscous_damping": 80.0, "gyro_bias": -7.0}))]
+    out = diagnoses_across(done, [])
+    assert out["pooled_delta_bic"] == {"viscous_damping": 630.0, "internal_momentum": 370.0}
+    assert list(out["pooled_delta_bic"]) == ["viscous_damping", "internal_momentum"]
+    assert ("`viscous_damping` 630, `internal_momentum` 370; together they are best read as "
+            "`viscous_damping`.") in diagnoses_markdown(out)
+    assert diagnoses_across(done[:1], [])["pooled_delta_bic"] == {}  # one recording: its own ranking
+    worse = [(n, _report([], [1] * 3, [1] * 3, [1, 0.93, 0.07], singles={"gyro_bias": -3.0})) for n in "ab"]
+    assert "no effect improves the BIC" in diagnoses_markdown(diagnoses_across(worse, []))
+
+
+@pytest.mark.parametrize("tilts, one", [((2.0, -3.0, 5.0, 1.0), True), ((2.0, 35.0, 50.0, 70.0), False)])
+def test_momentum_axes_say_whether_one_rotor_fixed_in_the_body_would_explain_them(tilts, one):
+    """internal_momentum's axes over several recordings, each tilted from z by a known angle (the
+    varying form's axis, or the constant form's h, of either sign): their common axis, each one's
+    angle to it, and one_axis where the median is within ONE_AXIS_DEG."""
+    done, vectors = [], []
+    for i, tilt in enumerate(tilts):
+        a = np.radians(tilt)
+        vector = np.array([np.sin(a) * np.cos(i), np.sin(a) * np.sin(i), np.cos(a)]) * (-1) ** i
+        vectors.append(vector)
+        params = {"axis": vector.tolist()} if i % 2 else {"h": (3e-3 * vector).tolist()}
+        done.append((f"t{i}", _report(["viscous_damping", "internal_momentum"], [9] * 3, [2] * 3,
+                                      [1, 0.9, 0.1], params={"internal_momentum": params})))
+    done.append(("plain", _report(["viscous_damping"], [9] * 3, [2] * 3, [1, 0.9, 0.1])))
+    axes = diagnoses_across(done, [])["momentum_axes"]
+    common = np.array(axes["axis"])
+    tilted = np.degrees(np.arccos(np.minimum(np.abs(np.array(vectors) @ common), 1.0)))  # to the common axis
+    assert axes["recordings"] == 4 and axes["one_axis"] is one
+    assert axes["median_angle_deg"] == pytest.approx(np.median(tilted))
+    assert axes["max_angle_deg"] == pytest.approx(max(tilted))
+    if one:  # the common axis is then near z, each axis within a few degrees of its tilt
+        assert abs(common[2]) > np.cos(np.radians(5.0))
+        assert np.allclose(tilted, np.abs(tilts), atol=4.0)
+    text = diagnoses_markdown(diagnoses_across(done, []))
+    assert ("as one rotor fixed in the body would." in text) is one
+    assert ("not one rotor fixed in the body" in text) is (not one)
+    assert diagnoses_across(done[:1] + done[-1:], [])["momentum_axes"] is None  # one: nothing to compare
 
 def test_identifications_across_combines_the_shape_and_the_moments_where_scaled():
     rng = np.random.default_rng(1)
