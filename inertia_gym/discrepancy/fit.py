@@ -1662,7 +1662,12 @@ def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: di
 def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
     """The information of the free global entries of fit.x (the Schur complement of the
     segments' rates in J^T J, central differences), their indices, and the factor the model
-    error widens the covariance by (the whitened residual's mean square where it exceeds 1).
+    error widens the covariance by: the whitened residual's mean square where it exceeds 1,
+    over the share of its rows that are independent (effective_share). Rows correlated over tau
+    of them carry the information of 1/tau as many: the same count the BICs are recounted with.
+    Without it, on a 1-s racquet toss with AR(1) gyro noise (coefficient 0.9 per row, stated
+    level given) the shape's 95 % intervals covered the truth on 8 of 20 seeds; with it on 13
+    (tests/discrepancy/test_fit.py), and white noise gives the same intervals as before.
     """
     layout = fit.layout
     free = _free(layout, d)
@@ -1678,7 +1683,7 @@ def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
     dinv = np.linalg.pinv(dmat)
     info = info - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
     mse = float(np.mean(fit.z ** 2)) if np.all(np.isfinite(fit.z)) else 1.0
-    return info, np.flatnonzero(free[:layout.n_global]), max(1.0, mse)
+    return info, np.flatnonzero(free[:layout.n_global]), max(1.0, mse) / effective_share(d, fit)
 
 
 def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:

@@ -210,7 +210,8 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     ((3, 2) [lo, hi], None where the fit's covariance is not finite or so wide that a draw from
     it is no inertia at all, its moments overflowing): the inertia's shape, which gyro-only data
     fix without its scale. The intervals come from quasi-random draws (RATIO_DRAWS_LOG2) of the
-    parameters from covariance() (the fit's own, widened by its misfit), each turned into the model's
+    parameters from covariance() (the fit's own, widened by its misfit and its residual's
+    correlation), each turned into the model's
     inertia, so an effect that trades with the inertia widens them.
     """
     def ratios(inertia):

@@ -224,6 +224,33 @@ def test_the_ratios_intervals_are_the_delta_methods_where_the_ratios_are_linear(
     assert np.mean(ci[1]) == pytest.approx(ratios[1], abs=0.1 * half)
 
 
+def test_the_shapes_intervals_count_the_residuals_correlation(monkeypatch):
+    """A 1-s racquet flip with quadratic drag at 100 Hz whose gyro noise is AR(1), 0.9 from row
+    to row, at the stated level: rows correlated over tau of them inform as 1/tau as many. The
+    fit's covariance is widened by 1/effective_share, the count the BICs are recounted with: its
+    shape's 95 % intervals cover the truth on 13 of 20 seeds, against 8 without the factor (the
+    same fits, effective_share patched to 1)."""
+    drag = Effect("aero_drag", {"c": np.diag([4e-5, 3e-5, 2e-6])})
+    _, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.array([0.3, 15.0, 0.4]), RACQUET, np.zeros((1000, 3)),
+                          1e-3, drag)
+    rows = np.arange(0, 1001, 10)
+    truth = np.sort(np.diag(RACQUET))[::-1] / RACQUET.max()
+    share = F.effective_share
+    covered = {True: 0, False: 0}
+    for seed in range(20):
+        white = np.random.default_rng(seed).normal(0.0, 0.005, (rows.size, 3))
+        noise = np.zeros_like(white)
+        noise[0] = white[0]
+        for k in range(1, rows.size):
+            noise[k] = 0.9 * noise[k - 1] + np.sqrt(1.0 - 0.9 ** 2) * white[k]
+        d = F.prepare(Recording(rows * 1e-3, w[rows] + noise, None, None, {"gyro_sigma": 0.005}, "toss"))
+        fit = F.fit_effect("aero_drag", d, F.fit_nominal(d))
+        for counted in (True, False):
+            monkeypatch.setattr(F, "effective_share", share if counted else lambda d, fit: 1.0)
+            lo, hi = np.array(principal_ratios(fit, d)[1]).T
+            covered[counted] += bool(np.all((lo <= truth) & (truth <= hi)))
+    assert covered[True] >= 12 and covered[True] - covered[False] >= 4, covered
+
 def test_block_means_remove_vibration_far_above_the_motion():
     """A 4-kHz gyro with a 250-Hz vibration of ten times the sensor noise: the rows are block
     means (22 samples: 5.5 ms, the vibration attenuated to a fifth), the fit reaches their noise
