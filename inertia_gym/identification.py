@@ -106,11 +106,17 @@ TRIM_TOLERANCE = 1.1
 TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 
 
+#: The intervals' widening by white residuals' rms over the noise level is said (NoiseModel.
+#: describe) from this factor on; it was applied but unsaid (an independent audit: 1.98x).
+WIDENING_SAID = 1.05
+
+
 @dataclasses.dataclass(frozen=True)
 class NoiseModel:
     """How the residuals were treated: kind 'white' or 'coloured'; sigma (3,) rad/s gyro noise
     used for weighting and its source; hac_lags (0 for white); inflation = the factor by which
-    the intervals widened over the white-noise Fisher bound (1 for white noise);
+    the intervals widened over the white-noise Fisher bound (for white residuals their rms over
+    the noise level where over 1, said by describe());
     disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
     model error (0: none; see model_error_covariance); estimator 'output error' or 'filter
     error' (the model error as process noise, estimation/filter_error.py), which adds
@@ -133,7 +139,11 @@ class NoiseModel:
         """One sentence for reports."""
         sig = ", ".join(f"{s:.3g}" for s in self.sigma)
         if self.kind == "white":
-            return f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
+            text = f"white gyro noise, sigma = ({sig}) rad/s ({self.source})"
+            if self.inflation > WIDENING_SAID:  # the residual's rms over that level widens them
+                text += (f"; the residual's rms is {self.inflation:.2f}x that level, which the "
+                         "intervals are widened by (model error, or noise above that level)")
+            return text
         text = (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
                 f"sigma = ({sig}) rad/s ({self.source}), ")
         if self.estimator == "filter error":

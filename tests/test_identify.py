@@ -445,6 +445,18 @@ def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path
     assert len(err.splitlines()) == 1 and "clipped at its full scale in 2001 of 2001 rows" in err
 
 
+def test_white_residuals_over_the_stated_noise_say_how_much_they_widen_the_intervals():
+    """The 0.5-s throw with its sidecar's gyro_sigma halved: the residuals stay white at 2x the
+    stated level, the intervals are widened by that factor, and the noise model's sentence says
+    so (it did not: an independent audit's record at 1.98x read as plain white noise). At the
+    true level it says nothing of it."""
+    rec, _ = _throw(3)
+    halved = identify(dataclasses.replace(rec, meta={**rec.meta, "gyro_sigma": 0.005}))
+    assert halved.noise.kind == "white" and 1.9 < halved.noise.inflation < 2.1
+    assert halved.noise.inflation == pytest.approx(halved.rms_over_noise)
+    assert f"the residual's rms is {halved.noise.inflation:.2f}x that level" in halved.noise.describe()
+    assert "the residual's rms" not in identify(rec).noise.describe()
+
 def test_a_gyro_both_quantised_and_clipped_is_fitted_at_its_rounding_error_without_the_clipped_rows():
     """The 0.5-s throw read in steps of 0.05 rad/s (5x its noise) and clipped at 18 rad/s (a step
     of the lattice, 24 % of the rows): both are said, the step is read from the rows kept, the
