@@ -320,36 +320,32 @@ def register(cls):
     return cls
 
 
-#: Shortest spacing (s) of the knots of a drifting gyro bias: a gyro's bias wanders over tens of
-#: seconds to hours (the flat of its Allan deviation, temperature), so over a shorter record it
-#: is a constant, and a bias free to change faster would stand in for the body's own motion
-#: (hence also one turn of the body at least between knots).
+#: Shortest spacing (s) of the knots of a drifting gyro bias or scale: a gyro's errors wander over
+#: tens of seconds to hours (the flat of its Allan deviation, temperature), so over a shorter
+#: record they are constant, and an error free to change faster would stand in for the body's own
+#: motion (hence also one turn of the body at least between knots).
 BIAS_KNOT_SPACING_S = 30.0
 
 
-@register
-class GyroBias(EffectModel):
-    """Gyro reads w + b (b rad/s per axis). Two forms: constant b, and varying (a bias that
-    drifts: bias instability, temperature), b + m(t) with m per axis the cubic spline
-    (not-a-knot) through knots at profile_t, m = 0 at the first; only on records long enough for
-    knots BIAS_KNOT_SPACING_S and one turn of the body (2 pi / omega_ref) apart, ROWS_PER_KNOT
-    rows each, KNOTS in number. The varying
-    vector is [b (3), profile_t (K, held), profile (K x 3 row by row, the first row held at 0)].
+class _GyroError(EffectModel):
+    """A gyro error per axis, e(t) = e + m(t), in two forms: constant e, and varying (an error
+    that drifts: bias instability, temperature), m per axis the cubic spline (not-a-knot) through
+    knots at profile_t, m = 0 at the first; only on records long enough for knots
+    BIAS_KNOT_SPACING_S and one turn of the body (2 pi / omega_ref) apart, ROWS_PER_KNOT rows
+    each, KNOTS in number. The varying vector is [e (3), profile_t (K, held), profile (K x 3 row
+    by row, the first row held at 0)]. Subclasses give how the gyro reads with it (read), its
+    typical size (_level) and bounds (BOUND, None for none).
     """
 
-    name, params, size, family = "gyro_bias", ("bias",), 3, "gyro error"
     ROWS_PER_KNOT, KNOTS = 25, (4, 16)
-    varying_ambiguities = (("internal_momentum", (
-        "a bias that drifts and a momentum that changes slowly both move the rates the gyro "
-        "reads by a slowly changing amount; a momentum also turns the body's spin, which on a "
-        "slowly turning body is small: where the body has no rotor, read it as the gyro")),
-                           ("gyro_scale", (
-        "a scale factor that drifts multiplies the rates by a slowly changing amount; where the "
-        "rates the body turns at change little over the record, that is a bias that drifts")),)
+    BOUND: ClassVar[float | None] = None
 
-    @override
-    def draw(self, rng, body):
-        return {"bias": _signed(rng, 3.0, 10.0, 3) * body.gyro_sigma}
+    def _level(self, d) -> float:
+        raise NotImplementedError
+
+    def read(self, w: np.ndarray, error: np.ndarray) -> np.ndarray:
+        """What the gyro reads (n, 3) of rates w (n, 3) with the error (n, 3) or (3,)."""
+        raise NotImplementedError
 
     @override
     def knot_room(self, d):
@@ -362,24 +358,34 @@ class GyroBias(EffectModel):
 
     @override
     def unpack(self, p):
+        key = self.params[0]
         if p.size == 3:
-            return {"bias": np.array(p)}
+            return {key: np.array(p)}
         k = (p.size - 3) // 4
-        return {"bias": np.array(p[:3]), "profile_t": np.array(p[3:3 + k]),
+        return {key: np.array(p[:3]), "profile_t": np.array(p[3:3 + k]),
                 "profile": np.array(p[3 + k:]).reshape(k, 3)}
 
     @override
     def pack(self, params):
-        bias = np.broadcast_to(np.ravel(np.asarray(params["bias"], float)), (3,)).copy()
+        error = np.broadcast_to(np.ravel(np.asarray(params[self.params[0]], float)), (3,)).copy()
         if "profile" not in params:
-            return bias
-        return np.concatenate([bias, np.asarray(params["profile_t"], float),
+            return error
+        return np.concatenate([error, np.asarray(params["profile_t"], float),
                                np.ravel(np.asarray(params["profile"], float))])
 
     def _flat(self, d) -> np.ndarray:
         """The varying form's knots and no drift (4K,)."""
         k = self.knots(d)
         return np.concatenate([np.linspace(d.t[0], d.t[-1], k), np.zeros(3 * k)])
+
+    @override
+    def bounds(self, form, d):
+        lo, hi = super().bounds(form, d)
+        if self.BOUND is not None:  # the error and its drift; not the knot times
+            k = self.knots(d) if form == "varying" else 0
+            for part in (slice(0, 3), slice(3 + k, None)):
+                lo[part], hi[part] = -self.BOUND, self.BOUND
+        return lo, hi
 
     @override
     def held(self, form, d):
@@ -390,11 +396,11 @@ class GyroBias(EffectModel):
 
     @override
     def typical(self, form, d):
-        sigma = float(np.mean(d.sigma))
+        level = self._level(d)
         if form != "varying":
-            return np.full(3, sigma)
+            return np.full(3, level)
         k = self.knots(d)
-        return np.concatenate([np.full(3, sigma), np.ones(k), np.full(3 * k, sigma)])
+        return np.concatenate([np.full(3, level), np.ones(k), np.full(3 * k, level)])
 
     @override
     def starts(self, form, d, probe):
@@ -410,21 +416,51 @@ class GyroBias(EffectModel):
 
     @override
     def gyro(self, params, w, t):
-        out = w + np.asarray(params["bias"], float)
-        if "profile" not in params:
-            return out
-        basis = _spline_basis(np.asarray(params["profile_t"], float).tobytes(),
-                              np.ascontiguousarray(t, float).tobytes())
-        return out + basis @ np.asarray(params["profile"], float)
+        error = np.asarray(params[self.params[0]], float)
+        if "profile" in params:
+            basis = _spline_basis(np.asarray(params["profile_t"], float).tobytes(),
+                                  np.ascontiguousarray(t, float).tobytes())
+            error = error + basis @ np.asarray(params["profile"], float)
+        return self.read(w, error)
 
 
-#: Largest gyro scale-factor error fitted, per axis (relative).
+@register
+class GyroBias(_GyroError):
+    """Gyro reads w + b (b rad/s per axis), constant or drifting (_GyroError's forms)."""
+
+    name, params, size, family = "gyro_bias", ("bias",), 3, "gyro error"
+    varying_ambiguities = (("internal_momentum", (
+        "a bias that drifts and a momentum that changes slowly both move the rates the gyro "
+        "reads by a slowly changing amount; a momentum also turns the body's spin, which on a "
+        "slowly turning body is small: where the body has no rotor, read it as the gyro")),
+                           ("gyro_scale", (
+        "a scale factor that drifts multiplies the rates by a slowly changing amount; where the "
+        "rates the body turns at change little over the record, that is a bias that drifts")),)
+
+    @override
+    def draw(self, rng, body):
+        return {"bias": _signed(rng, 3.0, 10.0, 3) * body.gyro_sigma}
+
+    @override
+    def _level(self, d):
+        return float(np.mean(d.sigma))
+
+    @override
+    def read(self, w, error):
+        return w + error
+
+
+#: Largest gyro scale-factor error fitted, per axis (relative), and of its drift.
 GYRO_SCALE_BOUND = 0.1
 
 
 @register
-class GyroScale(EffectModel):
-    """Gyro reads (1 + s) w, s per axis."""
+class GyroScale(_GyroError):
+    """Gyro reads (1 + s) w, s per axis, constant or drifting (_GyroError's forms: a scale factor
+    that follows the sensor's temperature over a long record; an independent audit's 20-min
+    record drifting by 1-2 % had read as a drifting bias, a rotor and a constant scale, the
+    inertia 2-4 % off).
+    """
 
     name, params, size, family = "gyro_scale", ("scale",), 3, "gyro error"
     # A common gyro scale s and a torque scale coincide only while the gyroscopic term w x Jw is
@@ -432,24 +468,24 @@ class GyroScale(EffectModel):
     # their delta BICs are close and the gap rule reports it.
     ambiguities = (("inertia", "a common gyro scale is not identifiable without torque or attitude "
                     "(only per-axis differences are)"),)
+    varying_ambiguities = (("gyro_bias", (
+        "a scale factor that drifts and a bias that drifts differ only through the rates they "
+        "multiply: where those change little over the record, one reads as the other")),)
+    # a scale-factor error within 10 %: beyond any gyro's uncalibrated error (MEMS data sheets
+    # give <= 3 %); larger fitted scales would be another effect's missing physics
+    BOUND = GYRO_SCALE_BOUND
 
     @override
     def draw(self, rng, body):
         return {"scale": _signed(rng, 0.01, 0.05, 3)}
 
     @override
-    def bounds(self, form, d):
-        # a scale-factor error within 10 %: beyond any gyro's uncalibrated error (MEMS data sheets
-        # give <= 3 %); larger fitted scales would be another effect's missing physics
-        return np.full(3, -GYRO_SCALE_BOUND), np.full(3, GYRO_SCALE_BOUND)
+    def _level(self, d):
+        return 0.01
 
     @override
-    def typical(self, form, d):
-        return np.full(3, 0.01)
-
-    @override
-    def gyro(self, params, w, t):
-        return w * (1.0 + np.asarray(params["scale"], float))
+    def read(self, w, error):
+        return w * (1.0 + error)
 
 
 @register
