@@ -19,6 +19,12 @@ GYRO = REGISTRY["gyro_bias"]
 SLOW = Scenario(omega0=(0.05, 0.3, 0.04), dt=0.05)
 
 
+def _spline_drift(knots, profile, t) -> np.ndarray:
+    """(n, 3): per axis scipy's not-a-knot cubic spline through profile (K, 3) at knots (K,) s,
+    at times t (n,) s, held at its end values beyond the knots: the drift's definition."""
+    return np.stack([interpolate.CubicSpline(knots, profile[:, i], bc_type="not-a-knot")(
+        np.clip(t, knots[0], knots[-1])) for i in range(3)], axis=1)
+
 def test_a_drifting_bias_reads_as_the_not_a_knot_spline_through_its_knots_held_beyond_them():
     knots = np.array([10.0, 40.0, 70.0, 100.0, 130.0])
     profile = np.array([[0.0, 0.0, 0.0], [1.0, -2.0, 0.5], [3.0, 1.0, -1.0], [2.0, 0.0, 0.0],
@@ -27,8 +33,7 @@ def test_a_drifting_bias_reads_as_the_not_a_knot_spline_through_its_knots_held_b
     t = np.linspace(0.0, 140.0, 57)
     w = np.random.default_rng(0).normal(size=(t.size, 3))
     read = gyro_reading(t, w, Effect("gyro_bias", {"bias": bias, "profile_t": knots, "profile": profile}))
-    drift = np.stack([interpolate.CubicSpline(knots, profile[:, i], bc_type="not-a-knot")(
-        np.clip(t, knots[0], knots[-1])) for i in range(3)], axis=1)
+    drift = _spline_drift(knots, profile, t)
     np.testing.assert_allclose(read, w + bias + drift, rtol=0, atol=1e-12)
     before = t <= knots[0]  # m = 0 at the first knot and before it
     np.testing.assert_allclose(read[before] - w[before], np.tile(bias, (before.sum(), 1)), atol=1e-12)
@@ -110,8 +115,7 @@ def test_a_drifting_scale_reads_as_one_plus_the_scale_and_its_spline_times_the_r
     t = np.linspace(0.0, 110.0, 45)
     w = np.random.default_rng(0).normal(size=(t.size, 3))
     read = gyro_reading(t, w, Effect("gyro_scale", {"scale": s, "profile_t": knots, "profile": profile}))
-    drift = np.stack([interpolate.CubicSpline(knots, profile[:, i], bc_type="not-a-knot")(
-        np.clip(t, knots[0], knots[-1])) for i in range(3)], axis=1)
+    drift = _spline_drift(knots, profile, t)
     np.testing.assert_allclose(read, w * (1.0 + s + drift), rtol=0, atol=1e-12)
     params = {"scale": s, "profile_t": knots, "profile": profile}
     back = scale.unpack(scale.pack(params))
