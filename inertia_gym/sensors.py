@@ -214,14 +214,20 @@ def quantisation_step(w) -> np.ndarray:
         q = float(np.mean(gaps[np.abs(gaps - least) <= QUANTUM_TOLERANCE * least]))
         steps = gaps / q
         near = steps <= QUANTUM_MAX_STEPS
-        off = min(_off_lattice(steps), _off_lattice(steps[::-1], reverse=True), key=len)
+        allowed = max(1.0, QUANTUM_OFF_SHARE * finite.size)
+        # a gap between two values on the lattice is whole, so each value off it makes at most two
+        # that are not: more than twice the allowed share is no lattice (and is not walked: full-
+        # precision samples have a gap not whole between nearly every pair of values)
+        broken = np.count_nonzero(near & (np.abs(steps - np.round(steps)) >= QUANTUM_TOLERANCE))
+        if near.mean() < 0.5 or broken > 2 * allowed:
+            continue
+        off = min(_off_lattice(steps), _off_lattice(steps[::-1], reverse=True), key=len) if broken else []
         on = np.ones(values.size, bool)
         on[list(off)] = False
         kept = np.diff(values[on]) / q  # the gaps between the values on the lattice
         whole = np.round(kept[kept <= QUANTUM_MAX_STEPS])
-        allowed = max(1.0, QUANTUM_OFF_SHARE * finite.size)
-        lattice = near.mean() >= 0.5 and counts[~on].sum() <= allowed and whole.size > 0
-        if lattice and (on.sum() < finite.size - counts[~on].sum() or np.ptp(whole) > 0):
+        if counts[~on].sum() <= allowed and whole.size > 0 and (
+                on.sum() < finite.size - counts[~on].sum() or np.ptp(whole) > 0):
             out[i] = q
     return out
 
@@ -238,10 +244,8 @@ def _off_lattice(steps, reverse: bool = False) -> list[int]:
     for j, s in enumerate(steps):
         total += s
         reached = steps.size - 1 - j if reverse else j + 1
-        if total > QUANTUM_MAX_STEPS:  # unchecked: what it reached counts as on, what led there not
-            off += pending
-            pending, total = [], 0.0
-        elif abs(total - round(total)) < QUANTUM_TOLERANCE:
+        # whole again, or too far to check (what it reached then counts as on): what led there is off
+        if total > QUANTUM_MAX_STEPS or abs(total - round(total)) < QUANTUM_TOLERANCE:
             off += pending
             pending, total = [], 0.0
         else:
