@@ -647,8 +647,16 @@ def _impulse_noise(rec: Recording) -> np.ndarray:
     the impulse).
     """
     if "gyro_sigma" in rec.meta:
-        return stated_gyro_level(float(rec.meta["gyro_sigma"]), quantisation_step(rec.w[~clipped_rows(rec)]))
+        return _stated_level(rec)[0]
     return np.maximum(estimate_white_noise(rec.w[~clipped_rows(rec)]), 1e-12)
+
+
+def _stated_level(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """(level, step), (3,) rad/s each: the sidecar's gyro_sigma with the rounding error of the
+    unclipped samples' quantisation added (sensors.stated_gyro_level), and that step.
+    """
+    step = quantisation_step(rec.w[~clipped_rows(rec)])
+    return stated_gyro_level(float(rec.meta["gyro_sigma"]), step), step
 
 
 def _residual_impulses(whitened: np.ndarray) -> tuple[int, int]:
@@ -698,8 +706,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     t0 = time.perf_counter()
     _check_recording(rec)
     if "gyro_sigma" in rec.meta:
-        step = quantisation_step(rec.w[~clipped_rows(rec)])
-        sigma_w, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), step), "sidecar gyro_sigma"
+        (sigma_w, step), source = _stated_level(rec), "sidecar gyro_sigma"
     else:
         sigma_w, source = None, "estimated from the residuals"
     prob = problem_from_recording(rec, sigma_w, fit_bias, fit_drag and method == "ml")
