@@ -98,6 +98,12 @@ LM_START = 1e-3
 #: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
 #: how far apart (deg) the few kept as starts are.
 MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
+#: A varying momentum's knots follow its changes where the record has room for at least
+#: KNOTS_FOLLOW times as many knots as the profile takes (Probe.momentum_knots): a first estimate
+#: on that many times as many evenly spaced knots says where the momentum changes, and where it
+#: changes beyond its noise (NOISE_CHANGES times the median change between neighbouring knots:
+#: 3.4 standard deviations of a change that is noise alone), half the knots follow that change.
+KNOTS_FOLLOW, NOISE_CHANGES = 2, 5.0
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
 MODE_REACH, MODE_GRID = 1.5, 1.15
@@ -1111,11 +1117,14 @@ class Probe:
                 starts.append(best[1])
         return starts
 
-    def momentum_estimate(self, knots: int, axes=None, with_inertia: bool = True, keep: int = 1
-                          ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """Linear estimates (tk, H, J): knot times tk (K,) s, an unknown internal momentum H
-        (K, 3) kg·m²/s piecewise linear through them, and the inertia (3, 3) estimated with it
-        (the base's where the nominal is held, or with_inertia is False).
+    def momentum_estimate(self, tk, axes=None, with_inertia: bool = True, keep: int = 1,
+                          span: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Linear estimates (tk, H, J): at the knot times tk (K,) s (one: a constant momentum),
+        an unknown internal momentum H (K, 3) kg·m²/s piecewise linear through them, and the
+        inertia (3, 3) estimated with it (the base's where the nominal is held, or with_inertia is
+        False). span: samples per modulating window (default: a third of a turn, at most a
+        quarter of those that make twice as many equations as the free three-axis form has
+        unknowns; at least 8).
 
         The integral equation error of d/dt (J w + h_known + h) + w x (J w + h_known + h) = tau
         over modulating windows is linear in theta and H (no derivative of the gyro is taken);
@@ -1126,9 +1135,11 @@ class Probe:
         three-axis h(t) could partly absorb.
         """
         d, base = self.d, self.base
-        tk = np.linspace(d.t[0], d.t[-1], knots) if knots > 1 else np.array([d.t[0]])
+        tk = np.asarray(tk, float)
+        knots = tk.size
         # windows of a third of a turn at most, and twice as many equations as unknowns at least
-        span = min(2.0 / (d.omega_ref * d.dt), d.t.size // (4 * knots + 8))
+        if span is None:
+            span = min(2.0 / (d.omega_ref * d.dt), d.t.size // (4 * knots + 8))
         edges, phi, dphi = modulating_windows(d.t, int(max(span, 8)))
         quad = np.gradient(d.t)
         w = d.w
@@ -1184,6 +1195,57 @@ class Probe:
                 break
         return out
 
+    def momentum_knots(self, knots: int) -> np.ndarray:
+        """Knot times (knots,) s of a varying momentum's profile: evenly spaced, unless the
+        record has room for KNOTS_FOLLOW times as many (EffectModel.knot_room) and the momentum
+        changes somewhere beyond its noise; then half of them are evenly spaced in time and half
+        follow that change, so that a rotor spinning up for ten seconds of a ten-minute record is
+        followed through its spin-up (evenly spaced, twenty knots half a minute apart drew it as a
+        slow ramp, and a gyro drift and a flexible mode took up the rest). Where it changes: a
+        first estimate on KNOTS_FOLLOW times as many evenly spaced knots (momentum_estimate along
+        the axis that explains most, in windows of a third of a turn where the record has room
+        for four times as many equations as that estimate's unknowns: shorter windows left the
+        spin-up of a wheel of 5 % of the body's momentum at 4-8 times the median change, longer
+        at 23-31): the intervals where it changes by more than NOISE_CHANGES times the median
+        change, and those beside them, are where the change's knots go, evenly spread over them.
+        A smooth spin-up starts and ends below the noise of that estimate, and its corners are
+        where a spline needs knots: placed in proportion to the change, they gathered where the
+        spin-up is steepest, began after the start of a thrown device's 0.3-s spin-up, and a
+        flexible mode took up the corner the spline could not draw (2 of 3 seeds). Neighbouring
+        knots stay at least ROWS_PER_KNOT residual rows apart. Cached in d.cache
+        (depends on the data and the base).
+        """
+        d = self.d
+        even = np.linspace(d.t[0], d.t[-1], knots)
+        model = REGISTRY["internal_momentum"]
+        fine = min(model.knot_room(d), KNOTS_FOLLOW * knots)
+        if fine < KNOTS_FOLLOW * knots:
+            return even
+        key = ("knots", knots, *_rows_and_base(d, self.base))
+        if key not in d.cache:
+            tf = np.linspace(d.t[0], d.t[-1], fine)
+            span = int(min(2.0 / (d.omega_ref * d.dt), 3 * d.t.size // (4 * (fine + 6))))
+            (_, hk, _), = self.momentum_estimate(tf, hemisphere(MOMENTUM_AXES), span=max(span, 8))
+            change = np.linalg.norm(np.diff(hk, axis=0), axis=1)
+            beyond = change > NOISE_CHANGES * np.median(change)
+            # and the intervals beside them, where a smooth spin-up's slow start and end lie
+            changing = np.convolve(beyond, [1, 1, 1], mode="same") > 0
+            if not beyond.any():
+                d.cache[key] = even
+            else:  # the cumulative share of time and of the time it changes, half each
+                share = (0.5 * (tf - tf[0]) / (tf[-1] - tf[0])
+                         + 0.5 * np.r_[0.0, np.cumsum(changing)] / changing.sum())
+                placed = np.interp(np.linspace(0.0, 1.0, knots), share, tf)
+                gap = model.ROWS_PER_KNOT * d.block * d.dt
+                for i in range(1, knots):  # at least `gap` apart, from the start, then from the end
+                    placed[i] = max(placed[i], placed[i - 1] + gap)
+                placed[-1] = d.t[-1]
+                for i in range(knots - 2, -1, -1):
+                    placed[i] = min(placed[i], placed[i + 1] - gap)
+                placed[0] = d.t[0]
+                d.cache[key] = placed
+        return d.cache[key]
+
     def momentum_starts(self, knots: int) -> list[np.ndarray]:
         """Start of internal_momentum (with the inertia estimated beside it): constant (knots 0),
         or varying along the axis, of those searched, that explains most (momentum_estimate);
@@ -1193,11 +1255,11 @@ class Probe:
         starts = []
         for with_inertia in (True, False):  # the inertia estimated beside it, or the base's
             if not knots:
-                (_, hk, inertia), = self.momentum_estimate(1, with_inertia=with_inertia)
+                (_, hk, inertia), = self.momentum_estimate(self.d.t[:1], with_inertia=with_inertia)
                 starts.append(self.x(hk[0], inertia))
                 continue
-            for tk, hk, inertia in self.momentum_estimate(knots, hemisphere(MOMENTUM_AXES), with_inertia,
-                                                          keep=3):
+            for tk, hk, inertia in self.momentum_estimate(self.momentum_knots(knots), hemisphere(MOMENTUM_AXES),
+                                                          with_inertia, keep=3):
                 change = hk - hk[0]
                 axis = np.linalg.svd(change, full_matrices=False)[2][0]
                 starts.append(self.x(model.pack({"h": hk[0], "axis": axis, "profile_t": tk,
