@@ -1253,13 +1253,14 @@ class Probe:
         """
         model = REGISTRY["internal_momentum"]
         starts = []
+        knot_t = self.momentum_knots(knots) if knots else None
         for with_inertia in (True, False):  # the inertia estimated beside it, or the base's
             if not knots:
                 (_, hk, inertia), = self.momentum_estimate(self.d.t[:1], with_inertia=with_inertia)
                 starts.append(self.x(hk[0], inertia))
                 continue
-            for tk, hk, inertia in self.momentum_estimate(self.momentum_knots(knots), hemisphere(MOMENTUM_AXES),
-                                                          with_inertia, keep=3):
+            for tk, hk, inertia in self.momentum_estimate(knot_t, hemisphere(MOMENTUM_AXES), with_inertia,
+                                                          keep=3):
                 change = hk - hk[0]
                 axis = np.linalg.svd(change, full_matrices=False)[2][0]
                 starts.append(self.x(model.pack({"h": hk[0], "axis": axis, "profile_t": tk,
