@@ -853,18 +853,23 @@ def initial_rates(d: Data) -> np.ndarray:
     return d.w[d.seg[:-1]].ravel()
 
 
+def equation_error_phi(d: Data) -> np.ndarray:
+    """The phi (6,) of the linear equation-error estimate of the inertia (the nearest body that
+    exists; its trace pinned to d.trace0 where the scale is not seen), from the kept samples.
+    """
+    kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
+    theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
+                                 None if d.h is None else d.h[kept], trace=d.trace0)
+    return phi_from_inertia(nearest_realizable(inertia_from_theta(theta)))
+
+
 def _inertia_starts(d: Data) -> list[np.ndarray]:
     """Starting phi of a fitted inertia: the sidecar's nominal (first, where given), the linear
     equation-error estimate, and on a short record (one segment) the three elongated bodies too,
     since a short flip can leave several inertias locally consistent.
     """
-    out = []
-    if d.inertia0 is not None:
-        out.append(phi_from_inertia(d.inertia0))
-    kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
-    theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
-                                 None if d.h is None else d.h[kept], trace=d.trace0)
-    out.append(phi_from_inertia(nearest_realizable(inertia_from_theta(theta))))
+    out = [] if d.inertia0 is None else [phi_from_inertia(d.inertia0)]
+    out.append(equation_error_phi(d))
     if d.segments == 1:
         for diag in ([1.0, 1.0, 0.1], [1.0, 0.1, 1.0], [0.1, 1.0, 1.0], [1.0, 1.0, 1.0]):
             out.append(phi_from_inertia(np.diag(diag) * d.trace0 / sum(diag)))
@@ -1194,6 +1199,13 @@ class Probe:
             if len(out) == keep:
                 break
         return out
+
+    def inertia_estimate(self) -> np.ndarray:
+        """The phi (6,) of the record's equation-error inertia (equation_error_phi), kept in d.cache."""
+        key = ("inertia_estimate", (self.d.row >= 0).tobytes())
+        if key not in self.d.cache:
+            self.d.cache[key] = equation_error_phi(self.d)
+        return self.d.cache[key]
 
     def momentum_knots(self, knots: int) -> np.ndarray:
         """Knot times (knots,) s of a varying momentum's profile: evenly spaced, unless the
