@@ -7,7 +7,6 @@ an audit's independent simulator (3 of 54 runs), whose recording this rebuilds (
 aside) to those figures."""
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.recordings import Recording
@@ -51,9 +50,8 @@ def cubesat(seed: int) -> Recording:
                      f"cubesat-{seed}")
 
 
-@pytest.mark.parametrize("seed", [3, 1])
-def test_a_wrong_middle_moment_is_the_inertia_offset(seed):
-    report, _ = diagnose(cubesat(seed))
+def test_a_wrong_middle_moment_is_the_inertia_offset():
+    report, _ = diagnose(cubesat(3))
     assert report["effects"][0]["name"] == "inertia_offset"
     assert [e["name"] for e in report["explanation"]] == ["inertia_offset"]
     change = report["inertia_vs_nominal"]["percent_change"]
