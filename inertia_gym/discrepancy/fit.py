@@ -1123,13 +1123,13 @@ class Probe:
         return starts
 
     def momentum_estimate(self, tk, axes=None, with_inertia: bool = True, keep: int = 1,
-                          span: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                          unknowns: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Linear estimates (tk, H, J): at the knot times tk (K,) s (one: a constant momentum),
         an unknown internal momentum H (K, 3) kg·m²/s piecewise linear through them, and the
         inertia (3, 3) estimated with it (the base's where the nominal is held, or with_inertia is
-        False). span: samples per modulating window (default: a third of a turn, at most a
-        quarter of those that make twice as many equations as the free three-axis form has
-        unknowns; at least 8).
+        False). The modulating windows span a third of a turn at most, and at least 8 samples,
+        and are short enough for four times as many equations as `unknowns` (default: those of
+        the free three-axis form, 3K + 6).
 
         The integral equation error of d/dt (J w + h_known + h) + w x (J w + h_known + h) = tau
         over modulating windows is linear in theta and H (no derivative of the gyro is taken);
@@ -1142,9 +1142,8 @@ class Probe:
         d, base = self.d, self.base
         tk = np.asarray(tk, float)
         knots = tk.size
-        # windows of a third of a turn at most, and twice as many equations as unknowns at least
-        if span is None:
-            span = min(2.0 / (d.omega_ref * d.dt), d.t.size // (4 * knots + 8))
+        unknowns = 3 * knots + 6 if unknowns is None else unknowns
+        span = min(2.0 / (d.omega_ref * d.dt), 3 * d.t.size // (4 * unknowns))  # 3 equations a window
         edges, phi, dphi = modulating_windows(d.t, int(max(span, 8)))
         quad = np.gradient(d.t)
         w = d.w
@@ -1230,21 +1229,21 @@ class Probe:
         d = self.d
         even = np.linspace(d.t[0], d.t[-1], knots)
         model = REGISTRY["internal_momentum"]
-        fine = min(model.knot_room(d), KNOTS_FOLLOW * knots)
-        if fine < KNOTS_FOLLOW * knots:
+        fine = KNOTS_FOLLOW * knots
+        if model.knot_room(d) < fine:
             return even
         key = ("knots", knots, *_rows_and_base(d, self.base))
         if key not in d.cache:
             tf = np.linspace(d.t[0], d.t[-1], fine)
-            span = int(min(2.0 / (d.omega_ref * d.dt), 3 * d.t.size // (4 * (fine + 6))))
-            (_, hk, _), = self.momentum_estimate(tf, hemisphere(MOMENTUM_AXES), span=max(span, 8))
+            # windows sized for the unknowns of one axis's profile (fine + 6), not three axes'
+            (_, hk, _), = self.momentum_estimate(tf, hemisphere(MOMENTUM_AXES), unknowns=fine + 6)
             change = np.linalg.norm(np.diff(hk, axis=0), axis=1)
             beyond = change > NOISE_CHANGES * np.median(change)
-            # and the intervals beside them, where a smooth spin-up's slow start and end lie
-            changing = np.convolve(beyond, [1, 1, 1], mode="same") > 0
             if not beyond.any():
                 d.cache[key] = even
-            else:  # the cumulative share of time and of the time it changes, half each
+            else:  # the cumulative share of time and of the time it changes, half each; the
+                # intervals beside those that change too, where a smooth spin-up starts and ends
+                changing = np.convolve(beyond, [1, 1, 1], mode="same") > 0
                 share = (0.5 * (tf - tf[0]) / (tf[-1] - tf[0])
                          + 0.5 * np.r_[0.0, np.cumsum(changing)] / changing.sum())
                 placed = np.interp(np.linspace(0.0, 1.0, knots), share, tf)
