@@ -179,6 +179,8 @@ QUANTUM_OFF_SHARE = 0.01
 #: The step is read from the least gap that recurs, as often as this share of the commonest gap
 #: size at least: the pieces a value off the lattice splits a gap into recur by chance, rarely.
 QUANTUM_SUPPORT = 0.25
+#: Where the step so read fails, a step of it divided by 2 .. QUANTUM_DIVISORS is tried.
+QUANTUM_DIVISORS = 4
 
 
 def quantisation_step(w) -> np.ndarray:
@@ -187,7 +189,9 @@ def quantisation_step(w) -> np.ndarray:
     written with), 0 where they lie on none. From the gaps between the axis's (at least
     QUANTUM_MIN_VALUES) distinct values: the least gap that recurs (as often as QUANTUM_SUPPORT
     of the commonest gap size, counting the gaps within QUANTUM_TOLERANCE of it) and those gaps
-    give q (their mean); every gap of up to
+    give q (their mean), or where that fails a step of it divided by up to QUANTUM_DIVISORS
+    that recurs too (a rate sweeping fast over the levels steps one level rarely: a 400-Hz
+    gyro in steps of 2 sigma read 12 gaps of one step and 44 of two); every gap of up to
     QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE, and those
     gaps must be at least half of all (values written to full precision have gaps of no common
     step); and the values must repeat or skip steps (gaps of more than one size): a smooth
@@ -211,25 +215,48 @@ def quantisation_step(w) -> np.ndarray:
         if common.size == 0:
             continue
         least = ordered[common[0]]
-        q = float(np.mean(gaps[np.abs(gaps - least) <= QUANTUM_TOLERANCE * least]))
-        steps = gaps / q
-        near = steps <= QUANTUM_MAX_STEPS
         allowed = max(1.0, QUANTUM_OFF_SHARE * finite.size)
-        # a gap between two values on the lattice is whole, so each value off it makes at most two
-        # that are not: more than twice the allowed share is no lattice (and is not walked: full-
-        # precision samples have a gap not whole between nearly every pair of values)
-        broken = np.count_nonzero(near & (np.abs(steps - np.round(steps)) >= QUANTUM_TOLERANCE))
-        if near.mean() < 0.5 or broken > 2 * allowed:
-            continue
-        off = min(_off_lattice(steps), _off_lattice(steps[::-1], reverse=True), key=len) if broken else []
-        on = np.ones(values.size, bool)
-        on[list(off)] = False
-        kept = np.diff(values[on]) / q  # the gaps between the values on the lattice
-        whole = np.round(kept[kept <= QUANTUM_MAX_STEPS])
-        if counts[~on].sum() <= allowed and whole.size > 0 and (
-                on.sum() < finite.size - counts[~on].sum() or np.ptp(whole) > 0):
-            out[i] = q
+        for divisor in range(1, QUANTUM_DIVISORS + 1):
+            near_step = np.abs(gaps - least / divisor) <= QUANTUM_TOLERANCE * least / divisor
+            if np.count_nonzero(near_step) < 2:
+                continue
+            q = float(np.mean(gaps[near_step]))
+            on = _on_lattice(finite.size, values, counts, q)
+            if on is None:
+                continue
+            # a finer step must hold more samples between the coarser one's levels than the
+            # values off a lattice allowed there (a glitch halfway between two levels is one)
+            level = np.round((values[on] - values[on][0]) / q).astype(np.int64) % divisor
+            between = counts[on][level != np.bincount(level, counts[on]).argmax()].sum()
+            if divisor == 1 or between > allowed:
+                out[i] = q
+                break
     return out
+
+
+def _on_lattice(samples: int, values, counts, q: float) -> np.ndarray | None:
+    """(m,) bool: which of an axis's distinct values (m,), read counts (m,) times (of `samples`),
+    lie on a lattice of step q, or None where the values do not lie on one (quantisation_step's
+    tests).
+    """
+    gaps = np.diff(values)
+    steps = gaps / q
+    near = steps <= QUANTUM_MAX_STEPS
+    allowed = max(1.0, QUANTUM_OFF_SHARE * samples)
+    # a gap between two values on the lattice is whole, so each value off it makes at most two
+    # that are not: more than twice the allowed share is no lattice (and is not walked: full-
+    # precision samples have a gap not whole between nearly every pair of values)
+    broken = np.count_nonzero(near & (np.abs(steps - np.round(steps)) >= QUANTUM_TOLERANCE))
+    if near.mean() < 0.5 or broken > 2 * allowed:
+        return None
+    off = min(_off_lattice(steps), _off_lattice(steps[::-1], reverse=True), key=len) if broken else []
+    on = np.ones(values.size, bool)
+    on[list(off)] = False
+    kept = np.diff(values[on]) / q  # the gaps between the values on the lattice
+    whole = np.round(kept[kept <= QUANTUM_MAX_STEPS])
+    lattice = counts[~on].sum() <= allowed and whole.size > 0 and (
+        on.sum() < samples - counts[~on].sum() or np.ptp(whole) > 0)
+    return on if lattice else None
 
 
 def _off_lattice(steps, reverse: bool = False) -> list[int]:

@@ -52,7 +52,7 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.sensors import estimate_white_noise, quantisation_step, stated_gyro_level
+from inertia_gym.sensors import QUANTUM_MIN_VALUES, estimate_white_noise, quantisation_step, stated_gyro_level
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
@@ -107,9 +107,10 @@ KNOTS_FOLLOW, NOISE_CHANGES = 2, 5.0
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
 MODE_REACH, MODE_GRID = 1.5, 1.15
-#: A gyro axis reads as clipped where its extreme magnitude is read at least this many times as
-#: often as the next magnitude below (saturated_samples).
-CLIP_LEVEL_SHARE = 3.0
+#: A gyro axis reads as clipped where a run of its extreme value is entered and left steeply:
+#: the stretch within CLIP_DROP steps (the level spacing or the noise) of it is at most 2
+#: CLIP_REACH longer than its samples at the extreme (saturated_samples).
+CLIP_DROP, CLIP_REACH = 3.0, 0.25
 #: An impulse at a record's end: the whitened residual jumps by more than this many times its
 #: median step, within this share of the record from its end.
 IMPULSE_JUMP, IMPULSE_SPAN = 8.0, 0.15
@@ -231,29 +232,73 @@ class Data:
 
 def saturated_samples(rec: Recording) -> np.ndarray:
     """(n, 3) bool: samples the gyro clipped. A full scale in the sidecar (gyro_full_scale_rad_s)
-    is trusted; otherwise an axis is clipped where its extreme magnitude repeats in at least
-    three consecutive samples (a moving body's rate is not flat at its extreme, a clipped one
-    is) and is read CLIP_LEVEL_SHARE times as often as the next magnitude below it: a coarsely
-    quantized gyro also repeats its extreme at a smooth peak, but there the next level is read
-    about as often (measured: 125 of 1201 rows of a quantized spin were taken as clipped).
+    is trusted; otherwise each axis's extreme value on either side (_clipped_extreme), and an
+    axis read at one value throughout is clipped where another axis is read to full precision
+    (a gyro resolving its noise there would here too).
     """
     w = rec.w
     full = rec.meta.get("gyro_full_scale_rad_s")
     if full is not None:
         return np.abs(w) >= 0.999 * float(full)
+    noise, quantum = estimate_white_noise(w), quantisation_step(w)
+    constant = np.ptp(w, axis=0) == 0
+    fine = [not constant[i] and _full_precision(w[:, i], quantum[i]) for i in range(3)]
     out = np.zeros_like(w, dtype=bool)
     for i in range(3):
-        a = np.abs(w[:, i])
-        top = a.max()
-        if top <= 0:
+        if constant[i]:
+            out[:, i] = w[0, i] != 0 and any(np.delete(fine, i))
             continue
-        at = a >= top * (1 - 1e-12)
-        runs = np.convolve(at.astype(int), np.ones(3, int), "valid") == 3
-        below = a[~at]
-        next_level = np.count_nonzero(below >= below.max() * (1 - 1e-12)) if below.size else 0
-        if runs.any() and at.sum() >= CLIP_LEVEL_SHARE * next_level:
-            out[:, i] = at
+        for a in (w[:, i], -w[:, i]):
+            out[:, i] |= _clipped_extreme(a, noise[i], fine[i])
     return out
+
+
+def _full_precision(a: np.ndarray, quantum: float) -> bool:
+    """Whether one axis's samples a (n,) rad/s are read to full precision: on no lattice
+    (quantum, rad/s, 0: none; sensors.quantisation_step), no two consecutive samples alike but
+    at its extremes (where a clip holds them), and values enough to tell (QUANTUM_MIN_VALUES:
+    an axis read on two levels has no others).
+    """
+    alike = a[1:] == a[:-1]
+    extreme = (a[1:] == a.max()) | (a[1:] == a.min())
+    return (quantum == 0 and not np.any(alike & ~extreme)
+            and np.unique(a).size >= QUANTUM_MIN_VALUES)
+
+
+def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.ndarray:
+    """(n,) bool: the samples of a (n,) rad/s at its largest value where that value is a clip.
+
+    A clip reads the rate flat at its extreme, three or more consecutive samples alike. Read to
+    full precision (_full_precision) nothing else does that. On a lattice, a smooth peak
+    rounded to one level may also; the two differ in how the run is entered and left. A peak
+    of curvature c is read at its top level over a run of L samples where c (L / 2)^2 is within
+    about one step of the peak (the spacing of the levels, or the noise if larger), so the rate
+    is CLIP_DROP steps below the top only (sqrt(CLIP_DROP + 1) - 1) L / 2 = L / 2 or more
+    samples from the run's ends. A clip cuts the rate where it still climbs: it is that far
+    below within a few samples, whatever L. So a stretch of rates within CLIP_DROP steps of the
+    top, holding such a run, is a clip where at most 2 CLIP_REACH of its samples per sample at
+    the top are not at the top (noise breaks a clip's run near its ends). A stretch at the
+    record's start or end shows one side and is not taken alone.
+    """
+    top = a.max()
+    at = a >= top * (1 - 1e-12)
+    bounds = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
+    starts, stops = bounds[::2], bounds[1::2]
+    long_runs = stops - starts >= 3
+    if top <= 0 or not long_runs.any():
+        return np.zeros(a.size, dtype=bool)
+    if full_precision:
+        return at
+    step = max(top - a[~at].max(), noise)
+    near = np.r_[False, a > top - CLIP_DROP * step, False]  # bounded by rates well below
+    edges = np.flatnonzero(np.diff(near.astype(np.int8)))
+    for first, end in zip(edges[::2], edges[1::2]):
+        level = np.count_nonzero(at[first:end])
+        interior = first > 0 and end < a.size
+        if (interior and np.any((starts[long_runs] >= first) & (starts[long_runs] < end))
+                and end - first - level <= 2 * CLIP_REACH * level):
+            return at
+    return np.zeros(a.size, dtype=bool)
 
 
 def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int, count: int = 0) -> np.ndarray:

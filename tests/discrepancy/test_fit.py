@@ -19,6 +19,7 @@ from inertia_gym.discrepancy.report import diagnose, principal_ratios
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
 from inertia_gym.scenario import Scenario
+from inertia_gym.sensors import quantisation_step
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -426,6 +427,45 @@ def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_
     flagged = F.saturated_samples(dataclasses.replace(rec, w=clipped))
     np.testing.assert_array_equal(flagged[:, 1], np.abs(quantized[:, 1]) >= 0.3)
     assert not flagged[:, [0, 2]].any()
+
+
+#: A thrown device's principal moments (kg m^2), diagonal.
+DEVICE = ((3e-4, 0.0, 0.0), (0.0, 4e-4, 0.0), (0.0, 0.0, 5e-4))
+
+
+def _free_spin(omega0, dt, duration, seed, sigma=0.001):
+    """A torque-free device read every dt s with gyro noise sigma rad/s (full precision)."""
+    sc = Scenario(inertia_true=DEVICE, inertia_guess=DEVICE, omega0=omega0, dt=dt, gyro_sigma=sigma,
+                  tau_max=1e-4)
+    return simulate_recording(sc, duration, None, seed=seed, torque=False)[0]
+
+
+@pytest.mark.parametrize("levels_per_sigma", [2.0, 8.0])
+def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still_climbing(levels_per_sigma):
+    """A device flipping about its intermediate axis, read at 400 Hz in steps of 2 or 8 noise
+    sigmas, and a slow spin read every 0.1 s in steps of 30 sigmas (its spin axis on one or two
+    levels): no sample is clipped. The former test (the extreme level read 3x as often as the
+    next) took 7 samples of the first at 8 sigmas and the whole spin axis of the second as
+    clipped (1201 of 1201 rows left out). The lattice of the first is read at 2 sigmas too (the
+    one-step gaps are rare where the rate sweeps fast: it read none on one axis). Each clipped at
+    70 % of an axis's peak (the axes whose peak lies inside the record), that axis is clipped
+    exactly there and the others not."""
+    flip = _free_spin((2.0, 15.0, 1.0), 0.0025, 2.0, seed=3)
+    step = levels_per_sigma * 0.001
+    coarse = np.round(flip.w / step) * step
+    np.testing.assert_allclose(F.saturated_samples(dataclasses.replace(flip, w=coarse)), False)
+    np.testing.assert_allclose(quantisation_step(coarse), step, rtol=1e-6)
+    for axis in (0, 2):  # the intermediate axis peaks at the record's ends
+        top = 0.7 * np.abs(coarse[:, axis]).max()
+        clipped = coarse.copy()
+        clipped[:, axis] = np.clip(coarse[:, axis], -top, top)
+        flagged = F.saturated_samples(dataclasses.replace(flip, w=clipped))
+        np.testing.assert_array_equal(flagged[:, axis], np.abs(coarse[:, axis]) >= top)
+        assert not np.delete(flagged, axis, axis=1).any()
+    slow = _free_spin((0.05, 0.03, 0.5), 0.1, 120.0, seed=int(levels_per_sigma))
+    levels = np.round(slow.w / 0.03) * 0.03
+    assert np.unique(levels[:, 2]).size <= 2
+    assert not F.saturated_samples(dataclasses.replace(slow, w=levels)).any()
 
 
 def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(racquet_toss):
