@@ -671,6 +671,11 @@ def _explanation_words(report: dict) -> str:
                     "momentum (kg·m²/s) and damping coefficient scales with the unknown true "
                     "trace; multiply them by (true trace) / "
                     f"{report['inertia_trace_assumed']:g}."))
+    elif not report.get("inertia_nominal_given"):
+        text += ("\n\nThe inertia's scale is fixed by the commanded torque and the known internal "
+                 "momentum as logged: a torque c times the commanded one (an actuator scale) or a "
+                 "momentum c times the logged one makes the true inertia c times the fitted one, and "
+                 "with no nominal inertia in the sidecar the data cannot tell the two apart.")
     if report["left_out"]:
         text += "\n\nLeft out of the explanation: " + "; ".join(
             f"{name} ({why})" for name, why in report["left_out"].items()) + "."

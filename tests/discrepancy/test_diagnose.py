@@ -217,6 +217,20 @@ def test_a_gyro_clipped_on_most_rows_is_refused_in_one_line_without_warnings():
     assert "\n" not in str(caught.value)
 
 
+def test_with_no_nominal_the_scale_is_said_to_rest_on_the_torque_as_logged():
+    """A torque 1.3x the commanded one and no nominal inertia: the data fix a scale, but the
+    commanded torque's: the fitted trace is the true one / 1.3 (measured: 0.796 and 0.765 of it,
+    seeds 0 and 1), the scale reads as identified, and the words say what it rests on."""
+    rec, _ = simulate_recording(Scenario(), 60.0, "actuator_scale", overrides={"scale": 0.3}, seed=1,
+                                sample_dt=0.1)
+    meta = {k: v for k, v in _concealed(rec).meta.items() if k != "inertia_nominal"}
+    report, _ = diagnose(dataclasses.replace(rec, meta=meta))
+    assert report["scale_identified"] is True and "actuator_scale" in report["skipped_effects"]
+    trace = np.trace(np.asarray(report["fit_after"]["inertia"]))
+    assert abs(1.3 * trace / np.trace(Scenario().inertia_true_array) - 1.0) < 0.05
+    assert "makes the true inertia c times the fitted one" in markdown(report, [])
+
+
 def test_summary_says_torques_scale_with_an_unknown_inertia():
     """Gyro only, no nominal: every fitted torque is in units of the assumed trace, in words."""
     report = {"explanation": [], "left_out": {}, "scale_identified": False,
@@ -225,6 +239,8 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
     assert "trace was set to 1 kg·m²" in text and "(true trace) / 1" in text
     report["scale_identified"] = True
     assert "trace" not in _explanation_words(report)
+    assert "as logged" in _explanation_words(report)
+    assert "as logged" not in _explanation_words(report | {"inertia_nominal_given": True})
     # a torque or a momentum logged, but too small to fix the scale (scale_sigma over 0.05)
     weak = report | {"scale_identified": False, "scale_seen_by_inputs": True, "scale_sigma": 0.31}
     text = _explanation_words(weak)
