@@ -232,29 +232,6 @@ def test_unknown_method_is_refused():
         identify(rec, method="magic")
 
 
-@pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
-def test_real_rotor_throws_against_their_reference_inertia():
-    """20 real throws with a logged rotor: error vs the CAD+calibration reference. Every throw
-    shows model error, so identify refines by the filter-error fit (measured: median 1.60 %,
-    worst 2.23 %; the output-error fit alone: 2.00 % and 5.03 %). The scale is fitted on every
-    throw; where it is uncertain beyond 5 % the result says so instead of claiming it (none now;
-    the output-error fit flagged Empty_LOG00189)."""
-    truth = json.loads((ROTOR / "truth.json").read_text())
-    errors, flagged = [], 0
-    for path in sorted(ROTOR.glob("*.csv")):
-        rec = read_recordings(path)[0]
-        res = identify(rec)
-        assert res.converged and res.noise.estimator == "filter error"
-        if not res.estimate.scale_identified:
-            assert any("scale is poorly determined" in note for note in res.notes)
-            flagged += 1
-        assert np.all(np.isfinite(res.estimate.theta_cov))
-        errors.append(_rel(res.estimate.inertia, np.array(truth[path.stem]["inertia"])))
-    assert len(errors) == 20 and flagged <= 2
-    assert np.median(errors) <= 0.018
-    assert max(errors) <= 0.03
-
-
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
 def test_the_paper_filter_runs_over_a_recording_and_the_batch_fit_beats_it(paper_recording, method):
     truth = Scenario().inertia_true_array
