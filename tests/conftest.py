@@ -11,6 +11,14 @@ from inertia_gym.scenario import Scenario
 # (tests/test_executors.py switches them on where it tests them)
 os.environ["INERTIA_GYM_HELPERS"] = "0"
 
+def pytest_collection_modifyitems(config, items):
+    """The slow tests first (a stable sort: each group keeps its order). xdist hands the tests
+    out in this order, so the long ones start while there is still work to balance them; last in
+    file order, the two validate tests (50 s each alone, 3 minutes each beside other work) had
+    left one worker running them while the other sat idle."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 #: The real racquet tosses beside the repository (or beside the folder holding its worktrees).
 RACQUET = next((p / "shared/data/phyphox-racquet" for p in Path(__file__).resolve().parents
                 if (p / "shared/data/phyphox-racquet").is_dir()), None)

@@ -357,6 +357,7 @@ def _with_jolt(rec: Recording, rows: int, at_start: bool, seed: int = 0) -> Reco
                                h=np.r_[rec.h, np.repeat(rec.h[-1:], rows, axis=0)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("at_start, gyro_sigma", [(False, True), (True, True), (False, False)],
                          ids=["catch", "release", "catch-without-gyro_sigma"])
 def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sigma):

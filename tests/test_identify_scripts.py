@@ -27,6 +27,7 @@ def test_bench_identify_reports_both_walls_and_errors():
         assert 0 <= report["rel_error_identify"] < 0.1  # 5 s of data: a rough estimate
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_rotor_throw_table(tmp_path):
     out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data", str(ROTOR),

@@ -382,6 +382,7 @@ def test_600s_10hz_diagnosis_is_fast(tmp_path):
     assert report["best_effect"] == "internal_momentum"
 
 
+@pytest.mark.slow
 def test_principal_ratios_and_their_intervals_cover_the_truth_without_a_nominal():
     """Gyro only, no nominal inertia: the report gives the inertia's shape (principal moments over
     the largest) before and after the explanation with 95 % intervals from the fit's covariance;

@@ -62,6 +62,7 @@ def test_without_a_change_the_knots_stay_nearly_even():
     assert np.max(np.abs(knots - even)) < 0.25 * (even[1] - even[0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_short_spin_up_in_a_long_record_is_the_varying_momentum_alone(seed):
     rec, truth = spinning_up(seed)

@@ -15,6 +15,7 @@ from inertia_gym.simulation import initial_state
 from inertia_gym.validation import validate
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
 def test_filter_over_validate_readings_reproduces_validate(paper, estimator):
     """Replaying the readings and torques of a validate run through InertiaFilter gives the same
