@@ -104,6 +104,12 @@ MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
 #: changes beyond its noise (NOISE_CHANGES times the median change between neighbouring knots:
 #: 3.4 standard deviations of a change that is noise alone), half the knots follow that change.
 KNOTS_FOLLOW, NOISE_CHANGES = 2, 5.0
+#: The share of those knots that follow the change (the rest evenly spaced over the record): a
+#: smooth spin-up's corners, where its curvature jumps, need knots a fraction of its length
+#: apart (a wheel of 15 % of the body's momentum spinning up in 5 s of a 300-s record at 10 Hz:
+#: with half, 3.6 s apart there, a second effect took up the corners in 4 of 8 cases and the
+#: worst axis reached 1.59x the noise; with three quarters, 2.6 s apart, 2 of 8 and 1.18x).
+KNOTS_ON_CHANGE = 0.75
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
 MODE_REACH, MODE_GRID = 1.5, 1.15
@@ -1254,10 +1260,11 @@ class Probe:
     def momentum_knots(self, knots: int) -> np.ndarray:
         """Knot times (knots,) s of a varying momentum's profile: evenly spaced, unless the
         record has room for KNOTS_FOLLOW times as many (EffectModel.knot_room) and the momentum
-        changes somewhere beyond its noise; then half of them are evenly spaced in time and half
-        follow that change, so that a rotor spinning up for ten seconds of a ten-minute record is
-        followed through its spin-up (evenly spaced, twenty knots half a minute apart drew it as a
-        slow ramp, and a gyro drift and a flexible mode took up the rest). Where it changes: a
+        changes somewhere beyond its noise; then a quarter of them are evenly spaced in time and
+        three quarters (KNOTS_ON_CHANGE) follow that change, so that a rotor spinning up for ten
+        seconds of a ten-minute record is followed through its spin-up (evenly spaced, twenty
+        knots half a minute apart drew it as a slow ramp, and a gyro drift and a flexible mode
+        took up the rest). Where it changes: a
         first estimate on KNOTS_FOLLOW times as many evenly spaced knots (momentum_estimate along
         the axis that explains most, in windows of a third of a turn where the record has room
         for four times as many equations as that estimate's unknowns: shorter windows left the
@@ -1286,11 +1293,11 @@ class Probe:
             beyond = change > NOISE_CHANGES * np.median(change)
             if not beyond.any():
                 d.cache[key] = even
-            else:  # the cumulative share of time and of the time it changes, half each; the
-                # intervals beside those that change too, where a smooth spin-up starts and ends
+            else:  # the cumulative share of time and of the time it changes (KNOTS_ON_CHANGE);
+                # the intervals beside those that change too, where a smooth spin-up starts and ends
                 changing = np.convolve(beyond, [1, 1, 1], mode="same") > 0
-                share = (0.5 * (tf - tf[0]) / (tf[-1] - tf[0])
-                         + 0.5 * np.r_[0.0, np.cumsum(changing)] / changing.sum())
+                share = ((1 - KNOTS_ON_CHANGE) * (tf - tf[0]) / (tf[-1] - tf[0])
+                         + KNOTS_ON_CHANGE * np.r_[0.0, np.cumsum(changing)] / changing.sum())
                 placed = np.interp(np.linspace(0.0, 1.0, knots), share, tf)
                 gap = model.ROWS_PER_KNOT * d.block * d.dt
                 for i in range(1, knots):  # at least `gap` apart, from the start, then from the end
