@@ -237,16 +237,18 @@ class Data:
 
 
 def saturated_samples(rec: Recording) -> np.ndarray:
-    """(n, 3) bool: samples the gyro clipped. A full scale in the sidecar (gyro_full_scale_rad_s)
-    is trusted; otherwise each axis's extreme value on either side (_clipped_extreme), and an
-    axis read at one value throughout is clipped where another axis is read to full precision
-    (a gyro resolving its noise there would here too).
+    """(n, 3) bool: samples the gyro clipped: each axis's extreme value on either side where it
+    reads as a clip (_clipped_extreme), an axis read at one value throughout where another axis
+    is read to full precision (a gyro resolving its noise there would here too), and, with a
+    full scale in the sidecar (gyro_full_scale_rad_s), every sample within 1.5 steps of its
+    lattice of it (an int16 gyro's positive rail is one step short of its full scale; an
+    independent audit: 0.999 of it took 19 samples of a peak at 99.93 % as clipped).
     """
     w = rec.w
-    full = rec.meta.get("gyro_full_scale_rad_s")
-    if full is not None:
-        return np.abs(w) >= 0.999 * float(full)
     noise, quantum = estimate_white_noise(w), quantisation_step(w)
+    full = rec.meta.get("gyro_full_scale_rad_s")
+    rail = (np.zeros(w.shape, dtype=bool) if full is None
+            else np.abs(w) >= float(full) * (1 - 1e-9) - 1.5 * quantum)
     constant = np.ptp(w, axis=0) == 0
     fine = [not constant[i] and _full_precision(w[:, i], quantum[i]) for i in range(3)]
     out = np.zeros_like(w, dtype=bool)
@@ -256,7 +258,7 @@ def saturated_samples(rec: Recording) -> np.ndarray:
             continue
         for a in (w[:, i], -w[:, i]):
             out[:, i] |= _clipped_extreme(a, noise[i], fine[i])
-    return out
+    return out | rail
 
 
 def _full_precision(a: np.ndarray, quantum: float) -> bool:

@@ -305,9 +305,11 @@ def test_clipped_samples_are_left_out_and_reported():
     assert d.notes["saturated_samples"] == clipped.sum()
     assert np.all(d.row[clipped] == -1)
     assert np.sqrt(np.mean(F.fit_nominal(d).z ** 2)) < 1.3
-    # a full scale in the sidecar is trusted
-    d2 = F.prepare(dataclasses.replace(rec, meta={**rec.meta, "gyro_full_scale_rad_s": 20.0}))
-    assert d2.notes["saturated_samples"] == int(np.any(np.abs(rec.w) >= 0.999 * 20.0, axis=1).sum())
+    # a full scale in the sidecar is trusted: the samples at it (off a lattice) are clipped
+    beyond = dataclasses.replace(rec, w=np.clip(rec.w, -14.0, 14.0),
+                                 meta={**rec.meta, "gyro_full_scale_rad_s": 14.0})
+    at_rail = int(np.any(np.abs(rec.w) >= 14.0, axis=1).sum())
+    assert F.prepare(beyond).notes["saturated_samples"] == at_rail > 0
 
 
 def test_impulses_at_the_ends_are_trimmed_and_a_drift_is_not():
@@ -462,6 +464,17 @@ def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still
         flagged = F.saturated_samples(dataclasses.replace(flip, w=clipped))
         np.testing.assert_array_equal(flagged[:, axis], np.abs(coarse[:, axis]) >= top)
         assert not np.delete(flagged, axis, axis=1).any()
+    # a full scale in the sidecar: an int16 gyro's rails (+FS - step, -FS) are clipped, a peak
+    # 3 steps under the full scale is not (0.999 of it took 19 samples of a peak at 99.93 %,
+    # 23 steps under, as clipped: an audit)
+    under = {"gyro_full_scale_rad_s": np.abs(coarse).max() + 3 * step}
+    assert not F.saturated_samples(dataclasses.replace(flip, w=coarse, meta=under)).any()
+    full = np.round(0.7 * np.abs(coarse[:, 0]).max() / step) * step
+    railed = coarse.copy()
+    railed[:, 0] = np.clip(coarse[:, 0], -full, full - step)
+    flagged = F.saturated_samples(dataclasses.replace(flip, w=railed, meta={"gyro_full_scale_rad_s": full}))
+    rails = (coarse[:, 0] > full - 1.5 * step) | (coarse[:, 0] < 0.5 * step - full)
+    np.testing.assert_array_equal(flagged[:, 0], rails)
     slow = _free_spin((0.05, 0.03, 0.5), 0.1, 120.0, seed=int(levels_per_sigma))
     levels = np.round(slow.w / 0.03) * 0.03
     assert np.unique(levels[:, 2]).size <= 2
