@@ -14,6 +14,7 @@ from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.scenario import Scenario
 from inertia_gym.sensors import (
     NOISE_ORDERS,
+    QUANTUM_MIN_VALUES,
     QUANTUM_OFF_SHARE,
     estimate_white_noise,
     quantisation_step,
@@ -138,6 +139,22 @@ def test_quantisation_step_reads_a_lattice_and_none_where_values_are_written_in_
     assert np.all(quantisation_step(ramp) == 0.0)
     slow = np.round(ramp / 10 / 0.03) * 0.03  # a tenth as fast, read in steps of 0.03: repeats
     np.testing.assert_allclose(quantisation_step(slow), 0.03, rtol=1e-9)
+
+
+def test_an_axis_on_a_few_levels_reads_its_step_and_a_few_full_precision_samples_none():
+    """A slow cubesat axis read in steps of 0.01 rad/s sits on 3-9 levels (an audit's records:
+    fewer than QUANTUM_MIN_VALUES read no step, the noise level stayed at a fifth of the rounding
+    error, and physics was named to explain it on 4 of 8); read many times each, the levels give
+    their step. A handful of full-precision samples, or levels not a whole number of steps
+    apart, give none."""
+    t = np.arange(1200) * 0.1
+    slow = np.stack([0.02 * np.sin(0.01 * t), 0.015 * np.cos(0.02 * t), 0.5 + 0.012 * np.sin(0.03 * t)], 1)
+    levels = np.round(slow / 0.01) * 0.01
+    assert all(np.unique(levels[:, i]).size < QUANTUM_MIN_VALUES for i in range(3))
+    np.testing.assert_allclose(quantisation_step(levels), 0.01, rtol=1e-9)
+    assert np.all(quantisation_step(slow[:5]) == 0.0)
+    uneven = np.repeat([[0.0, 0.0, 0.0], [0.01, 0.01, 0.01], [0.025, 0.025, 0.025]], 40, axis=0)
+    assert np.all(quantisation_step(uneven) == 0.0)
 
 
 def test_a_lattice_with_a_few_samples_off_it_still_reads_its_step():
