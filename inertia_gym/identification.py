@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from inertia_gym.discrepancy.fit import end_impulses, saturated_samples
+from inertia_gym.discrepancy.fit import clips_at_the_ends, end_impulses, saturated_samples
 from inertia_gym.discrepancy.recordings import (
     Recording,
     check_input_gaps,
@@ -525,6 +525,17 @@ def _check_recording(rec: Recording) -> None:
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
 
 
+def _clip_hint(rec: Recording) -> str:
+    """'' or a clause naming the axes held at their extreme at a record's end
+    (fit.clips_at_the_ends), to end a sentence about a misfit.
+    """
+    ends = clips_at_the_ends(rec)
+    if not ends:
+        return ""
+    return ("; " + "; ".join(ends) + ": if the gyro clipped there, give its full scale in the "
+            "sidecar (gyro_full_scale_rad_s) and those rows are left out")
+
+
 def clipped_rows(rec: Recording) -> np.ndarray:
     """(n,) bool: the rows whose gyro reading is no measurement, an axis clipped at the gyro's
     full scale (fit.saturated_samples): they say only that the rate was beyond it.
@@ -778,7 +789,7 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
                 f"the fit does not converge and leaves residuals {rms_over_noise:.3g} times the noise"
                 + ("" if off_nominal is None else f", its inertia {off_nominal:.3g} times the nominal's")
                 + ": the rigid-body model does not explain this recording (check its units and "
-                "columns, or run diagnose on it)")
+                "columns, or run diagnose on it)" + _clip_hint(rec))
         notes.append("the fit stopped at its iteration limit before converging")
     split = rec.meta.get("split_at_gaps")
     if split:
@@ -798,7 +809,8 @@ def _identify_record(rec: Recording, method: str, fit_bias: bool | None,
     if rms_over_noise > RIGID_MISFIT:
         notes.append(f"post-fit residuals are {rms_over_noise:.1f}x the gyro noise: the rigid "
                      "model leaves something out (run `inertia-gym diagnose`); the intervals are "
-                     "widened by the residuals' correlation but may still be optimistic")
+                     "widened by the residuals' correlation but may still be optimistic"
+                     + _clip_hint(rec))
     return Identification(
         name=rec.name, method=method, estimate=est, crlb=crlb, rms=rms,
         rms_over_noise=rms_over_noise, noise=noise, bias=bias, t=rec.t, w_meas=rec.w,

@@ -309,6 +309,37 @@ def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.nd
     return np.zeros(a.size, dtype=bool)
 
 
+def clips_at_the_ends(rec: Recording) -> list[str]:
+    """Phrases, one per axis and end, where an axis holds its extreme value for its first or last
+    three or more samples and then falls steeply (CLIP_DROP steps within CLIP_REACH of the run's
+    length, as _clipped_extreme asks of both sides): a clip there cannot be told from a rate
+    that starts or ends at its peak, so it is not left out, only said (an audit: a device clipped
+    at both ends only, read in int16 steps, refused by identify at 1.1e3 times the noise
+    without a word on clipping). Empty where the sidecar gives the full scale or those samples
+    are taken as clipped already.
+    """
+    if rec.meta.get("gyro_full_scale_rad_s") is not None:
+        return []
+    w = np.asarray(rec.w, float)
+    n = w.shape[0]
+    noise, clipped = estimate_white_noise(w), saturated_samples(rec)
+    out = []
+    for i, axis in enumerate("xyz"):
+        for a in (w[:, i], -w[:, i]):
+            top = a.max()
+            at = a >= top * (1 - 1e-12)
+            if top <= 0 or at.all():
+                continue
+            step = max(top - a[~at].max(), noise[i])
+            for end, held in (("first", at), ("last", at[::-1])):
+                run = int(np.argmin(held))  # samples at the top from this end
+                beside = (a if end == "first" else a[::-1])[run:run + max(1, int(CLIP_REACH * run))]
+                rows = slice(0, run) if end == "first" else slice(n - run, n)
+                if run >= 3 and not clipped[rows, i].any() and np.any(beside <= top - CLIP_DROP * step):
+                    out.append(f"the {axis} axis reads {w[rows, i][0]:.4g} rad/s in its {end} {run} samples")
+    return out
+
+
 def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int, count: int = 0) -> np.ndarray:
     """Sample indices (S+1,) of segment starts: equal shares of the rotation angle, each at most
     max_turn rad (or `count` of them), each holding at least min_rows blocks, snapped to block

@@ -18,6 +18,7 @@ from inertia_gym.discrepancy.recordings import Recording, retimed
 from inertia_gym.discrepancy.report import diagnose, principal_ratios
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
+from inertia_gym.identification import _clip_hint
 from inertia_gym.scenario import Scenario
 from inertia_gym.sensors import quantisation_step
 
@@ -479,6 +480,29 @@ def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still
     levels = np.round(slow.w / 0.03) * 0.03
     assert np.unique(levels[:, 2]).size <= 2
     assert not F.saturated_samples(dataclasses.replace(slow, w=levels)).any()
+
+
+def test_a_clip_at_both_ends_only_is_said_not_left_out():
+    """An axis clipped at 8 rad/s only in its first and last 103 samples, read in steps of 2 noise
+    sigmas: a run with one side shows no clip by itself (a rate may start at its peak), so
+    nothing is left out, but the axis and its ends are named for identify's misfit sentences (an
+    audit's device: refused at 1.1e3 times the noise without a word on clipping); with the full
+    scale given they are clipped and nothing more is said; unclipped, nothing is."""
+    rng = np.random.default_rng(0)
+    t = np.arange(1001) / 500.0
+    w = np.stack([4.0 + 5.0 * np.cos(np.pi * t), 3.0 * np.sin(np.pi * t), 1.0 + 0.5 * t], 1)
+    coarse = np.round((w + rng.normal(0.0, 0.002, w.shape)) / 0.004) * 0.004
+    clipped = coarse.copy()
+    clipped[:, 0] = np.minimum(coarse[:, 0], 8.0)
+    assert not F.saturated_samples(Recording(t, clipped)).any()
+    assert F.clips_at_the_ends(Recording(t, clipped)) == ["the x axis reads 8 rad/s in its first 103 samples",
+                                                          "the x axis reads 8 rad/s in its last 103 samples"]
+    assert "gyro_full_scale_rad_s" in _clip_hint(Recording(t, clipped))
+    given = Recording(t, clipped, meta={"gyro_full_scale_rad_s": 8.0})
+    at_rail = clipped[:, 0] > 8.0 - 1.5 * 0.004
+    np.testing.assert_array_equal(F.saturated_samples(given)[:, 0], at_rail)
+    assert F.clips_at_the_ends(given) == []
+    assert F.clips_at_the_ends(Recording(t, coarse)) == [] and _clip_hint(Recording(t, coarse)) == ""
 
 
 def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(racquet_toss):
