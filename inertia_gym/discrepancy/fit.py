@@ -102,7 +102,8 @@ MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
 #: KNOTS_FOLLOW times as many knots as the profile takes (Probe.momentum_knots): a first estimate
 #: on that many times as many evenly spaced knots says where the momentum changes, and where it
 #: changes beyond its noise (NOISE_CHANGES times the median change between neighbouring knots:
-#: 3.4 standard deviations of a change that is noise alone), half the knots follow that change.
+#: 3.4 standard deviations of a change that is noise alone), KNOTS_ON_CHANGE of the knots follow
+#: that change.
 KNOTS_FOLLOW, NOISE_CHANGES = 2, 5.0
 #: The share of those knots that follow the change (the rest evenly spaced over the record): a
 #: smooth spin-up's corners, where its curvature jumps, need knots a fraction of its length
@@ -273,6 +274,17 @@ def _full_precision(a: np.ndarray, quantum: float) -> bool:
             and np.unique(a).size >= QUANTUM_MIN_VALUES)
 
 
+def _extreme_level(a: np.ndarray, noise: float) -> tuple[float, np.ndarray, float]:
+    """(top, at, step) of one axis's samples a (n,) rad/s: its largest value, the samples (n,)
+    bool read at it, and the step beneath it (the gap to the next value, or the noise if larger;
+    inf where every sample is at the top).
+    """
+    top = float(a.max())
+    at = a >= top * (1 - 1e-12)
+    step = max(top - a[~at].max(), noise) if not at.all() else np.inf
+    return top, at, step
+
+
 def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.ndarray:
     """(n,) bool: the samples of a (n,) rad/s at its largest value where that value is a clip.
 
@@ -288,8 +300,7 @@ def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.nd
     the top are not at the top (noise breaks a clip's run near its ends). A stretch at the
     record's start or end shows one side and is not taken alone.
     """
-    top = a.max()
-    at = a >= top * (1 - 1e-12)
+    top, at, step = _extreme_level(a, noise)
     bounds = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
     starts, stops = bounds[::2], bounds[1::2]
     long_runs = stops - starts >= 3
@@ -297,7 +308,6 @@ def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.nd
         return np.zeros(a.size, dtype=bool)
     if full_precision:
         return at
-    step = max(top - a[~at].max(), noise)
     near = np.r_[False, a > top - CLIP_DROP * step, False]  # bounded by rates well below
     edges = np.flatnonzero(np.diff(near.astype(np.int8)))
     for first, end in zip(edges[::2], edges[1::2]):
@@ -326,11 +336,9 @@ def clips_at_the_ends(rec: Recording) -> list[str]:
     out = []
     for i, axis in enumerate("xyz"):
         for a in (w[:, i], -w[:, i]):
-            top = a.max()
-            at = a >= top * (1 - 1e-12)
+            top, at, step = _extreme_level(a, noise[i])
             if top <= 0 or at.all():
                 continue
-            step = max(top - a[~at].max(), noise[i])
             for end, held in (("first", at), ("last", at[::-1])):
                 run = int(np.argmin(held))  # samples at the top from this end
                 beside = (a if end == "first" else a[::-1])[run:run + max(1, int(CLIP_REACH * run))]
