@@ -18,6 +18,7 @@ from inertia_gym.discrepancy.fit import (
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
+    claim_margin,
     covariance,
     effective_share,
     finish,
@@ -30,6 +31,8 @@ from inertia_gym.discrepancy.fit import (
     polished,
     prepare,
     ranked,
+    rounding_floors,
+    rounding_runs,
     select,
     sparse_terms,
 )
@@ -362,11 +365,17 @@ def _fits(rec: Recording):
         raise RecordingError(f"{rec.name}: the rigid-body model could not be integrated over this "
                              "recording (its residual is not finite); check the units of t and w")
     trim = impulses(d, nominal)
+    floors: dict = {}  # what each effect gains from a coarse gyro's rounding alone, where
+    # one gains significantly (rounding_floors)
     for attempt in range(2):
         if any(trim):
             d = prepare(rec, trim)
             nominal = fit_nominal(d)
         fits, skipped = fit_all(d, nominal)
+        if not floors and any(nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC for f in fits):
+            floors = rounding_floors(d, nominal, [f.name for f in fits])  # every candidate's: each
+            # is screened on top of the others, significant alone or not
+        d = dataclasses.replace(d, rounding_floor=floors)
         chosen = select(d, nominal, fits)
         more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
         if not any(more):
@@ -401,7 +410,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         ranked.append({"name": f.name, "form": f.forms[0] or None,
                        "params": jsonable(f.params) if finite else {},
                        "delta_bic": delta if finite else None,
-                       "significant": finite and delta > SIGNIFICANT_DELTA_BIC})
+                       "significant": finite and delta > claim_margin(d, f.name)})
     sig = [e for e in ranked if e["significant"]]
     best = chosen.fit or nominal
     ambiguous = []
@@ -446,7 +455,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   "sidecar_disagrees": None if d.sigma_source != "sidecar"
                   else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0))),
                   "quantisation": None if d.sigma_source != "sidecar"
-                  else quantisation_note(float(rec.meta["gyro_sigma"]), d.notes["quantisation_step"])},
+                  else quantisation_note(float(rec.meta["gyro_sigma"]), d.notes["quantisation_step"]),
+                  "rounding_runs": rounding_runs(d).tolist(), "rounding_floor": d.rounding_floor or None},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
@@ -720,10 +730,22 @@ def _shape_words(report: dict) -> list[str]:
 def _noise_words(report: dict) -> list[str]:
     """A warning where the noise level read from the data reads high (_noise_reads_high), or the
     sidecar's level disagrees with the samples' (sensors.stated_noise_note); after the line that
-    the samples' quantisation was added to the sidecar's level, where it was.
+    the samples' quantisation was added to the sidecar's level, where it was, and the one that
+    the gyro's rounding raised the margin of the effects (fit.rounding_floors), where it did.
     """
     noise = report.get("noise", {})  # (a report written before the keys existed has neither)
     said = [f"- {noise['quantisation']}"] if noise.get("quantisation") else []
+    if noise.get("rounding_floor"):
+        runs = [f"{r:.1f}" for r in noise["rounding_runs"] if r > 0]
+        top = sorted(noise["rounding_floor"].items(), key=lambda kv: -kv[1])[:3]
+        said.append("- **the gyro reads the rate coarser than its motion and noise move it** (its "
+                    f"samples repeat in runs of {', '.join(runs)} on average): the rounding error "
+                    "follows the rate, and fits gain from tracing it. Each effect must beat, besides "
+                    "the margin, the most its fit gains on the rounded nominal model alone ("
+                    + ", ".join(f"`{name}` {gain:.0f}" for name, gain in top)
+                    + (", ..." if len(noise["rounding_floor"]) > 3 else "")
+                    + "; `noise.rounding_floor`): smaller effects than the rounding hides are not "
+                    "claimed")
     if noise.get("sidecar_disagrees"):
         return said + ["- **the sidecar's noise level disagrees with the data's**: "
                        f"{noise['sidecar_disagrees']}"]
