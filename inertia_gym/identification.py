@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from inertia_gym.discrepancy.fit import clips_at_the_ends, end_impulses, saturated_samples
+from inertia_gym.discrepancy.fit import CLIP_ADVICE, clips_at_the_ends, end_impulses, saturated_samples
 from inertia_gym.discrepancy.recordings import (
     Recording,
     check_input_gaps,
@@ -532,8 +532,7 @@ def _clip_hint(rec: Recording) -> str:
     ends = clips_at_the_ends(rec)
     if not ends:
         return ""
-    return ("; " + "; ".join(ends) + ": if the gyro clipped there, give its full scale in the "
-            "sidecar (gyro_full_scale_rad_s) and those rows are left out")
+    return "; " + "; ".join(ends) + ": " + CLIP_ADVICE
 
 
 def clipped_rows(rec: Recording) -> np.ndarray:

@@ -323,6 +323,11 @@ def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.nd
     return np.zeros(a.size, dtype=bool)
 
 
+#: What a user whose gyro may have clipped at a record's ends is asked (after clips_at_the_ends)
+CLIP_ADVICE = ("if the gyro clipped there, give its full scale in the sidecar (gyro_full_scale_rad_s) "
+               "and those rows are left out")
+
+
 def clips_at_the_ends(rec: Recording) -> list[str]:
     """Phrases, one per axis and end, where an axis holds its extreme value for its first or last
     three or more samples and then falls steeply (CLIP_DROP steps within CLIP_REACH of the run's

@@ -14,11 +14,13 @@ from scipy import signal, stats
 from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
+    CLIP_ADVICE,
     MIN_ROWS,
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
     claim_margin,
+    clips_at_the_ends,
     covariance,
     effective_share,
     finish,
@@ -464,6 +466,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
             "t_start": rec.meta["window"][0], "t_end": rec.meta["window"][1],
             "source": rec.meta["window_source"]},
         "saturated_samples": d.notes["saturated_samples"],
+        "clipped_at_ends": clips_at_the_ends(rec),
         "saturation_rad_s": d.notes.get("saturation_rad_s"),
         "scale_identified": scale_seen,
         "scale_sigma": scale_sigma if scale_sigma is None or np.isfinite(scale_sigma) else None,
@@ -759,6 +762,16 @@ def _noise_words(report: dict) -> list[str]:
             "on it"]
 
 
+def _clip_words(report: dict) -> list[str]:
+    """A line where an axis is held at its extreme in a record's first or last samples
+    (fit.clips_at_the_ends: not left out, a rate may start or end at its peak).
+    """
+    ends = report.get("clipped_at_ends")  # (a report written before the key existed has none)
+    if not ends:
+        return []
+    return [f"- **held at its extreme at the record's end**: {'; '.join(ends)}: {CLIP_ADVICE}"]
+
+
 def _invariants_words(inv: dict) -> str:
     """The invariants' drifts and their reading of the missing torque, in words."""
     if not inv.get("applicable"):
@@ -832,6 +845,7 @@ def markdown(report: dict, plots: list[str]) -> str:
              f"**{report['best_effect'] or 'none significant'}**",
              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
              f"after: {_fmt(report['fit_after']['rms_over_noise'])}", *_beyond_words(report),
+             *_clip_words(report),
              *_shape_words(report), ""]
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]

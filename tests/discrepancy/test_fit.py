@@ -571,3 +571,26 @@ def test_an_effects_own_starts_are_found_once_per_base(monkeypatch):
         np.testing.assert_array_equal(a, b)
     again[0][:] = np.nan
     assert np.all(np.isfinite(F.Probe(layout, d, nominal).own_starts()[0]))
+
+
+def test_diagnose_says_an_axis_held_at_its_extreme_at_both_ends():
+    """A torque-free axisymmetric spin (I = 2, 2, 1 g·m², 2.5 rad/s about the axis: the transverse
+    rate turns at 1.25 rad/s with amplitude 3) recorded for one turn at 100 Hz, its x axis clipped
+    at 2.7 rad/s, which it reads only in its first and last ~36 samples, steps of 0.004: identify's
+    misfit notes said so; diagnose's report had said nothing of it. Its report now lists the two
+    ends (`clipped_at_ends`) and its summary asks for the full scale; given, the rows are left
+    out and nothing is said."""
+    from inertia_gym.discrepancy.report import diagnose, markdown
+
+    t = np.arange(0.0, 2 * np.pi / 1.25, 0.01)
+    w = np.stack([3.0 * np.cos(1.25 * t), -3.0 * np.sin(1.25 * t), np.full(t.size, 2.5)], 1)
+    read = np.round((w + np.random.default_rng(1).normal(0.0, 0.002, w.shape)) / 0.004) * 0.004
+    read[:, 0] = np.minimum(read[:, 0], 2.7)
+    report, _ = diagnose(Recording(t, read, meta={"inertia_nominal": np.diag([2e-3, 2e-3, 1e-3]).tolist()}))
+    assert [phrase.split(" in its ")[1].split()[0] for phrase in report["clipped_at_ends"]] == ["first", "last"]
+    assert all(p.startswith("the x axis reads 2.7 rad/s") for p in report["clipped_at_ends"])
+    assert report["saturated_samples"] == 0
+    assert "gyro_full_scale_rad_s" in markdown(report, [])
+    given, _ = diagnose(Recording(t, read, meta={"gyro_full_scale_rad_s": 2.7}))
+    assert given["clipped_at_ends"] == [] and given["saturated_samples"] > 0
+    assert "gyro_full_scale_rad_s" not in markdown(given, [])
