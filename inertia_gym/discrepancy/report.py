@@ -29,6 +29,7 @@ from inertia_gym.discrepancy.fit import (
     impulses,
     information,
     intervals,
+    lattice_level,
     model_inertia,
     polished,
     prepare,
@@ -352,6 +353,15 @@ def check_enough_rows(rec: Recording, d: Data) -> None:
                          f"diagnose needs at least {MIN_ROWS} (a longer recording)")
 
 
+def _fitted_nominal(d: Data) -> tuple[Data, Fit]:
+    """The nominal fit of d, and d with the noise level of a coarsely read gyro read again on it
+    (fit.lattice_level; the fit scored with that level).
+    """
+    nominal = fit_nominal(d)
+    level = lattice_level(d, nominal)
+    return (d, nominal) if level is d else (level, finish(nominal.layout, nominal.x, level, nominal.k))
+
+
 def _fits(rec: Recording):
     """Nominal, single-effect and compound fits of a recording, its impulses trimmed.
 
@@ -362,7 +372,7 @@ def _fits(rec: Recording):
     """
     d = prepare(rec)
     check_enough_rows(rec, d)
-    nominal = fit_nominal(d)
+    d, nominal = _fitted_nominal(d)
     if not np.isfinite(nominal.bic):
         raise RecordingError(f"{rec.name}: the rigid-body model could not be integrated over this "
                              "recording (its residual is not finite); check the units of t and w")
@@ -371,8 +381,7 @@ def _fits(rec: Recording):
     # one gains significantly (rounding_floors)
     for attempt in range(2):
         if any(trim):
-            d = prepare(rec, trim)
-            nominal = fit_nominal(d)
+            d, nominal = _fitted_nominal(prepare(rec, trim))
         fits, skipped = fit_all(d, nominal)
         if not floors and any(nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC for f in fits):
             floors = rounding_floors(d, nominal, [f.name for f in fits])  # every candidate's: each
