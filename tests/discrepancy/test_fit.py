@@ -587,7 +587,8 @@ def test_diagnose_says_an_axis_held_at_its_extreme_at_both_ends():
     read = np.round((w + np.random.default_rng(1).normal(0.0, 0.002, w.shape)) / 0.004) * 0.004
     read[:, 0] = np.minimum(read[:, 0], 2.7)
     report, _ = diagnose(Recording(t, read, meta={"inertia_nominal": np.diag([2e-3, 2e-3, 1e-3]).tolist()}))
-    assert [phrase.split(" in its ")[1].split()[0] for phrase in report["clipped_at_ends"]] == ["first", "last"]
+    ends = [phrase.split(" in its ")[1].split()[0] for phrase in report["clipped_at_ends"]]
+    assert ends == ["first", "last"]
     assert all(p.startswith("the x axis reads 2.7 rad/s") for p in report["clipped_at_ends"])
     assert report["saturated_samples"] == 0
     assert "gyro_full_scale_rad_s" in markdown(report, [])
