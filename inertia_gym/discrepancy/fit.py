@@ -1705,7 +1705,7 @@ def claim_margin(d: Data, name: str) -> float:
 
 def margin_words(d: Data, name: str) -> str:
     """claim_margin in words: "10", or "10 + 335 (what the rounding alone gives it)"."""
-    floor = d.effective_share * d.rounding_floor.get(name, 0.0)
+    floor = claim_margin(d, name) - SIGNIFICANT_DELTA_BIC
     return (f"{SIGNIFICANT_DELTA_BIC:g}" if floor <= 0 else
             f"{SIGNIFICANT_DELTA_BIC:g} + {floor:.1f} (what the gyro's rounding alone gives it)")
 
@@ -1997,6 +1997,15 @@ def rounding_runs(d: Data) -> np.ndarray:
 LEVEL_TRIALS = np.linspace(0.0, 1.0, 41)
 
 
+def _rounded(w, step, shift=0.0) -> np.ndarray:
+    """Rates w (n, 3) rad/s read as a gyro on a lattice of step (3,) rad/s offset by shift (3,)
+    reads them (0: an axis written in full, left as it is).
+    """
+    lattice = step > 0
+    unit = np.where(lattice, step, 1.0)
+    return np.where(lattice, np.round((w + shift) / unit) * unit - shift, w)
+
+
 def _third_spread(w) -> np.ndarray:
     """(3,) the mean absolute deviation of the third differences of w (n, 3) from their median:
     the spread lattice_level matches (continuous in the noise, where the median absolute
@@ -2022,11 +2031,11 @@ def lattice_level(d: Data, nominal: Fit) -> Data:
         return d
     kept = d.row >= 0
     rate = predict(nominal.x[None], nominal.layout, d)[0][kept]
-    step = np.where(coarse, d.notes["quantisation_step"], 1.0)
+    step = d.notes["quantisation_step"]
     noise = np.random.default_rng(0).normal(size=rate.shape)
     spreads, levels = [], []
     for share in LEVEL_TRIALS:
-        rounded = np.round((rate + share * step * noise) / step) * step
+        rounded = _rounded(rate + share * step * noise, step)
         spreads.append(_third_spread(rounded))
         levels.append(np.sqrt(np.mean((rounded - rate) ** 2, axis=0)))
     spreads = np.maximum.accumulate(np.array(spreads), axis=0)  # (trials, 3), made non-decreasing
@@ -2053,16 +2062,13 @@ def rounding_floors(d: Data, nominal: Fit, names) -> dict:
     if not names or not np.any(rounding_runs(d) >= ROUNDING_RUNS) or not np.isfinite(nominal.bic):
         return {}
     step = d.notes["quantisation_step"]
-    lattice = step > 0
-    unit = np.where(lattice, step, 1.0)
     beneath = np.sqrt(np.maximum(d.sigma ** 2 - step ** 2 / 12.0, 0.0))
     rate = predict(nominal.x[None], nominal.layout, d)[0]
     rng = np.random.default_rng(0)
     floors = dict.fromkeys(names, 0.0)
     for draw in range(ROUNDING_DRAWS):
-        shift = np.where(lattice, rng.uniform(-0.5, 0.5, 3) * step, 0.0) if draw else np.zeros(3)
-        noisy = rate + rng.normal(size=rate.shape) * beneath
-        w = np.where(lattice, np.round((noisy + shift) / unit) * unit - shift, noisy)
+        shift = rng.uniform(-0.5, 0.5, 3) * step if draw else np.zeros(3)
+        w = _rounded(rate + rng.normal(size=rate.shape) * beneath, step, shift)
         rounded = dataclasses.replace(d, w=w, cache={}, rounding_floor={}, effective_share=1.0)
         base = fit_nominal(rounded)
         for fit in fanned(fit_effect, rounded, [{"name": name, "nominal": base} for name in names]):
