@@ -298,7 +298,9 @@ class EffectModel:
         return None
 
     def gyro(self, params: dict, w: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Gyro output (n, 3) from true rates w (n, 3) at the sample times t (n,) s."""
+        """Gyro output (..., n, 3) from true rates w (..., n, 3) at the sample times t (n,) s (a
+        batch of trajectories of one model at once: leading axes broadcast).
+        """
         return w
 
     def true_inertia(self, params: dict):
@@ -344,7 +346,7 @@ class _GyroError(EffectModel):
         raise NotImplementedError
 
     def read(self, w: np.ndarray, error: np.ndarray) -> np.ndarray:
-        """What the gyro reads (n, 3) of rates w (n, 3) with the error (n, 3) or (3,)."""
+        """What the gyro reads (..., n, 3) of rates w (..., n, 3) with the error (n, 3) or (3,)."""
         raise NotImplementedError
 
     @override

@@ -32,7 +32,7 @@ import numpy as np
 from scipy import signal, stats
 
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6, skew
-from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
+from inertia_gym.discrepancy.model import Grid, effect_terms, gyro_output, held_cumulative, simulate
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.equation_error import (
@@ -95,6 +95,8 @@ POLISH_MAX_RMS = 1.5
 POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
 #: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
 LM_START = 1e-3
+#: dampings an LM iteration tries at most (each 6x the last), and how many of them one batch holds
+LM_TRIES, SPECULATE = 12, 2
 #: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
 #: how far apart (deg) the few kept as starts are.
 MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
@@ -485,6 +487,11 @@ class Layout:
         return [REGISTRY[n] for n in self.names]
 
     @functools.cached_property
+    def reads_through(self) -> bool:
+        """Some effect changes what the gyro reads of the rates (EffectModel.gyro)."""
+        return any(type(m).gyro is not EffectModel.gyro for m in self.models)
+
+    @functools.cached_property
     def has_penalty(self) -> bool:
         """Some effect has constraint rows (EffectModel.penalty)."""
         return any(type(m).penalty is not EffectModel.penalty for m in self.models)
@@ -589,17 +596,29 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     seg_pos = np.append(grid.sample_pos[d.seg[:-1]], grid.steps)
     xs = np.asarray(xs, float)
     q0 = d.q0()
-    keys = [x[:layout.n_global].tobytes() for x in xs]  # the segments' rates are not in the model
-    built: dict = {}
-    for key, x in zip(keys, xs):
-        if key not in built:
+    # the segments' rates are not in the model, and the effects' terms do not depend on the
+    # inertia (a Jacobian's inertia columns share them): each built once
+    effect_keys = [x[6:layout.n_global].tobytes() for x in xs]
+    effects: dict = {}  # effect key -> (its parts, EffectTerms, the indices of xs that have it)
+    built: dict = {}  # the whole model's key -> its Terms
+    terms = []
+    for i, (effect_key, x) in enumerate(zip(effect_keys, xs)):
+        if effect_key not in effects:
             p = layout.parts(x, d)
-            built[key] = p, model_terms(base_inertia(x, d), p, grid, cumulative, h_known, commanded)
-    parts, terms = zip(*(built[key] for key in keys))
+            effects[effect_key] = p, effect_terms(p, grid, cumulative, h_known, commanded), []
+        p, shared, members = effects[effect_key]
+        members.append(i)
+        key = x[:6].tobytes() + effect_key
+        if key not in built:
+            built[key] = shared.on(base_inertia(x, d))
+        terms.append(built[key])
     w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
     y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)
     out = simulate(grid, seg_pos, y0, terms)[..., 4:]
-    return np.stack([gyro_output(p, w, d.t) for p, w in zip(parts, out)])
+    if layout.reads_through:  # the sensor's terms, applied to every trajectory of a model at once
+        for p, _, members in effects.values():
+            out[members] = gyro_output(p, out[members], d.t)
+    return out
 
 
 def _row_means(d: Data, values) -> np.ndarray:
@@ -662,37 +681,46 @@ def jacobian(x, free, layout: Layout, d: Data, central: bool = False, r0=None):
     three for the rates of all segments at once (forward differences; central with central=True).
     r0: the objective at x where already known (it is then not integrated again).
     """
+    points = _jacobian_points(x, free, layout, d, central)
+    if r0 is None:
+        r = objective(np.vstack([x[None], points]), layout, d)
+        return _jacobian_columns(x, free, layout, d, r[0], r[1:], central)
+    return _jacobian_columns(x, free, layout, d, r0, objective(points, layout, d), central)
+
+
+def _jacobian_points(x, free, layout: Layout, d: Data, central: bool) -> np.ndarray:
+    """(P + 3, size) the points jacobian() integrates besides x (2 (P + 3) with central): x with
+    each free global entry moved by its step, then with every segment's rates moved along each
+    axis (then the same moved the other way).
+    """
     gi = np.flatnonzero(free[:layout.n_global])
     h = _steps(x, layout, d)
-    base = [x]
-    plus = []
-    for i in gi:
-        xp = x.copy()
-        xp[i] += h[i]
-        plus.append(xp)
+    plus = np.repeat(x[None], gi.size + 3, axis=0)
+    plus[np.arange(gi.size), gi] += h[gi]
     seg_h = h[layout.n_global:].reshape(-1, 3)
     for c in range(3):
-        xp = x.copy()
-        xp[layout.n_global + c::3] += seg_h[:, c]
-        plus.append(xp)
-    minus = [2 * x - xp for xp in plus] if central else []
-    if r0 is None:
-        r = objective(np.array(base + plus + minus), layout, d)
-        r0 = r[0]
-    else:
-        r = np.vstack([r0[None], objective(np.array(plus + minus), layout, d)])
+        plus[gi.size + c, layout.n_global + c::3] += seg_h[:, c]
+    return np.vstack([plus, 2 * x - plus]) if central else plus
+
+
+def _jacobian_columns(x, free, layout: Layout, d: Data, r0, rs, central: bool):
+    """jacobian()'s (r0, G, Js) from the objective r0 (N,) at x and rs at its _jacobian_points."""
+    gi = np.flatnonzero(free[:layout.n_global])
+    h = _steps(x, layout, d)
+    seg_h = h[layout.n_global:].reshape(-1, 3)
+    n_plus = gi.size + 3
     hp = np.r_[h[gi], seg_h.mean(axis=0)]
     if central:
-        cols = (r[1:1 + len(plus)] - r[1 + len(plus):]) / (2 * hp[:, None])
+        cols = (rs[:n_plus] - rs[n_plus:]) / (2 * hp[:, None])
     else:
-        cols = (r[1:1 + len(plus)] - r0) / hp[:, None]
+        cols = (rs - r0) / hp[:, None]
     # the rate columns: each entry's own segment's step (segments' steps differ)
     n_res = d.n_rows * 3
     seg_of = np.repeat(d.row_seg, 3)
     js = np.zeros((r0.size, 3))
     for c in range(3):
-        js[:n_res, c] = cols[len(gi) + c][:n_res] * hp[len(gi) + c] / seg_h[seg_of, c]
-    return r0, cols[:len(gi)].T, js
+        js[:n_res, c] = cols[gi.size + c][:n_res] * hp[gi.size + c] / seg_h[seg_of, c]
+    return r0, cols[:gi.size].T, js
 
 
 @dataclasses.dataclass(frozen=True)
@@ -817,15 +845,49 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: f
     the limit's face, since the step through the limit cannot be taken), at a stall, or after
     max_iter iterations: a polish that follows a curved valley to its floor.
     """
+    return solve_many([x0], free, layout, d, lb, ub, max_iter, decrement)[0]
+
+
+def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
+               decrement: float | None = None) -> list[tuple[np.ndarray, float]]:
+    """[solve(x0, ...) for x0 in x0s], the solves run side by side: the points each asks for
+    next (its Jacobian's, or its steps') integrated in one batch with the others'. Each
+    trajectory is integrated alone, so each solve's (x, cost) is the one it gives by itself;
+    the batch only saves the calls' overhead (a 1-s toss's fits spend most of their time there).
+    """
+    solvers = [_lm(x0, free, layout, d, lb, ub, max_iter, decrement) for x0 in x0s]
+    out: list = [None] * len(solvers)
+    asked = {i: next(s) for i, s in enumerate(solvers)}
+    while asked:
+        order = list(asked)
+        rows = objective(np.vstack([asked[i] for i in order]), layout, d)
+        at = 0
+        for i in order:
+            n, at = len(asked[i]), at + len(asked[i])
+            try:
+                asked[i] = solvers[i].send(rows[at - n:at])
+            except StopIteration as done:
+                out[i] = done.value
+                del asked[i]
+    return out
+
+
+def _lm(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: float | None):
+    """solve() as a generator: yields the (B, size) points whose objective rows (B, N) it needs
+    next and is sent them; returns (x, cost). Each damping tried is tried together with the
+    next SPECULATE - 1 larger ones (each 6x the one before): a step rejected costs no call of its
+    own, and the steps are taken in the same order as one at a time.
+    """
     x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub), d)
     gi = np.flatnonzero(free[:layout.n_global])
     seg_free = bool(free[layout.n_global:].any())
-    r = objective(x[None], layout, d)[0]
+    r = (yield x[None])[0]
     seg_of = np.full(r.size, -1)
     seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
     cost, lam, restarted = np.inf, LM_START, False
     for _ in range(max_iter):
-        r, g, js = jacobian(x, free, layout, d, r0=r)
+        rs = yield _jacobian_points(x, free, layout, d, False)
+        r, g, js = _jacobian_columns(x, free, layout, d, r, rs, False)
         if not np.isfinite(cost):
             cost = float(r @ r)
         g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
@@ -840,29 +902,38 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: f
                 left = min(left, face_blocks.decrement())
             if left <= decrement * cost / r.size:
                 break
-        improved = False
-        for _ in range(12):
-            trials = [_moved(x, blocks.step(lam), gi, layout, d, lb, ub)]
-            if on_face is not None and not np.array_equal(*trials[0]):
-                # the step left a physical limit and was projected back: the same step kept on
-                # the limit's face where x sits is tried beside it
-                if face_blocks is None:
-                    face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
-                dz, ds = face_blocks.step(lam)
-                trials.append(_moved(x, (on_face @ dz, ds), gi, layout, d, lb, ub))
-            trials = [xn for _, xn in trials if np.all(np.isfinite(xn))]
-            if not trials:
+        improved, tried = None, 0
+        while improved is None and tried < LM_TRIES:
+            batch, damping = [], lam  # the trial points of the next dampings, in order
+            for _ in range(min(SPECULATE, LM_TRIES - tried)):
+                trials = [_moved(x, blocks.step(damping), gi, layout, d, lb, ub)]
+                if on_face is not None and not np.array_equal(*trials[0]):
+                    # the step left a physical limit and was projected back: the same step kept on
+                    # the limit's face where x sits is tried beside it
+                    if face_blocks is None:
+                        face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
+                    dz, ds = face_blocks.step(damping)
+                    trials.append(_moved(x, (on_face @ dz, ds), gi, layout, d, lb, ub))
+                batch.append([xn for _, xn in trials if np.all(np.isfinite(xn))])
+                damping *= 6
+            flat = [xn for trials in batch for xn in trials]
+            rows = (yield np.array(flat)) if flat else None
+            at = 0
+            for trials in batch:
+                tried += 1
+                if not trials:
+                    lam *= 6
+                    continue
+                rs = rows[at:at + len(trials)]
+                at += len(trials)
+                best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
+                xn, rn = trials[best], rs[best]
+                cn = float(rn @ rn)
+                if cn < cost:
+                    improved = cost - cn > (CONVERGED if decrement is None else STEP_FLOOR) * cost / r.size
+                    x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
+                    break
                 lam *= 6
-                continue
-            rs = objective(np.array(trials), layout, d)
-            best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
-            xn, rn = trials[best], rs[best]
-            cn = float(rn @ rn)
-            if cn < cost:
-                improved = cost - cn > (CONVERGED if decrement is None else STEP_FLOOR) * cost / r.size
-                x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
-                break
-            lam *= 6
         if improved:
             restarted = False
             continue
@@ -1496,13 +1567,9 @@ def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_start
     first = SCREEN_ITER if not joint else (START_ITER if len(starts) > 1 else FULL_ITER)
     if joint and len(starts) > 1 and d.segments < SHORT_SEGMENTS:
         x = _best_start_on_short_segments(starts, layout, d, lb, ub)
-    else:
-        best = None
-        for x0 in starts:
-            x, cost = solve(np.clip(x0, lb, ub), free, layout, d, lb, ub, first)
-            if best is None or cost < best[1]:
-                best = (x, cost)
-        x = best[0]
+    else:  # the first of least cost
+        x = min(solve_many([np.clip(x0, lb, ub) for x0 in starts], free, layout, d, lb, ub, first),
+                key=lambda run: run[1])[0]
     if joint and first != FULL_ITER:
         x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
     if joint:  # a start chosen elsewhere can lead astray: never worse than the effect at neutral
@@ -1526,13 +1593,10 @@ def _best_start_on_short_segments(starts, layout: Layout, d: Data, lb, ub) -> np
     lo, hi = _bounds(lay, short)
     free = _free(lay, short)
     rates = initial_rates(short)
-    best = None
-    for x0 in starts:
-        x, cost = solve(np.clip(np.r_[x0[:layout.n_global], rates], lo, hi), free, lay, short, lo, hi,
-                        START_ITER)
-        if best is None or cost < best[1]:
-            best = (x, cost)
-    x, _ = solve(best[0], free, lay, short, lo, hi, FULL_ITER)
+    runs = solve_many([np.clip(np.r_[x0[:layout.n_global], rates], lo, hi) for x0 in starts], free, lay,
+                      short, lo, hi, START_ITER)
+    x, _ = solve(min(runs, key=lambda run: run[1])[0], free, lay, short, lo, hi, FULL_ITER)  # the first
+    # of least cost
     first_rates = x[lay.n_global:lay.n_global + 3] if d.seg[0] == short.seg[0] else initial_rates(d)[:3]
     rates_back = np.r_[first_rates, initial_rates(d)[3:]]
     return np.r_[x[:layout.n_global], rates_back]

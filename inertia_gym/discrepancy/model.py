@@ -92,14 +92,44 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
     commanded (m, 3) N·m: the command on the grid when already computed (used as is when no
     effect changes what the body receives: the same array, so simulate() passes it once).
     """
-    inertia = np.asarray(inertia, float)
+    return effect_terms(effects, grid, cumulative, h_known, commanded).on(inertia)
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectTerms:
+    """The integrator's inputs that the effects set whatever the body's inertia: Terms without
+    its inertias. true_inertia (3, 3) kg·m²: the inertia an effect sets (None: the body's);
+    change_t s (inf: none) and change (3, 3) kg·m²: an inertia change at change_t and its size;
+    tau, h, dist, damping as in Terms.
+    """
+
+    true_inertia: np.ndarray | None
+    change_t: float
+    change: np.ndarray | None
+    tau: np.ndarray
+    h: np.ndarray
+    dist: np.ndarray
+    damping: np.ndarray
+
+    def on(self, inertia) -> Terms:
+        """The Terms of these effects on the body `inertia` (3, 3) kg·m²."""
+        inertia = np.asarray(inertia, float) if self.true_inertia is None else self.true_inertia
+        after = inertia if self.change is None else inertia + self.change
+        return Terms(inertia, after, self.change_t, self.tau, self.h, self.dist, self.damping)
+
+
+def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
+                 commanded=None) -> EffectTerms:
+    """model_terms' inputs that do not depend on the body's inertia (the same arguments but it):
+    computed once for models that differ in their inertia alone.
+    """
     fields: dict = {}
-    change_t, inertia_after = np.inf, inertia
+    change_t, change, true_inertia = np.inf, None, None
     h = h_known
     damping = _ones(grid.steps)
     for model, params in effects:
         true = model.true_inertia(params)
-        inertia = inertia if true is None else np.asarray(true, float)
+        true_inertia = true_inertia if true is None else np.asarray(true, float)
     applied = cumulative
     if h is not None:
         for model, params in effects:
@@ -110,9 +140,9 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         if clash:
             raise ValueError(f"effects set the same disturbance term {sorted(clash)}")
         fields.update(hook)
-        change = model.inertia_change(params)
-        if change is not None:
-            change_t, inertia_after = float(change[0]), inertia + np.asarray(change[1], float)
+        step = model.inertia_change(params)
+        if step is not None:
+            change_t, change = float(step[0]), np.asarray(step[1], float)
         extra = model.momentum(params, grid.t)
         if extra is not None:
             h = extra if h is None else h + extra
@@ -129,7 +159,7 @@ def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_k
         tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
     if h is None:
         h = _zeros(grid.t.size)
-    return Terms(inertia, inertia_after, change_t, tau, h, pack_fields(fields), damping)
+    return EffectTerms(true_inertia, change_t, change, tau, h, pack_fields(fields), damping)
 
 
 @functools.lru_cache(maxsize=8)
@@ -153,8 +183,8 @@ def _ones(steps: int) -> np.ndarray:
 
 
 def gyro_output(effects, w, t) -> np.ndarray:
-    """What the gyro reads (n, 3) of the true rates w (n, 3) at the sample times t (n,) s under
-    the effects' sensor terms.
+    """What the gyro reads (..., n, 3) of the true rates w (..., n, 3) at the sample times t (n,) s
+    under the effects' sensor terms (leading axes: trajectories of the same model).
     """
     for model, params in effects:
         w = model.gyro(params, w, t)

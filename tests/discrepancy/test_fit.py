@@ -543,7 +543,7 @@ def test_a_fit_asked_again_is_reused_and_rescored_on_recounted_rows(monkeypatch)
     def solve_again(*args, **kwargs):
         raise AssertionError("solved again")
 
-    monkeypatch.setattr(F, "solve", solve_again)
+    monkeypatch.setattr(F, "solve_many", solve_again)  # every solve runs through it
     same = F.fit_model(("viscous_damping",), ("",), d, nominal)
     np.testing.assert_array_equal(same.x, first.x)
     assert same.bic == first.bic
@@ -595,3 +595,49 @@ def test_diagnose_says_an_axis_held_at_its_extreme_at_both_ends():
     given, _ = diagnose(Recording(t, read, meta={"gyro_full_scale_rad_s": 2.7}))
     assert given["clipped_at_ends"] == [] and given["saturated_samples"] > 0
     assert "gyro_full_scale_rad_s" not in markdown(given, [])
+
+
+def _drag_and_bias_layout():
+    """A 1-s toss with a drag and a gyro bias, prepared, its layout and the truth's x."""
+    c_true = np.diag([0.1, 0.1, 0.0]) * np.diag(RACQUET)
+    d = F.prepare(_toss([0.3, 15.0, 0.4], seed=5, effects=Effect("viscous_damping", {"c": c_true.tolist()})))
+    layout = F.Layout.of(("viscous_damping", "gyro_bias"), ("", ""), d)
+    nominal = F.fit_nominal(d)
+    x = np.r_[nominal.x[:6], np.zeros(layout.sizes[0]), [0.01, -0.02, 0.005], nominal.x[6:]]
+    x[layout.slices()[0]] = F.REGISTRY["viscous_damping"].neutral("", d, nominal)
+    return d, layout, x
+
+
+def test_a_batch_predicts_each_model_as_it_predicts_it_alone():
+    """predict builds the effects' terms once per effect parameters and applies the gyro's terms
+    to all trajectories of one model together: a batch mixing inertias, effect parameters and
+    initial rates predicts for each x exactly what that x gives alone."""
+    d, layout, x = _drag_and_bias_layout()
+    xs = np.repeat(x[None], 5, axis=0)
+    xs[1, 0] += 0.05  # another inertia, the same effects
+    xs[2, layout.slices()[1]] += 0.003  # another bias, the same inertia
+    xs[3, layout.n_global] += 0.1  # other initial rates
+    xs[4, 0] += 0.05  # the inertia of the second with the bias of the third
+    xs[4, layout.slices()[1]] += 0.003
+    batch = F.predict(xs, layout, d)
+    for i, xi in enumerate(xs):
+        np.testing.assert_array_equal(batch[i], F.predict(xi[None], layout, d)[0])
+    assert not np.array_equal(batch[0], batch[2])  # the bias is read: the check is not vacuous
+    np.testing.assert_allclose(batch[2] - batch[0], np.broadcast_to([0.003, 0.003, 0.003], batch[0].shape))
+
+
+def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
+    """solve_many integrates the points its solves ask for in one batch, and each iteration
+    tries SPECULATE dampings at once: neither changes a solve's path, bit for bit."""
+    d, layout, x = _drag_and_bias_layout()
+    lb, ub = F._bounds(layout, d)
+    free = F._free(layout, d)
+    starts = [x, x + np.r_[0.1, np.zeros(x.size - 1)], np.where(np.arange(x.size) == 6, x * 2, x)]
+    together = F.solve_many(starts, free, layout, d, lb, ub, F.FULL_ITER)
+    for speculate in (1, 2, 3):
+        monkeypatch.setattr(F, "SPECULATE", speculate)
+        for x0, (x_batch, cost_batch) in zip(starts, together):
+            x_alone, cost_alone = F.solve(x0, free, layout, d, lb, ub, F.FULL_ITER)
+            np.testing.assert_array_equal(x_alone, x_batch)
+            assert cost_alone == cost_batch
+    assert together[0][1] < float(np.sum(F.objective(x[None], layout, d) ** 2))  # the solves moved
