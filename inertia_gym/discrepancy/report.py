@@ -34,6 +34,7 @@ from inertia_gym.discrepancy.fit import (
     polished,
     prepare,
     ranked,
+    rounding_checked,
     rounding_floors,
     rounding_runs,
     select,
@@ -367,7 +368,9 @@ def _fits(rec: Recording):
 
     Impulses at the ends are located on the nominal fit's residual and, once the explanation
     has taken the smooth misfit away, again on the compound fit's (where a small impulse stands
-    out); a second trim repeats the fits on the trimmed record.
+    out); a second trim repeats the fits on the trimmed record. On a coarsely rounded record
+    (rounding_floors), the explanation's effects are then checked against the rounding
+    (rounding_checked), which raises the floors of those it checks alone.
     Returns (data, nominal, singles ranked, skipped, explanation).
     """
     d = prepare(rec)
@@ -400,6 +403,9 @@ def _fits(rec: Recording):
         nominal = finish(nominal.layout, nominal.x, d, nominal.k)
         fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
+    if floors and chosen.fit is not None:  # each effect it claims against the rounding, over more draws
+        chosen, alone = rounding_checked(d, nominal, chosen, fits)
+        d = dataclasses.replace(d, rounding_floor={n: max(f, alone.get(n, 0.0)) for n, f in floors.items()})
     if chosen.fit is not None:  # the fit the report reads its inertia and intervals from (the
         # selection's delta BICs, chosen.added, are kept as selected)
         chosen = dataclasses.replace(chosen, chain=chosen.chain[:-1] + tuple(polished([chosen.fit], d)))
