@@ -116,16 +116,21 @@ def pooled_delta_bic(reports: list[dict]) -> dict:
     effects with a valid single fit in every one (a report's `effects`): the BIC by which the
     effect present in every recording, its parameters each recording's own, beats none, since
     independent recordings' BICs add. The effect that leads one recording may explain little in
-    the others; this is what they say together. {} for fewer than two reports.
+    the others; this is what they say together. On a recording whose gyro's rounding alone gives
+    an effect a gain (its `noise.rounding_floor`, recounted with `independent_row_share` as the
+    report's margins are), that gain is taken off first: summed over recordings it would read as
+    physics. {} for fewer than two reports.
     """
     if len(reports) < 2:
         return {}
     sums: dict = collections.defaultdict(float)
     counts: collections.Counter = collections.Counter()
     for report in reports:
+        noise = report.get("noise") or {}
+        floors, share = noise.get("rounding_floor") or {}, noise.get("independent_row_share", 1.0)
         for effect in report["effects"]:
             if effect["delta_bic"] is not None:
-                sums[effect["name"]] += effect["delta_bic"]
+                sums[effect["name"]] += effect["delta_bic"] - share * floors.get(effect["name"], 0.0)
                 counts[effect["name"]] += 1
     return dict(sorted(((name, total) for name, total in sums.items() if counts[name] == len(reports)),
                        key=lambda item: -item[1]))

@@ -180,6 +180,25 @@ def test_pooled_delta_bic_sums_each_effects_single_fits_over_the_recordings():
     assert "no effect improves the BIC" in diagnoses_markdown(diagnoses_across(worse, []))
 
 
+def test_pooled_delta_bic_takes_off_what_a_coarse_gyros_rounding_alone_gives_each_effect():
+    """A recording whose gyro rounds its samples as a function of the rate reports what each
+    effect gains from that rounding alone (noise.rounding_floor), recounted with the rows'
+    independent share: pooled, that part is taken off, so that recordings whose effects only
+    trace their rounding do not add up to a claim."""
+    def coarse(gain, floor, share):
+        report = _report([], [1] * 3, [1] * 3, [1, 0.93, 0.07],
+                         singles={"gyro_scale": gain, "gyro_bias": 4.0})
+        report["noise"] = {"rounding_floor": {"gyro_scale": floor}, "independent_row_share": share}
+        return report
+
+    done = [("a", coarse(40.0, 70.0, 0.5)), ("b", coarse(25.0, 30.0, 0.8))]
+    out = diagnoses_across(done, [])
+    assert out["pooled_delta_bic"] == {"gyro_bias": 8.0, "gyro_scale": pytest.approx(40 - 35 + 25 - 24)}
+    assert "best read as `gyro_bias`" in diagnoses_markdown(out)
+    plain = [(n, _report([], [1] * 3, [1] * 3, [1, 0.93, 0.07], singles={"gyro_scale": 40.0})) for n in "ab"]
+    assert diagnoses_across(plain, [])["pooled_delta_bic"] == {"gyro_scale": 80.0}  # no floors: as summed
+
+
 @pytest.mark.parametrize("tilts, one", [((2.0, -3.0, 5.0, 1.0), True), ((2.0, 35.0, 50.0, 70.0), False)])
 def test_momentum_axes_say_whether_one_rotor_fixed_in_the_body_would_explain_them(tilts, one):
     """internal_momentum's axes over several recordings, each tilted from z by a known angle (the
