@@ -293,12 +293,14 @@ def score(case: SpacecraftCase, report: dict) -> dict:
     }
 
 
-def run_case(case: SpacecraftCase, folder: Path, stamp_scatter: float = 0.0) -> dict:
+def run_case(case: SpacecraftCase, folder: Path, stamp_scatter: float = 0.0, gyro_step: float = 0.0) -> dict:
     """Simulate, write the recording, read it back, diagnose it and score the report.
     nominal_error: ||J_vehicle - J_nominal||_F / ||J_nominal||_F, J_vehicle Basilisk's
     rigid-equivalent inertia with slosh and panels at rest. stamp_scatter: the logged time
     stamps are off the sampling instants by uniform draws within +-stamp_scatter x the
-    interval (a logger stamping when software reads the gyro; seeded by the case).
+    interval (a logger stamping when software reads the gyro; seeded by the case). gyro_step:
+    the gyro's rates rounded to a lattice of gyro_step x its noise level (telemetry read
+    coarsely; the sidecar keeps its gyro_sigma, as a datasheet gives it); 0: in full.
     """
     t0 = time.perf_counter()
     run = simulate(case)
@@ -307,6 +309,9 @@ def run_case(case: SpacecraftCase, folder: Path, stamp_scatter: float = 0.0) -> 
     if stamp_scatter > 0:
         scatter = np.random.default_rng([case.seed, 7]).uniform(-stamp_scatter, stamp_scatter, rec.t.size)
         rec = dataclasses.replace(rec, t=rec.t + scatter * case.sample_dt)
+    if gyro_step > 0:
+        step = gyro_step * case.gyro_sigma
+        rec = dataclasses.replace(rec, w=np.round(rec.w / step) * step)
     path = folder / f"{case.name}.csv"
     write_recording(path, rec, run.sidecar)
     (rec,) = read_recordings(path)
@@ -343,9 +348,13 @@ def main() -> None:
     ap.add_argument("--cases", default="", help="comma-separated case names (default: the subset)")
     ap.add_argument("--stamp-scatter", type=float, default=0.0,
                     help="log time stamps off the sampling instants by up to this share of the interval")
+    ap.add_argument("--gyro-step", type=float, default=0.0,
+                    help="round the gyro rates to a lattice of this many times its noise level (0: in full)")
     args = ap.parse_args()
     if not 0.0 <= args.stamp_scatter < 0.5:
         raise SystemExit(f"--stamp-scatter must be in [0, 0.5), got {args.stamp_scatter}")
+    if args.gyro_step < 0:
+        raise SystemExit(f"--gyro-step must be >= 0, got {args.gyro_step}")
     todo = cases(args.duration)
     wanted = set(filter(None, args.cases.split(","))) or (set(SMOKE) if args.subset == "smoke" else None)
     if wanted:
@@ -357,7 +366,7 @@ def main() -> None:
     t0 = time.perf_counter()
     rows = []
     for case in todo:
-        row = run_case(case, out / "recordings", args.stamp_scatter)
+        row = run_case(case, out / "recordings", args.stamp_scatter, args.gyro_step)
         rows.append(row)
         print(f"{row['case']:34s} {','.join(row['components']) or 'control':28s} -> "
               f"{','.join(row['named']) or 'none':40s} {'ok' if row['correct'] else 'WRONG'} "
@@ -367,7 +376,7 @@ def main() -> None:
     totals = {"cases": len(concealed), "cases_correct": sum(r["correct"] for r in concealed),
               "controls": len(controls), "controls_clean": sum(r["correct"] for r in controls),
               "wall_s": time.perf_counter() - t0, "duration_s": args.duration,
-              "stamp_scatter": args.stamp_scatter}
+              "stamp_scatter": args.stamp_scatter, "gyro_step": args.gyro_step}
     (out / "basilisk_harness.json").write_text(json.dumps({"totals": totals, "rows": rows}, indent=1) + "\n")
     table = markdown(rows, totals)
     (out / "basilisk_harness.md").write_text(table)
