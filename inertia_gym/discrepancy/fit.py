@@ -2044,7 +2044,7 @@ ROUNDING_RUNS = 2.0
 #: by random fractions of a step (what a fit gains from the rounding scatters with the lattice's
 #: place: from below 0 to 740 over four shifts of one record)
 ROUNDING_DRAWS = 4
-#: The rounded records rounding_checked reads for each effect of a compound explanation: its
+#: The rounded records rounding_checked reads for each effect of an explanation: its
 #: refits start from the data's fits and take a fraction of a single effect's search, so enough
 #: draws that their most is the 95th percentile of what the rounding gives an effect there
 ROUNDING_CHECK_DRAWS = 19
@@ -2210,6 +2210,7 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
             cost = others.bic - fit.bic
             if cost > reach:  # beyond anything the rounding gives: kept unchecked
                 continue
+            need = (cost - SIGNIFICANT_DELTA_BIC) / d.effective_share  # the gain that drops it
             layout, x = _moved_last(fit, i, d)
             neutral = x.copy()
             neutral[layout.slices()[-1]] = REGISTRY[name].neutral(fit.forms[i], d, others)
@@ -2219,11 +2220,11 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
                 with_it = min((_refit(layout, x0, rounded) for x0 in (x, neutral)), key=lambda f: f.bic)
                 if np.isfinite(without.bic - with_it.bic):
                     gain = max(gain, float(without.bic - with_it.bic))
-                if cost <= SIGNIFICANT_DELTA_BIC + d.effective_share * gain:
+                if gain >= need:
                     break  # dropped whatever the other draws give
             if not rest:
                 alone[name] = gain
-            if cost <= SIGNIFICANT_DELTA_BIC + d.effective_share * gain:
+            if gain >= need:
                 dropped[name] = (f"{'removing it from the explanation' if rest else 'alone it'} improves "
                                  f"the BIC by only {cost:.1f}, where on records of the "
                                  f"{'rest of the explanation' if rest else 'rigid fit'} read through the "
