@@ -1700,9 +1700,11 @@ def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
     return out
 
 
-def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS) -> Explanation:
-    """The compound explanation of lowest BIC of up to three searches (_search): over the singles
-    as fitted (each effect in its best form), and, where that explanation holds an effect in a
+def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS,
+           first: Explanation | None = None) -> Explanation:
+    """The compound explanation of lowest BIC of up to three searches (search): over the singles
+    as fitted (each effect in its best form; `first`, where the caller has run that search), and,
+    where that explanation holds an effect in a
     richer form than its simplest (internal_momentum or viscous_damping varying), over the
     singles with every effect in its simplest form and over the singles as fitted led by the
     runner-up. A rich form can soak up a second effect and lead the greedy search astray (racquet
@@ -1714,7 +1716,7 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     listed led by the effect that explains most alone (_led_by_best_single): the first search's
     own lead, unless the backward check dropped it or another search found the explanation.
     """
-    first = _search(d, nominal, singles, max_effects)
+    first = first or search(d, nominal, singles, max_effects)
     if not first.chain:
         return first
     best = first
@@ -1722,7 +1724,7 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     if any(f != simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
                                           for f in singles]))
-        others = (_search(d, nominal, plain, max_effects), _search(d, nominal, singles, max_effects, lead=1))
+        others = (search(d, nominal, plain, max_effects), search(d, nominal, singles, max_effects, lead=1))
         for other in others:
             if other.chain and _claims_cost(other.fit, d) < _claims_cost(best.fit, d) - TIE_BIC:
                 best = other
@@ -1776,7 +1778,7 @@ def margin_words(d: Data, name: str) -> str:
 
 def _screened(single: Fit, current: Fit, structured: bool, d: Data) -> Fit:
     """The effect of `single` (its single-effect fit) screened on top of the fit `current`
-    (_search's screen): in the form of its single-effect fit, from that fit's parameters or
+    (search's screen): in the form of its single-effect fit, from that fit's parameters or
     from where it changes nothing, whichever fits better, and, for an effect that
     restarts_on_base where the residual left is `structured` (not white), from each of its own
     starts on top of current; the best screen.
@@ -1804,7 +1806,8 @@ def _without(fit: Fit, drop: int, first: Fit, d: Data) -> list[Fit]:
                   {first.name: first})
 
 
-def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: int = 0) -> Explanation:
+def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS,
+           lead: int = 0) -> Explanation:
     """Forward selection over the catalogue, then a backward check.
 
     Step 1 takes the best single-effect fit (the lead-th best with lead > 0) if it beats the
@@ -1855,7 +1858,7 @@ def _search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int, lead: i
 
 def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[str],
              max_effects: int) -> tuple[Fit, list[Fit]]:
-    """_search's forward steps from the fit current (chain: its prefixes): each adds the effect of
+    """The forward steps of `search` from the fit current (chain: its prefixes): each adds the effect of
     pool that improves the BIC most, by more than the margin; at most max_effects in all.
     Returns the last fit and its chain.
     """
@@ -1884,7 +1887,7 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
 
 def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: dict,
               dropped: dict) -> tuple[Fit, list[Fit], list[str]]:
-    """_search's backward check on the fit current (chain: its prefixes): the explanation without
+    """The backward check of `search` on the fit current (chain: its prefixes): the explanation without
     each of its effects, the first whose removal costs at most the margin dropped (its reason
     written into dropped), until none is. Returns the fit left, its chain, and the names dropped.
     """

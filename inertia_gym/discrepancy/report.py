@@ -37,6 +37,7 @@ from inertia_gym.discrepancy.fit import (
     rounding_checked,
     rounding_floors,
     rounding_runs,
+    search,
     select,
     sparse_terms,
 )
@@ -368,7 +369,8 @@ def _fits(rec: Recording):
 
     Impulses at the ends are located on the nominal fit's residual and, once the explanation
     has taken the smooth misfit away, again on the compound fit's (where a small impulse stands
-    out); a second trim repeats the fits on the trimmed record. On a coarsely rounded record
+    out): the first search's, then, where that shows none, the selected one's; a second trim
+    repeats the fits on the trimmed record. On a coarsely rounded record
     (rounding_floors), the explanation's effects are then checked against the rounding
     (rounding_checked), which raises the floors of those it checks alone.
     Returns (data, nominal, singles ranked, skipped, explanation).
@@ -390,8 +392,11 @@ def _fits(rec: Recording):
             floors = rounding_floors(d, nominal, [f.name for f in fits])  # every candidate's: each
             # is screened on top of the others, significant alone or not
         d = dataclasses.replace(d, rounding_floor=floors)
-        chosen = select(d, nominal, fits)
-        more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
+        first = search(d, nominal, fits)
+        more = impulses(d, first.fit) if first.fit is not None and attempt == 0 else (0, 0)
+        if not any(more):  # select's other searches run only on the record as it stays
+            chosen = select(d, nominal, fits, first=first)
+            more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
         if not any(more):
             break
         trim = (max(trim[0], more[0]), max(trim[1], more[1]))

@@ -29,11 +29,11 @@ from inertia_gym.discrepancy.fit import (
     _chain,
     _claims_cost,
     _led_by_best_single,
-    _search,
     fit_effect,
     fit_nominal,
     initial_rates,
     prepare,
+    search,
     whitened,
 )
 from inertia_gym.discrepancy.recordings import Recording, read_recordings
@@ -537,8 +537,8 @@ def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
     momentum, 476.6. The runner-up's search finding the better explanation is tested on a rotor
     throw below and on Basilisk's slosh with a hidden torque (test_basilisk.py)."""
     d, nominal, singles, _, chosen = _fits(racquet_toss("round2", 3))
-    first = _search(d, nominal, singles, MAX_EFFECTS)
-    runner_up = _search(d, nominal, singles, MAX_EFFECTS, lead=1)
+    first = search(d, nominal, singles, MAX_EFFECTS)
+    runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
     assert first.fit.names[0] == singles[0].name
     cost = _claims_cost(chosen.fit, d)
     assert cost <= min(_claims_cost(first.fit, d), _claims_cost(runner_up.fit, d)) + TIE_BIC
