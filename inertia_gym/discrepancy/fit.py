@@ -1153,15 +1153,38 @@ class Probe:
         return np.concatenate([head, p, b.x[b.layout.n_global:]])
 
     def own_starts(self) -> list[np.ndarray]:
-        """The new effect's own starts (EffectModel.starts) as joint vectors x; kept in d.cache
+        """The new effect's own starts (EffectModel.starts) as joint vectors x, each segment's
+        initial rates the base's or its first gyro sample's (with_segment_rates); kept in d.cache
         for the same base on the same rows (a second search asks them again).
         """
         key = ("starts", self.layout, *_rows_and_base(self.d, self.base))
         if key not in self.d.cache:
             model, form = self.layout.models[-1], self.layout.forms[-1]
-            self.d.cache[key] = [s if s.size == self.layout.size else self.x(s)
-                                 for s in model.starts(form, self.d, self)]
+            self.d.cache[key] = self.with_segment_rates([s if s.size == self.layout.size else self.x(s)
+                                                         for s in model.starts(form, self.d, self)])
         return [x.copy() for x in self.d.cache[key]]
+
+    def with_segment_rates(self, xs) -> list[np.ndarray]:
+        """Each joint x with, segment by segment, its initial rates or the segment's first gyro
+        sample (initial_rates), whichever leaves that segment's rows the smaller residual.
+
+        The base's rates were fitted without the new effect and bent to stand in for it: on a
+        300-s record of five segments whose only misfit is an internal momentum, the momentum's
+        equation-error start (within 2 % of the truth) with the nominal fit's rates cost 9993 in
+        BIC more than no momentum at all, and the fit stalled at a gain of 821 where the truth
+        gains 93324; from the first samples' rates it reaches the truth.
+        """
+        d, n = self.d, self.layout.n_global
+        measured = [np.concatenate([x[:n], initial_rates(d)]) for x in xs]
+        z = whitened(np.stack([*xs, *measured]), self.layout, d)
+        z = np.clip(np.nan_to_num(z, nan=1e6), -1e6, 1e6)  # a start that blew up costs a lot, finitely
+        rows = np.einsum("brk,brk->br", z, z)
+        cost = np.stack([np.bincount(d.row_seg, weights=r, minlength=d.segments) for r in rows])
+        out = []
+        for i, x in enumerate(xs):
+            take = np.repeat(cost[len(xs) + i] < cost[i], 3)
+            out.append(np.concatenate([x[:n], np.where(take, measured[i][n:], x[n:])]))
+        return out
 
     @property
     def few_segments(self) -> bool:
