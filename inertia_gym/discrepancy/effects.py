@@ -139,12 +139,11 @@ class EffectModel:
     "inertia", reason) pairs that the data may not separate), ``sets_inertia`` (the effect's
     parameters are the inertia itself: the base inertia is then not fitted), ``family`` (the
     physical cause, shared by effects that model it at different fidelity, e.g. linear and
-    quadratic drag), ``restarts_on_base`` (the forms in which the forward selection also tries
-    the effect's own starts found on top of the fit it is added to, and refits it jointly
-    wherever structure is left: a mode's frequency screen, which a larger effect beside it
-    leads astray when run on the nominal fit alone; a momentum's equation-error estimate, which
-    a screen from its single fit's parameters, biased by the effect beside it, does not reach),
-    ``optional`` (parameters a
+    quadratic drag), ``restarts_on_base`` (the forward selection also tries the effect's own
+    starts found on top of the fit it is added to, and refits it jointly wherever structure is
+    left: a mode's frequency screen, which a larger effect beside it leads astray when run on the
+    nominal fit alone; a momentum's equation-error estimate, which a screen from its single
+    fit's parameters, biased by the effect beside it, does not reach), ``optional`` (parameters a
     truth Effect may leave out, with the value they then take), ``keeps_invariants`` (the
     effect acts on the body only as a torque, or as dissipation inside it: |J w + h| and
     w.J w / 2 of the measured rates stay the body's momentum and energy, so the invariants may
@@ -166,7 +165,7 @@ class EffectModel:
     ROWS_PER_KNOT: ClassVar[int] = 0
     KNOTS: ClassVar[tuple[int, int]] = (0, 0)
     varying_ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
-    restarts_on_base: ClassVar[tuple[str, ...]] = ()
+    restarts_on_base: ClassVar[bool] = False
     optional: ClassVar[dict] = {}
     keeps_invariants: ClassVar[bool] = False
 
@@ -532,10 +531,8 @@ class InternalMomentum(EffectModel):
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
     #: screened on top of a gyro bias from its single fit's momentum (fitted with the bias
     #: missing), a constant momentum gained nothing and was never refitted; from its own start
-    #: it adds 1845 in BIC there (tests/discrepancy/test_fit.py). Not the varying form: refitted
-    #: on every structured fit, it took up an independent simulator's hidden constant torque
-    #: beside a hinged panel (Basilisk's pair_panel_torque, a profile for a constant torque)
-    restarts_on_base = ("constant",)
+    #: it adds 1845 in BIC there (tests/discrepancy/test_fit.py)
+    restarts_on_base = True
     varying_ambiguities = (("external torque", (
         "a momentum changing along one body axis acts on the rates as a torque about that axis; "
         "without the rotor's momentum logged (h columns), an external torque about a fixed body "
@@ -1051,7 +1048,7 @@ class FlexibleMode(EffectModel):
 
     name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0"),
                                   7, "internal motion")
-    restarts_on_base = ("",)
+    restarts_on_base = True
     optional = {"eta0": 0.0, "eta_dot0": 0.0}
 
     @override
