@@ -140,10 +140,8 @@ class EffectModel:
     parameters are the inertia itself: the base inertia is then not fitted), ``family`` (the
     physical cause, shared by effects that model it at different fidelity, e.g. linear and
     quadratic drag), ``restarts_on_base`` (the forward selection also tries the effect's own
-    starts found on top of the fit it is added to, and refits it jointly wherever structure is
-    left: a mode's frequency screen, which a larger effect beside it leads astray when run on the
-    nominal fit alone; a momentum's equation-error estimate, which a screen from its single
-    fit's parameters, biased by the effect beside it, does not reach), ``optional`` (parameters a
+    starts found on top of the fit it is added to: a mode's frequency screen, which a larger
+    effect beside it leads astray when run on the nominal fit alone), ``optional`` (parameters a
     truth Effect may leave out, with the value they then take), ``keeps_invariants`` (the
     effect acts on the body only as a torque, or as dissipation inside it: |J w + h| and
     w.J w / 2 of the measured rates stay the body's momentum and energy, so the invariants may
@@ -529,10 +527,6 @@ class InternalMomentum(EffectModel):
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
-    #: screened on top of a gyro bias from its single fit's momentum (fitted with the bias
-    #: missing), a constant momentum gained nothing and was never refitted; from its own start
-    #: it adds 1845 in BIC there (tests/discrepancy/test_fit.py)
-    restarts_on_base = True
     varying_ambiguities = (("external torque", (
         "a momentum changing along one body axis acts on the rates as a torque about that axis; "
         "without the rotor's momentum logged (h columns), an external torque about a fixed body "
