@@ -7,6 +7,8 @@ could not do (a fast toss at 100 Hz, a rotor with its momentum withheld).
 from __future__ import annotations
 
 import dataclasses
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +24,9 @@ from inertia_gym.errors import RecordingError
 from inertia_gym.identification import _clip_hint
 from inertia_gym.scenario import Scenario
 from inertia_gym.sensors import quantisation_step
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+from slow_tumble_pairs import slow_tumble  # noqa: E402
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -354,17 +359,11 @@ def test_an_impulse_the_first_searchs_explanation_uncovers_is_trimmed_before_the
 
 
 def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
-    """300 s of a small body tumbling at ~0.3 rad/s (10 Hz, five segments) with a constant
-    internal momentum of ~4 % of its own, the true inertia as the sidecar's nominal; and the
-    momentum (3,) kg·m²/s. Found by a fuzz: its diagnosis named a constant torque, a varying
-    momentum and a flexible mode."""
-    rng = np.random.default_rng(202)
-    inertia = ((0.1, 0.002, -0.001), (0.002, 0.12, 0.003), (-0.001, 0.003, 0.05))
-    sc = Scenario(inertia_true=inertia, inertia_guess=inertia, omega0=tuple(rng.normal(0, 0.15, 3)),
-                  gyro_sigma=5e-4, dt=0.1, tau_max=2e-4)
-    rec, side = simulate_recording(sc, 300.0, "internal_momentum", seed=2, torque=False, sample_dt=0.1)
-    meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "gyro_sigma")}
-    return dataclasses.replace(rec, meta=meta), np.asarray(side["effect"]["params"]["h"])
+    """The slow tumble of scripts/slow_tumble_pairs.py with a constant internal momentum of ~4 %
+    of the body's own; and the momentum (3,) kg·m²/s. Found by a fuzz: its diagnosis named a
+    constant torque, a varying momentum and a flexible mode."""
+    rec, truth = slow_tumble("internal_momentum", 2, 202)
+    return rec, np.asarray(truth["internal_momentum"]["h"])
 
 
 def test_a_start_takes_each_segments_rates_from_its_first_sample_where_they_fit_it_better():
