@@ -132,6 +132,8 @@ def simulate_recording(scenario: Scenario, duration: float, effect_name: str | l
     gets its h columns (exact, noise-free) and the sidecar its `rotor` truth. The axis is the
     seed's last draw, so every other output of a seed is the same with or without the rotor.
     Returns the recording and its sidecar dict (inertia_nominal, noise levels, effect truth).
+    The sidecar's inertia_nominal is the scenario's TRUE inertia (inertia_true; inertia_guess is
+    not used): a wrong nominal is the `inertia_offset` effect's truth, or a sidecar edited after.
     """
     if not (np.isfinite(duration) and duration > 0):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
