@@ -17,10 +17,9 @@ import json
 import time
 
 import numpy as np
+from slow_tumble_pairs import slow_tumble
 
 from inertia_gym.discrepancy.report import diagnose
-from inertia_gym.discrepancy.synthetic import simulate_recording
-from inertia_gym.scenario import Scenario
 
 #: (effect or None, noise rad/s, seeds)
 CASES = ((None, 5e-4, range(6)), (None, 2.5e-3, range(4)), ("internal_momentum", 5e-4, range(3)),
@@ -29,16 +28,11 @@ CASES = ((None, 5e-4, range(6)), (None, 2.5e-3, range(4)), ("internal_momentum",
 
 def slow_tumble_read_coarsely(seed: int, effect: str | None, duration: float = 600.0, noise: float = 5e-4,
                               step: float = 0.01):
-    """A small body tumbling at ~0.15 rad/s, sampled at 10 Hz for `duration` s, no torque, its
-    gyro (noise 5e-4 rad/s: runs of 5-18 equal samples) read in steps of 0.01 rad/s (0: in
-    full) and no gyro_sigma given: the rounding error a function of the rate."""
-    rng = np.random.default_rng(100 + seed)
-    inertia = ((0.1, 0.002, -0.001), (0.002, 0.12, 0.003), (-0.001, 0.003, 0.05))
-    sc = Scenario(inertia_true=inertia, inertia_guess=inertia, omega0=tuple(rng.normal(0, 0.15, 3)),
-                  gyro_sigma=noise, dt=0.1, tau_max=2e-4)
-    rec, _ = simulate_recording(sc, duration, effect, seed=seed, torque=False, sample_dt=0.1)
-    meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "gyro_sigma")}
-    return dataclasses.replace(rec, w=np.round(rec.w / step) * step if step else rec.w, meta=meta)
+    """slow_tumble_pairs.slow_tumble's body (rates drawn with seed 100 + seed) sampled at 10 Hz
+    for `duration` s, its gyro (noise 5e-4 rad/s: runs of 5-18 equal samples) read in steps of
+    0.01 rad/s (0: in full) and no gyro_sigma given: the rounding error a function of the rate."""
+    rec, _ = slow_tumble(effect, seed, 100 + seed, duration=duration, noise=noise)
+    return dataclasses.replace(rec, w=np.round(rec.w / step) * step if step else rec.w)
 
 
 def main() -> None:

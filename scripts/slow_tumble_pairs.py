@@ -4,7 +4,7 @@ inertia as the sidecar's nominal, no gyro_sigma given; each record diagnosed onc
 effects are named, the explanation with its forms and gains, the worst axis's rms over the noise.
 
 Usage: PYTHONPATH=. python scripts/slow_tumble_pairs.py [--out OUT.json]
-Cases: five pairs, seeds 0-2 (about 3 minutes on this 2-core machine).
+Cases: five pairs, seeds 0-2 (about 4 minutes on this 2-core machine).
 """
 
 from __future__ import annotations
@@ -26,17 +26,19 @@ PAIRS = (("internal_momentum", "gyro_bias"), ("internal_momentum", "constant_bod
          ("internal_momentum", "viscous_damping"))
 
 
-def slow_tumble(effects, seed: int, omega_seed: int) -> tuple[Recording, dict]:
-    """300 s of a small body tumbling at ~0.3 rad/s (initial rates drawn with omega_seed), no
-    torque, with the effects (a name or a list, drawn with seed), the true inertia as the
-    sidecar's nominal; and the effects' true parameters by name."""
+def slow_tumble(effects, seed: int, omega_seed: int, duration: float = 300.0,
+                noise: float = 5e-4) -> tuple[Recording, dict]:
+    """`duration` s at 10 Hz of a small body tumbling at ~0.3 rad/s (initial rates drawn with
+    omega_seed), no torque, gyro noise `noise` rad/s, with the effects (None, a name or a list,
+    drawn with seed), the true inertia as the sidecar's nominal and no gyro_sigma in it; and the
+    effects' true parameters by name."""
     rng = np.random.default_rng(omega_seed)
     inertia = ((0.1, 0.002, -0.001), (0.002, 0.12, 0.003), (-0.001, 0.003, 0.05))
     sc = Scenario(inertia_true=inertia, inertia_guess=inertia, omega0=tuple(rng.normal(0, 0.15, 3)),
-                  gyro_sigma=5e-4, dt=0.1, tau_max=2e-4)
-    rec, side = simulate_recording(sc, 300.0, effects, seed=seed, torque=False, sample_dt=0.1)
+                  gyro_sigma=noise, dt=0.1, tau_max=2e-4)
+    rec, side = simulate_recording(sc, duration, effects, seed=seed, torque=False, sample_dt=0.1)
     meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects", "gyro_sigma")}
-    truth = {e["name"]: e["params"] for e in side.get("effects", [side["effect"]])}
+    truth = {e["name"]: e["params"] for e in side.get("effects") or [side["effect"]] if e}  # None: no effect
     return dataclasses.replace(rec, meta=meta), truth
 
 
