@@ -1802,8 +1802,8 @@ def margin_words(d: Data, name: str) -> str:
 def _screened(single: Fit, current: Fit, structured: bool, d: Data) -> Fit:
     """The effect of `single` (its single-effect fit) screened on top of the fit `current`
     (search's screen): in the form of its single-effect fit, from that fit's parameters or
-    from where it changes nothing, whichever fits better, and, for an effect that
-    restarts_on_base where the residual left is `structured` (not white), from each of its own
+    from where it changes nothing, whichever fits better, and, for an effect in a form it
+    restarts_on_base in, where the residual left is `structured` (not white), from each of its own
     starts on top of current; the best screen.
     """
     name, form = single.name, single.forms[0]
@@ -1813,7 +1813,7 @@ def _screened(single: Fit, current: Fit, structured: bool, d: Data) -> Fit:
     model = REGISTRY[name]
     starts = probe.best_x([probe.x(single.x[single.layout.slices()[0]]),
                            probe.x(model.neutral(form, d, current))])
-    if model.restarts_on_base and structured:  # its own starts, on top of the current fit
+    if form in model.restarts_on_base and structured:  # its own starts, on top of the current fit
         starts += probe.own_starts()
     screened = [fit_model(layout.names, layout.forms, d, current, joint=False, start=start,
                           omega_max=layout.omega_max) for start in starts]
@@ -1837,8 +1837,8 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     nominal by its claim_margin (SIGNIFICANT_DELTA_BIC, more on a coarsely rounded record).
     Each further step fits every remaining candidate's own parameters on top of the current
     fit (everything else held: a screen, started from the candidate's single-effect fit or
-    from its neutral parameters, whichever fits better, and for an effect that
-    restarts_on_base also, where the current fit's residual is not white (effective_share < 1),
+    from its neutral parameters, whichever fits better, and for an effect in a form it
+    restarts_on_base in also, where the current fit's residual is not white (effective_share < 1),
     from each of its own starts found on top of the current fit, the best screen kept),
     refits the REFIT_SCREENED best (and any that restarts_on_base) jointly with the inertia and
     the effects already chosen,
@@ -1896,8 +1896,8 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         # and, where structure is left, every effect that restarts_on_base (a mode: its screen,
         # with the rates held that it trades with, says little of what it explains jointly)
         leading = sorted(trials, key=lambda t: t.bic)
-        leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:]
-                                              if structured and REGISTRY[t.names[-1]].restarts_on_base]
+        leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:] if structured
+                                              and t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
         refits = fanned(fit_model, d, [{"names": t.names, "forms": t.forms, "base": current, "start": t.x,
                                         "omega_max": t.layout.omega_max} for t in leading])
         best = min(refits, key=lambda f: f.bic)

@@ -366,6 +366,22 @@ def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
     return rec, np.asarray(truth["internal_momentum"]["h"])
 
 
+@pytest.mark.slow
+def test_a_momentum_beside_a_gyro_bias_is_found_from_its_own_start():
+    """A gyro bias and a constant momentum: screened on top of the bias from its single fit's
+    momentum (fitted with the bias missing), the momentum gained nothing, was never refitted,
+    and an inertia offset stood in for it (1801 in BIC where the momentum adds 1845): its own
+    start on top of the bias is tried too (restarts_on_base)."""
+    rec, truth = slow_tumble(["internal_momentum", "gyro_bias"], 0, 300)
+    report, _ = diagnose(rec)
+    named = {e["name"]: e for e in report["explanation"]}
+    assert set(named) == {"gyro_bias", "internal_momentum"}
+    assert named["internal_momentum"]["form"] == "constant"
+    h = np.asarray(truth["internal_momentum"]["h"])
+    assert np.linalg.norm(np.asarray(named["internal_momentum"]["params"]["h"]) - h) < 0.1 * np.linalg.norm(h)
+    assert max(report["fit_after"]["rms_over_noise"]) < 1.1
+
+
 def test_a_start_takes_each_segments_rates_from_its_first_sample_where_they_fit_it_better():
     """The nominal fit's rates are bent to stand in for what it lacks: the momentum's equation-error
     start (within 2 % of the truth) with them cost more than no momentum at all and its fit stalled
@@ -400,12 +416,25 @@ def _rotor_recording(seed=5):
 
 @pytest.mark.slow
 def test_a_rotor_withheld_is_named_with_its_axis_and_not_claimed_when_logged():
+    """A rotor spinning up and braking, 0.5 (1 - cos 2 pi t / T) over the record T, withheld: the
+    momentum the explanation draws lies along the rotor's axis. That profile is a constant and
+    one cycle of a cosine, which a constant momentum beside an undamped mode of period T
+    coupled along the axis draws exactly, with 10 parameters to the varying momentum's 24: where
+    the explanation reads it so, the mode is that slow and says it is confounded with the
+    momentum (a spin-up that is no cosine: tests/discrepancy/test_spin_up*.py)."""
     rec, axis = _rotor_recording()
     report, _ = diagnose(dataclasses.replace(rec, h=None))
-    first = report["explanation"][0]
-    assert first["name"] == "internal_momentum" and first["form"] == "varying"
-    fitted = np.asarray(first["params"]["axis"])
-    assert np.degrees(np.arccos(min(1.0, abs(fitted @ axis)))) < 10.0
+    named = {e["name"]: e for e in report["explanation"]}
+    assert "internal_momentum" in named and set(named) <= {"internal_momentum", "flexible_mode"}
+    momentum = named["internal_momentum"]
+    along = [momentum["params"]["axis" if momentum["form"] == "varying" else "h"]]
+    if "flexible_mode" in named:
+        mode = named["flexible_mode"]
+        assert momentum["form"] == "constant" and 2 * np.pi / mode["params"]["omega_n"] > 0.5 * rec.t[-1]
+        assert "internal_momentum" in {c["with"] for c in mode["confounded_with"]}
+        along.append(mode["params"]["coupling"])
+    for fitted in map(np.asarray, along):
+        assert np.degrees(np.arccos(min(1.0, abs(fitted @ axis) / np.linalg.norm(fitted)))) < 10.0
     assert max(report["fit_after"]["rms_over_noise"]) < 1.5 < min(report["fit_before"]["rms_over_noise"])
     logged, _ = diagnose(rec)
     assert "internal_momentum" in logged["skipped_effects"] and logged["explanation"] == []
