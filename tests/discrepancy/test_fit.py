@@ -26,7 +26,7 @@ from inertia_gym.scenario import Scenario
 from inertia_gym.sensors import quantisation_step
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-from slow_tumble_pairs import slow_tumble  # noqa: E402
+from slow_tumble_pairs import slow_tumble, true_gains  # noqa: E402
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -364,6 +364,21 @@ def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
     constant torque, a varying momentum and a flexible mode."""
     rec, truth = slow_tumble("internal_momentum", 2, 202)
     return rec, np.asarray(truth["internal_momentum"]["h"])
+
+
+def test_the_pairs_harness_measures_what_each_true_effect_shows():
+    """scripts/slow_tumble_pairs.true_gains: a mode at rest in a torque-free tumble, beside a
+    constant torque, is never excited: the truth gains less with it than its 7 parameters cost;
+    the torque gains what the truth without it (fitted from the true parameters) lacks, about
+    what the torque alone gains over the nominal fit."""
+    rec, truth = slow_tumble(["constant_body_torque", "flexible_mode"], 0, 300)
+    d = F.prepare(rec)
+    nominal = F.fit_nominal(d)
+    gains = true_gains(truth, d, nominal)
+    assert gains["flexible_mode"] < 0
+    assert gains["constant_body_torque"] > 100 * F.claim_margin(d, "constant_body_torque")
+    torque_alone = F.fit_model(("constant_body_torque",), ("",), d, nominal)
+    assert gains["constant_body_torque"] > 0.9 * (nominal.bic - torque_alone.bic)
 
 
 @pytest.mark.slow
