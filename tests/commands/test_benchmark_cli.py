@@ -18,6 +18,8 @@ SMALL = ["--agents", "bo,random,ppo,grid", "--seeds", "2", "--budget", "10", "--
          "--eval-seeds", "2", "--val-seeds", "2", "--val-duration", "150", "--no-progress"]
 N_TASKS = 7
 WALL_KEYS = {"wall_s", "score_wall_s"}
+# one xdist worker runs the module: `sequential` (a sweep of ~150 s) is then built once, not in each
+pytestmark = pytest.mark.xdist_group("benchmark_sweep")
 
 
 def without_wall_times(obj):
