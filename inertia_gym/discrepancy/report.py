@@ -654,6 +654,40 @@ def _param_words(name: str, value, ci: dict) -> str:
     return text + ("" if held else f" [{_significant(lo)}, {_significant(hi)}]")
 
 
+#: A slow mode and a momentum read together as one rotor (_rotor_reading): the most their axes
+#: may differ (deg), and the least share of the record the mode's period spans.
+ROTOR_READING = (10.0, 0.5)
+
+
+def _rotor_reading(expl: list[dict], duration: float | None) -> str | None:
+    """The sentence that reads a flexible mode and an internal momentum of the explanation as one
+    rotor, or None: where the mode's period spans at least ROTOR_READING[1] of the record
+    (duration s; None: no reading) and its coupling lies within ROTOR_READING[0] deg of the
+    momentum's axis (its varying form's) or direction. A mode's swing enters the body's
+    equation as a momentum along its coupling, so the two together draw a momentum that rises
+    and falls along that axis (a rotor spun up and braked over a 20-s record as
+    0.5 (1 - cos 2 pi t / 20 s) is read so).
+    """
+    named = {e["name"]: e for e in expl}
+    mode, momentum = named.get("flexible_mode"), named.get("internal_momentum")
+    if mode is None or momentum is None or not duration:
+        return None
+    period = 2.0 * np.pi / float(mode["params"]["omega_n"])
+    along = np.asarray(momentum["params"]["axis" if momentum["form"] == "varying" else "h"], float)
+    coupling = np.asarray(mode["params"]["coupling"], float)
+    norms = np.linalg.norm(along) * np.linalg.norm(coupling)
+    if not norms > 0 or period < ROTOR_READING[1] * duration:
+        return None
+    angle = float(np.degrees(np.arccos(min(1.0, abs(along @ coupling) / norms))))
+    if angle > ROTOR_READING[0]:
+        return None
+    axis = np.round(coupling / np.linalg.norm(coupling), 3).tolist()
+    return (f"flexible_mode (period {period:.3g} s, {period / duration:.2g} of the record) and "
+            f"internal_momentum lie along one body axis {axis} ({angle:.1f} deg apart): a mode's swing "
+            "is a momentum along its coupling, so together they are a momentum that rises and falls "
+            "along that axis, a rotor spinning up and down where the body has one.")
+
+
 def _explanation_words(report: dict) -> str:
     """The compound explanation and what was left out, in sentences."""
     expl = report["explanation"]
@@ -677,6 +711,8 @@ def _explanation_words(report: dict) -> str:
                             "trace)") + ".")
             for c in e["confounded_with"]:
                 text += f"\n\n{e['name']} is confounded with {c['with']}: {c['reason']}."
+        rotor = _rotor_reading(expl, report.get("duration_s"))  # (a hand-made report may lack it)
+        text += f"\n\n{rotor}" if rotor else ""
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
         text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "

@@ -18,7 +18,7 @@ from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, Effect, rotvec_matrix
 from inertia_gym.discrepancy.model import Grid, held_cumulative
 from inertia_gym.discrepancy.recordings import Recording, retimed
-from inertia_gym.discrepancy.report import diagnose, principal_ratios
+from inertia_gym.discrepancy.report import diagnose, markdown, principal_ratios
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
 from inertia_gym.identification import _clip_hint
@@ -447,6 +447,7 @@ def test_a_rotor_withheld_is_named_with_its_axis_and_not_claimed_when_logged():
         mode = named["flexible_mode"]
         assert momentum["form"] == "constant" and 2 * np.pi / mode["params"]["omega_n"] > 0.5 * rec.t[-1]
         assert "internal_momentum" in {c["with"] for c in mode["confounded_with"]}
+        assert "a momentum that rises and falls along that axis" in markdown(report, [])
         along.append(mode["params"]["coupling"])
     for fitted in map(np.asarray, along):
         assert np.degrees(np.arccos(min(1.0, abs(fitted @ axis) / np.linalg.norm(fitted)))) < 10.0
