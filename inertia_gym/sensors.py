@@ -299,6 +299,24 @@ def _off_lattice(steps, reverse: bool = False) -> list[int]:
     return off + pending
 
 
+def read_on_lattice(w, step, shift=0.0) -> np.ndarray:
+    """Rates w (n, 3) rad/s read as a gyro on a lattice of step (3,) rad/s offset by shift (3,)
+    reads them, to the nearest lattice point (step 0: an axis written in full, left as it is).
+    """
+    lattice = np.asarray(step, float) > 0
+    unit = np.where(lattice, step, 1.0)
+    return np.where(lattice, np.round((w + shift) / unit) * unit - shift, w)
+
+
+def repeat_share(w) -> np.ndarray:
+    """(3,) the share of consecutive rows of w (n, 3) whose reading on an axis equals the row
+    before's (0 for fewer than two rows): high where the gyro reads on a lattice coarse beside its
+    noise and the motion between rows.
+    """
+    w = np.asarray(w, float)
+    return np.mean(np.diff(w, axis=0) == 0, axis=0) if len(w) > 1 else np.zeros(3)
+
+
 def stated_gyro_level(stated, step) -> np.ndarray:
     """(3,) rad/s: a stated gyro noise level (a sidecar's gyro_sigma, a number or (3,)) with the
     rounding error of samples quantised in steps `step` (3,) rad/s added (quantisation_step; 0:

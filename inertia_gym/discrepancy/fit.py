@@ -52,7 +52,13 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.sensors import QUANTUM_MIN_VALUES, estimate_white_noise, quantisation_step, stated_gyro_level
+from inertia_gym.sensors import (
+    QUANTUM_MIN_VALUES,
+    estimate_white_noise,
+    quantisation_step,
+    read_on_lattice,
+    stated_gyro_level,
+)
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
 AMBIGUOUS_DELTA_BIC = 6.0
@@ -2095,15 +2101,6 @@ def rounding_runs(d: Data) -> np.ndarray:
 LEVEL_TRIALS = np.linspace(0.0, 1.0, 41)
 
 
-def _rounded(w, step, shift=0.0) -> np.ndarray:
-    """Rates w (n, 3) rad/s read as a gyro on a lattice of step (3,) rad/s offset by shift (3,)
-    reads them (0: an axis written in full, left as it is).
-    """
-    lattice = step > 0
-    unit = np.where(lattice, step, 1.0)
-    return np.where(lattice, np.round((w + shift) / unit) * unit - shift, w)
-
-
 def _third_spread(w) -> np.ndarray:
     """(3,) the mean absolute deviation of the third differences of w (n, 3) from their median:
     the spread lattice_level matches (continuous in the noise, where the median absolute
@@ -2133,7 +2130,7 @@ def lattice_level(d: Data, nominal: Fit) -> Data:
     noise = np.random.default_rng(0).normal(size=rate.shape)
     spreads, levels = [], []
     for share in LEVEL_TRIALS:
-        rounded = _rounded(rate + share * step * noise, step)
+        rounded = read_on_lattice(rate + share * step * noise, step)
         spreads.append(_third_spread(rounded))
         levels.append(np.sqrt(np.mean((rounded - rate) ** 2, axis=0)))
     spreads = np.maximum.accumulate(np.array(spreads), axis=0)  # (trials, 3), made non-decreasing
@@ -2180,7 +2177,7 @@ def _rounding_records(d: Data, fit: Fit, draws: int = ROUNDING_DRAWS):
     rng = np.random.default_rng(0)
     for draw in range(draws):
         shift = rng.uniform(-0.5, 0.5, 3) * step if draw else np.zeros(3)
-        w = _rounded(rate + rng.normal(size=rate.shape) * beneath, step, shift)
+        w = read_on_lattice(rate + rng.normal(size=rate.shape) * beneath, step, shift)
         yield dataclasses.replace(d, w=w, cache={}, rounding_floor={}, effective_share=1.0)
 
 
