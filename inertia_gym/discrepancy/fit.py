@@ -1745,7 +1745,8 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     listed led by the effect that explains most alone (_led_by_best_single): the first search's
     own lead, unless the backward check dropped it or another search found the explanation.
     """
-    first = first or search(d, nominal, singles, max_effects)
+    if first is None:
+        first = search(d, nominal, singles, max_effects)
     if not first.chain:
         return first
     best = first

@@ -393,10 +393,10 @@ def _fits(rec: Recording):
             # is screened on top of the others, significant alone or not
         d = dataclasses.replace(d, rounding_floor=floors)
         first = search(d, nominal, fits)
-        more = impulses(d, first.fit) if first.fit is not None and attempt == 0 else (0, 0)
+        more = _impulses_left(d, first, attempt)
         if not any(more):  # select's other searches run only on the record as it stays
             chosen = select(d, nominal, fits, first=first)
-            more = impulses(d, chosen.fit) if chosen.fit is not None and attempt == 0 else (0, 0)
+            more = _impulses_left(d, chosen, attempt)
         if not any(more):
             break
         trim = (max(trim[0], more[0]), max(trim[1], more[1]))
@@ -415,6 +415,13 @@ def _fits(rec: Recording):
         # selection's delta BICs, chosen.added, are kept as selected)
         chosen = dataclasses.replace(chosen, chain=chosen.chain[:-1] + tuple(polished([chosen.fit], d)))
     return d, nominal, fits, skipped, chosen
+
+
+def _impulses_left(d: Data, expl, attempt: int) -> tuple[int, int]:
+    """Samples (start, end) of the impulses the explanation expl's fit shows at d's ends on the
+    first attempt (fit.impulses); none on the second, or where expl has no fit.
+    """
+    return impulses(d, expl.fit) if expl.fit is not None and attempt == 0 else (0, 0)
 
 
 @kernels_own_the_cores
