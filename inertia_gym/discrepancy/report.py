@@ -15,7 +15,9 @@ from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
     CLIP_ADVICE,
+    LATTICE_REPLAYS,
     MIN_ROWS,
+    ROUNDING_RUNS,
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
@@ -796,8 +798,9 @@ def _shape_words(report: dict) -> list[str]:
 def _noise_words(report: dict) -> list[str]:
     """A warning where the noise level read from the data reads high (_noise_reads_high), or the
     sidecar's level disagrees with the samples' (sensors.stated_noise_note); after the line that
-    the samples' quantisation was added to the sidecar's level, where it was, and the one that
-    the gyro's rounding raised the margin of the effects (fit.rounding_floors), where it did.
+    the samples' quantisation was added to the sidecar's level, where it was, the one that
+    the gyro's rounding raised the margin of the effects (fit.rounding_floors), where it did, and
+    the one that the intervals count the rounding (fit.lattice_spread), where they do.
     """
     noise = report.get("noise", {})  # (a report written before the keys existed has neither)
     said = [f"- {noise['quantisation']}"] if noise.get("quantisation") else []
@@ -812,6 +815,11 @@ def _noise_words(report: dict) -> list[str]:
                     + (", ..." if len(noise["rounding_floor"]) > 3 else "")
                     + "; `noise.rounding_floor`): smaller effects than the rounding hides are not "
                     "claimed")
+    if max(noise.get("rounding_runs") or [0.0]) >= ROUNDING_RUNS:
+        said.append("- the intervals (the principal-moment ratios', the effects' parameters') count the "
+                    "rounding: the spread of the fit's refits on its own prediction read on the gyro's "
+                    f"lattice ({LATTICE_REPLAYS} replays, shifted at random, the noise beneath the step "
+                    "added) is added to their covariance")
     if noise.get("sidecar_disagrees"):
         return said + ["- **the sidecar's noise level disagrees with the data's**: "
                        f"{noise['sidecar_disagrees']}"]
