@@ -2195,7 +2195,7 @@ def lattice_spread(fit: Fit, d: Data, idx) -> np.ndarray:
     correlation counts it: on 600-s tumbles read in steps of 20x the noise the principal ratios'
     95 % intervals held the truth on 1 of 12 without it. The spread holds the noise's share too,
     which the information already counts: a little too wide where the noise outweighs the
-    rounding, never too narrow. Kept in d.cache per fit.
+    rounding. Refits that blow up are left out. Kept in d.cache per fit.
     """
     if not np.any(rounding_runs(d) >= ROUNDING_RUNS) or not np.isfinite(fit.bic):
         return np.zeros((idx.size, idx.size))
@@ -2203,7 +2203,8 @@ def lattice_spread(fit: Fit, d: Data, idx) -> np.ndarray:
     if key not in d.cache:
         gaps = [_refit(fit.layout, fit.x, rec).x[idx] - fit.x[idx]
                 for rec in _rounding_records(d, fit, LATTICE_REPLAYS)]
-        d.cache[key] = sum(np.outer(g, g) for g in gaps) / LATTICE_REPLAYS
+        gaps = [g for g in gaps if np.all(np.isfinite(g))]  # (a refit that blew up says nothing)
+        d.cache[key] = sum((np.outer(g, g) for g in gaps), np.zeros((idx.size, idx.size))) / max(len(gaps), 1)
     return d.cache[key]
 
 
