@@ -65,9 +65,9 @@ from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import (
     estimate_white_noise,
+    lattice_replays,
     quantisation_note,
     quantisation_step,
-    read_on_lattice,
     repeat_share,
     stated_gyro_level,
     stated_noise_note,
@@ -884,12 +884,9 @@ def _lattice_replayed(est: InertiaEstimate, prob: ml.Problem, e_meas, estimate) 
         return est, None
     fitted = w - e_meas
     beneath = np.sqrt(np.maximum(np.mean(e_meas ** 2, axis=0) - step ** 2 / 12.0, 0.0))
-    rng = np.random.default_rng(0)
     trace = float(TRACE_WEIGHTS @ est.theta)
     spread = np.zeros((6, 6))
-    for _ in range(REPLAYS):
-        shift = rng.uniform(-0.5, 0.5, 3) * step
-        read = read_on_lattice(fitted + rng.normal(size=w.shape) * beneath, step, shift)
+    for read in lattice_replays(fitted, beneath, step, REPLAYS, first_unshifted=False):
         replay = estimate(dataclasses.replace(prob, z_w=read))
         theta = replay.theta if est.scale_identified else (
             replay.theta * trace / float(TRACE_WEIGHTS @ replay.theta))

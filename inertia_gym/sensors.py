@@ -308,6 +308,19 @@ def read_on_lattice(w, step, shift=0.0) -> np.ndarray:
     return np.where(lattice, np.round((w + shift) / unit) * unit - shift, w)
 
 
+def lattice_replays(rate, beneath, step, draws: int, first_unshifted: bool):
+    """Yields `draws` replays (n, 3) of rates `rate` (n, 3) rad/s as a gyro on a lattice of step
+    (3,) rad/s would read them: white noise of beneath (3,) rad/s added, read on the lattice
+    (read_on_lattice) shifted by a random fraction of a step (the first unshifted where
+    first_unshifted: the data's own lattice); seeded, the same replays for the same arguments.
+    """
+    rng = np.random.default_rng(0)
+    for draw in range(draws):
+        unshifted = first_unshifted and draw == 0
+        shift = np.zeros(3) if unshifted else rng.uniform(-0.5, 0.5, 3) * step
+        yield read_on_lattice(rate + rng.normal(size=np.shape(rate)) * beneath, step, shift)
+
+
 def repeat_share(w) -> np.ndarray:
     """(3,) the share of consecutive rows of w (n, 3) whose reading on an axis equals the row
     before's (0 for fewer than two rows): high where the gyro reads on a lattice coarse beside its

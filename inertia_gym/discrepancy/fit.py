@@ -55,6 +55,7 @@ from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import (
     QUANTUM_MIN_VALUES,
     estimate_white_noise,
+    lattice_replays,
     quantisation_step,
     read_on_lattice,
     stated_gyro_level,
@@ -2179,10 +2180,7 @@ def _rounding_records(d: Data, fit: Fit, draws: int = ROUNDING_DRAWS):
     step = d.notes["quantisation_step"]
     beneath = np.sqrt(np.maximum(d.sigma ** 2 - step ** 2 / 12.0, 0.0))
     rate = predict(fit.x[None], fit.layout, d)[0]
-    rng = np.random.default_rng(0)
-    for draw in range(draws):
-        shift = rng.uniform(-0.5, 0.5, 3) * step if draw else np.zeros(3)
-        w = read_on_lattice(rate + rng.normal(size=rate.shape) * beneath, step, shift)
+    for w in lattice_replays(rate, beneath, step, draws, first_unshifted=True):
         yield dataclasses.replace(d, w=w, cache={}, rounding_floor={}, effective_share=1.0)
 
 
