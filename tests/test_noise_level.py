@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
 from inertia_gym.discrepancy.report import NOISE_READ_HIGH, diagnose, markdown
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.scenario import Scenario
@@ -257,8 +258,22 @@ def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
                                                         if k != "inertia_nominal"}))
     ci = np.array(report["fit_after"]["principal_ratios_ci95"])
     assert np.all((ci[1:, 0] <= truth[1:] / truth[0]) & (truth[1:] / truth[0] <= ci[1:, 1])), ci
+    assert report["noise"]["lattice_refits"] >= LATTICE_REPLAYS - 1  # at most one refit left out
     assert "the intervals (the principal-moment ratios', the effects' parameters') count the rounding" in \
         markdown(report, [])
+
+
+def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are_counted():
+    """The line follows noise.lattice_refits (how many refits on the lattice the intervals
+    count), not the runs of equal samples alone: where every refit blew up, nothing was added.
+    The bench's toss, written in full, counts none."""
+    report, _ = diagnose(bench_toss(10, True))
+    assert report["noise"]["lattice_refits"] == 0
+    assert "count the rounding" not in markdown(report, [])
+    runs_without_refits = {**report, "noise": {**report["noise"], "rounding_runs": [3.0, 3.0, 3.0]}}
+    assert "count the rounding" not in markdown(runs_without_refits, [])
+    counted = {**report, "noise": {**report["noise"], "rounding_runs": [3.0, 3.0, 3.0], "lattice_refits": 7}}
+    assert f"lattice (7 of {LATTICE_REPLAYS} replays" in markdown(counted, [])
 
 
 @pytest.mark.slow

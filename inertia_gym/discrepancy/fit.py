@@ -2193,16 +2193,30 @@ def lattice_spread(fit: Fit, d: Data, idx) -> np.ndarray:
     correlation counts it: on 600-s tumbles read in steps of 20x the noise the principal ratios'
     95 % intervals held the truth on 1 of 12 without it. The spread holds the noise's share too,
     which the information already counts: a little too wide where the noise outweighs the
-    rounding. Refits that blow up are left out. Kept in d.cache per fit.
+    rounding. Refits that blow up are left out (lattice_refits_counted: how many are not).
+    Kept in d.cache per fit.
     """
+    return _lattice_refits(fit, d, idx)[0]
+
+
+def lattice_refits_counted(fit: Fit, d: Data) -> int:
+    """How many of the LATTICE_REPLAYS refits lattice_spread counts in fit's covariance on d: 0
+    where the gyro reads finely enough, fit has no finite BIC, or every refit blew up.
+    """
+    return _lattice_refits(fit, d, np.flatnonzero(_free(fit.layout, d)[:fit.layout.n_global]))[1]
+
+
+def _lattice_refits(fit: Fit, d: Data, idx) -> tuple[np.ndarray, int]:
+    """lattice_spread's matrix and the number of refits it counts."""
     if not np.any(rounding_runs(d) >= ROUNDING_RUNS) or not np.isfinite(fit.bic):
-        return np.zeros((idx.size, idx.size))
+        return np.zeros((idx.size, idx.size)), 0
     key = ("lattice_spread", fit.names, fit.forms, fit.x.tobytes(), d.sigma.tobytes(), d.row.tobytes())
     if key not in d.cache:
         gaps = [_refit(fit.layout, fit.x, rec).x[idx] - fit.x[idx]
                 for rec in _rounding_records(d, fit, LATTICE_REPLAYS)]
         gaps = [g for g in gaps if np.all(np.isfinite(g))]  # (a refit that blew up says nothing)
-        d.cache[key] = sum((np.outer(g, g) for g in gaps), np.zeros((idx.size, idx.size))) / max(len(gaps), 1)
+        spread = sum((np.outer(g, g) for g in gaps), np.zeros((idx.size, idx.size))) / max(len(gaps), 1)
+        d.cache[key] = (spread, len(gaps))
     return d.cache[key]
 
 

@@ -17,7 +17,6 @@ from inertia_gym.discrepancy.fit import (
     CLIP_ADVICE,
     LATTICE_REPLAYS,
     MIN_ROWS,
-    ROUNDING_RUNS,
     SIGNIFICANT_DELTA_BIC,
     Data,
     Fit,
@@ -32,6 +31,7 @@ from inertia_gym.discrepancy.fit import (
     information,
     intervals,
     lattice_level,
+    lattice_refits_counted,
     model_inertia,
     polished,
     prepare,
@@ -487,7 +487,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
                   else stated_noise_note(d.w[d.row >= 0], d.sigma, np.sqrt(np.mean(best.r ** 2, axis=0))),
                   "quantisation": None if d.sigma_source != "sidecar"
                   else quantisation_note(float(rec.meta["gyro_sigma"]), d.notes["quantisation_step"]),
-                  "rounding_runs": rounding_runs(d).tolist(), "rounding_floor": d.rounding_floor or None},
+                  "rounding_runs": rounding_runs(d).tolist(), "rounding_floor": d.rounding_floor or None,
+                  "lattice_refits": lattice_refits_counted(best, d)},
         "segments": d.segments, "trimmed": _trimmed(rec, d),
         "split_at_gaps": rec.meta.get("split_at_gaps"),
         "retimed": rec.meta.get("retimed"),
@@ -815,11 +816,11 @@ def _noise_words(report: dict) -> list[str]:
                     + (", ..." if len(noise["rounding_floor"]) > 3 else "")
                     + "; `noise.rounding_floor`): smaller effects than the rounding hides are not "
                     "claimed")
-    if max(noise.get("rounding_runs") or [0.0]) >= ROUNDING_RUNS:
+    if noise.get("lattice_refits"):
         said.append("- the intervals (the principal-moment ratios', the effects' parameters') count the "
                     "rounding: the spread of the fit's refits on its own prediction read on the gyro's "
-                    f"lattice ({LATTICE_REPLAYS} replays, shifted at random, the noise beneath the step "
-                    "added) is added to their covariance")
+                    f"lattice ({noise['lattice_refits']} of {LATTICE_REPLAYS} replays, shifted at random, "
+                    "the noise beneath the step added) is added to their covariance")
     if noise.get("sidecar_disagrees"):
         return said + ["- **the sidecar's noise level disagrees with the data's**: "
                        f"{noise['sidecar_disagrees']}"]
