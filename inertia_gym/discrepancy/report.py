@@ -51,6 +51,7 @@ from inertia_gym.discrepancy.recordings import (
     window_note,
 )
 from inertia_gym.errors import RecordingError
+from inertia_gym.estimation.inertia_param import nearest_realizable
 from inertia_gym.executors import kernels_own_the_cores
 from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.sensors import quantisation_note, stated_noise_note
@@ -222,17 +223,23 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     fix without its scale. The intervals come from quasi-random draws (RATIO_DRAWS_LOG2) of the
     parameters from covariance() (the fit's own, widened by its misfit and its residual's
     correlation), each turned into the model's
-    inertia, so an effect that trades with the inertia widens them.
+    inertia, so an effect that trades with the inertia widens them; each draw kept to the bodies
+    that exist as the fits are (nearest_realizable: each moment at most the sum of the other
+    two), and the interval stretched to hold the fit's own ratios where the draws' percentiles
+    miss them. A wide covariance read as it fell had given I2/I1 down to 1e-9 (no body) and an
+    estimate outside its own interval (an independent audit's slow racquet flip: 0.787 against
+    [1.5e-9, 0.562]).
     """
     def ratios(inertia):
         if not np.all(np.isfinite(inertia)):
             return np.full(3, np.nan)
-        moments = np.sort(np.linalg.eigvalsh(inertia))[::-1]
+        moments = np.sort(np.linalg.eigvalsh(nearest_realizable(inertia)))[::-1]
         return moments / moments[0]
 
+    point = ratios(fit.inertia)
     cov, idx = covariance(fit, d)
     if not np.all(np.isfinite(cov)):
-        return ratios(fit.inertia).tolist(), None
+        return point.tolist(), None
     values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
     draws = normal_draws(RATIO_DRAWS_LOG2, values.size)
     xs = np.repeat(fit.x[None], len(draws), axis=0)
@@ -240,8 +247,9 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     with np.errstate(over="ignore", invalid="ignore"):  # a draw far out overflows: said below
         drawn = np.array([ratios(model_inertia(fit.layout, x, d)) for x in xs])
     if not np.all(np.isfinite(drawn)):
-        return ratios(fit.inertia).tolist(), None
-    return ratios(fit.inertia).tolist(), np.percentile(drawn, [2.5, 97.5], axis=0).T.tolist()
+        return point.tolist(), None
+    lo, hi = np.percentile(drawn, [2.5, 97.5], axis=0)
+    return point.tolist(), np.stack([np.minimum(lo, point), np.maximum(hi, point)], axis=1).tolist()
 
 
 def trace_sigma(fit: Fit, d: Data) -> float:

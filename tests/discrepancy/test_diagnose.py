@@ -608,3 +608,29 @@ def test_an_ambiguity_with_an_effect_the_recording_cannot_test_is_not_said(torqu
     said = {c["with"] for c in entry["confounded_with"]}
     assert ("actuator_scale" in said) is torque
     assert ("actuator_scale" in report["skipped_effects"]) is not torque
+
+
+@pytest.mark.parametrize("widen", [1.0, 1e8])
+def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monkeypatch, widen):
+    """A nearly flat body's 1-s flip (the speed bench's racquet toss), its fit's covariance as
+    it is and 1e8 times wider (as on an independent audit's slow flips, whose momentum profile
+    left the shape barely fixed): every interval holds the fit's own ratios, and its draws are
+    bodies that exist (each moment at most the sum of the other two: I2/I1 >= 1/2, as the fits
+    are kept). Before, the wide draws were read as they fell: I2/I1 down to 1e-9, and the
+    estimate 0.787 outside its own interval [1.5e-9, 0.562] (audit flip 1001)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+    from bench_diagnose import toss
+
+    d, _, _, _, chosen = _fits(toss())
+    real = report_module.covariance
+    monkeypatch.setattr(report_module, "covariance",
+                        lambda fit, dd: (real(fit, dd)[0] * widen, real(fit, dd)[1]))
+    ratios, ci = report_module.principal_ratios(chosen.fit, d)
+    ci = np.array(ci)
+    assert np.all((ci[:, 0] <= ratios) & (ratios <= ci[:, 1])), (ratios, ci)
+    assert ci[1, 0] >= 0.5 - 1e-9 and ci[2, 1] <= ci[1, 1] + 1e-12
+    if widen > 1.0:
+        assert np.ptp(ci[1]) > 0.1  # wide it stays: the draws are kept to bodies, not narrowed to the fit
