@@ -363,10 +363,17 @@ def _pooled_lines(result: dict) -> list[str]:
         where = (f"- `internal_momentum` is in the explanation of {axes['recordings']}: its axes lie a "
                  f"median {axes['median_angle_deg']:.0f} deg from their common axis (at most "
                  f"{axes['max_angle_deg']:.0f} deg)")
-        lines.append(where + (", as one rotor fixed in the body would." if axes["one_axis"] else
-                              f", over {ONE_AXIS_DEG:g} deg: not one rotor fixed in the body; read it as "
-                              "a torque about a body axis with a time course of its own (air on a thrown "
-                              "body, say), the ambiguity its reports name."))
+        held, diagnosed = axes["recordings"], result.get("diagnosed", axes["recordings"])
+        if not axes["one_axis"]:
+            lines.append(where + f", over {ONE_AXIS_DEG:g} deg: not one rotor fixed in the body; read it as "
+                         "a torque about a body axis with a time course of its own (air on a thrown "
+                         "body, say), the ambiguity its reports name.")
+        elif 2 * held < diagnosed:  # a rotor of the body would act in most of them
+            lines.append(where + f", as one rotor fixed in the body would; but only {held} of {diagnosed} "
+                         "recordings hold it, and a rotor would act in the others too: read it as what "
+                         "those fits trade for what the catalogue lacks, the ambiguity their reports name.")
+        else:
+            lines.append(where + ", as one rotor fixed in the body would.")
     return lines
 
 
