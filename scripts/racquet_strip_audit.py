@@ -12,7 +12,7 @@ time. Then per kind: leaders, the drag family's share (viscous_damping, aero_dra
 smallest fall of the rms, ratio errors, and on the controls what was named (nothing, if right).
 
 Usage: PYTHONPATH=. python scripts/racquet_strip_audit.py [--out DIR] [--kinds flips,clean]
-(about 4 minutes for all 48 on this 2-core machine).
+(about 2 minutes for all 48 on this 2-core machine).
 """
 
 from __future__ import annotations
