@@ -363,7 +363,7 @@ def _pooled_lines(result: dict) -> list[str]:
         where = (f"- `internal_momentum` is in the explanation of {axes['recordings']}: its axes lie a "
                  f"median {axes['median_angle_deg']:.0f} deg from their common axis (at most "
                  f"{axes['max_angle_deg']:.0f} deg)")
-        held, diagnosed = axes["recordings"], result.get("diagnosed", axes["recordings"])
+        held, diagnosed = axes["recordings"], result["diagnosed"]
         if not axes["one_axis"]:
             lines.append(where + f", over {ONE_AXIS_DEG:g} deg: not one rotor fixed in the body; read it as "
                          "a torque about a body axis with a time course of its own (air on a thrown "
