@@ -1076,6 +1076,8 @@ def fit_nominal(d: Data) -> Fit:
     ratios (1, 0.06, 0.03), where the equation-error start reaches 175x and (1, 0.81, 0.20)),
     while basins within the margin are a tie the record does not decide (on real tosses with
     drag, rigid fits 0.3-1.8 apart in BIC with ratios (1, 0.97, 0.03) and (1, 0.94, 0.06)).
+    On records of any length the linear start is also continued (_continued_start) and its fit
+    replaces the chosen one where its BIC is lower by the same margin.
     """
     layout = Layout.of((), (), d)
     lb, ub = _bounds(layout, d)
