@@ -52,6 +52,28 @@ def cases():
                    np.array([1.0, 1 - s + e, s]) * 40.0, duration, rate, seed % 2 == 0)
 
 
+def thin_body_record(path: Path, seed: int, moments, duration: float, rate: float, middle: bool,
+                     mirrored: bool = False):
+    """One case written to path (a CSV and its sidecar): principal moments `moments` (3,) kg·m²
+    turned at random (rng seeded with `seed`), `rate` rad/s near the middle axis (middle) or about
+    a random direction. Returns the true inertia (3, 3) kg·m².
+    """
+    rng = np.random.default_rng(seed)
+    turn = Rotation.random(random_state=rng).as_matrix()
+    inertia = turn @ np.diag(moments) @ turn.T
+    near = np.array([0.15, 1.0, 0.1])
+    u = turn @ (near + 0.2 * rng.standard_normal(3)) if middle else rng.standard_normal(3)
+    write_record(path, inertia, rate * u / np.linalg.norm(u), duration, rng, mirrored)
+    return inertia
+
+
+def thin_body(folder: Path, name: str):
+    """(recording, true inertia (3, 3) kg·m²) of the case `name` of cases(), written in folder."""
+    _, seed, moments, duration, rate, middle = next(c for c in cases() if c[0] == name)
+    inertia = thin_body_record(folder / f"{name}.csv", seed, moments, duration, rate, middle)
+    return read_csv_recording(folder / f"{name}.csv"), inertia
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="runs/thin-bodies")
@@ -61,13 +83,8 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     over = total = 0
     for name, seed, moments, duration, rate, middle in cases():
-        rng = np.random.default_rng(seed)
-        turn = Rotation.random(random_state=rng).as_matrix()
-        inertia = turn @ np.diag(moments) @ turn.T
-        near = np.array([0.15, 1.0, 0.1])
-        u = turn @ (near + 0.2 * rng.standard_normal(3)) if middle else rng.standard_normal(3)
         path = out / f"{name}.csv"
-        write_record(path, inertia, rate * u / np.linalg.norm(u), duration, rng, args.mirrored)
+        thin_body_record(path, seed, moments, duration, rate, middle, args.mirrored)
         report, _ = diagnose(read_csv_recording(path))
         worst = max(report["fit_before"]["rms_over_noise"])
         moments_fit = np.sort(np.linalg.eigvalsh(np.array(report["fit_before"]["inertia"])))[::-1]

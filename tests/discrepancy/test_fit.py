@@ -27,6 +27,7 @@ from inertia_gym.sensors import quantisation_step
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 from slow_tumble_pairs import slow_tumble, true_gains  # noqa: E402
+from thin_bodies import thin_body  # noqa: E402
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -748,39 +749,14 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
     assert together[0][1] < float(np.sum(F.objective(x[None], layout, d) ** 2))  # the solves moved
 
 
-def _thin_body_record(path, seed: int, moments, duration: float, flip: bool):
-    """A clean gyro-only tumble of a thin, nearly flat body (principal moments `moments`, kg·m²,
-    axes turned at random), integrated here by scipy's DOP853 (no inertia_gym code), 100 Hz,
-    noise 2e-3 rad/s stated in the sidecar; 15 rad/s mostly about the middle axis (flip) or
-    about a random direction. Returns (recording, the true inertia (3, 3))."""
-    from scipy.integrate import solve_ivp
-    from scipy.spatial.transform import Rotation
-
-    from inertia_gym.discrepancy.recordings import read_csv_recording
-    rng = np.random.default_rng(seed)
-    turn = Rotation.random(random_state=rng).as_matrix()
-    inertia = turn @ np.diag(moments) @ turn.T
-    u = turn @ (np.array([0.15, 1.0, 0.1]) + 0.2 * rng.standard_normal(3)) if flip else rng.standard_normal(3)
-    t = np.arange(0, duration, 0.01)
-    sol = solve_ivp(lambda _, w: np.linalg.solve(inertia, -np.cross(w, inertia @ w)), (0, t[-1]),
-                    15 * u / np.linalg.norm(u), t_eval=t, rtol=1e-11, atol=1e-12, method="DOP853")
-    w = sol.y.T + 2e-3 * rng.standard_normal((t.size, 3))
-    np.savetxt(path, np.column_stack([t, w]), delimiter=",", header="t,wx,wy,wz", comments="", fmt="%.9g")
-    path.with_suffix(".json").write_text('{"gyro_sigma": 0.002}')
-    return read_csv_recording(path), inertia
-
-
-@pytest.mark.parametrize("seed, moments, duration, flip", [
-    (1035, [5e-3, 4.925e-3, 1e-4], 1.2, False),  # one segment: stopped at 12x in a basin of its own
-    (5102, [40.0, 39.4, 0.8], 6.0, True),  # five: one segment left at 4000x from its first sample
-])
-def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path, seed, moments, duration,
-                                                                        flip):
+@pytest.mark.parametrize("name", ["s0.02_e0.005_d1.2_seed3",  # one segment: 12x in a basin of its own
+                                  "s0.02_e0.005_d6_seed2"])  # five: one left at 4000x from its first sample
+def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path, name):
     # A thin, nearly flat body (moments 1 : 0.985 : 0.02; a racquet is 1 : 0.91 : 0.07): its
     # fastest rate turns with (J1 - J2) / J3, a ratio of two small numbers, and the linear
     # start's fit stopped in a basin of its own (12x and 2800x the noise before the continued
     # start); 7 of 32 such 1.2-s records and 8 of 12 longer ones named effects on clean data.
-    rec, inertia = _thin_body_record(tmp_path / "thin.csv", seed, moments, duration, flip)
+    rec, inertia = thin_body(tmp_path, name)
     d = F.prepare(rec)
     nominal = F.fit_nominal(d)
     assert np.sqrt(np.mean(nominal.z ** 2, axis=0)).max() < 1.2
