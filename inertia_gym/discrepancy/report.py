@@ -67,6 +67,8 @@ RATIO_SPREAD = 0.1
 #: whatever is added, and the real rotor throws, their rotor named, at 19.7-169 (a 4-kHz gyro
 #: whose noise is far below what the model leaves; README).
 BEYOND_CATALOGUE = 5.0
+#: Residual rms / noise (on some axis) over which a fit leaves the record unexplained.
+UNEXPLAINED_RMS = 1.3
 #: Residual rms / noise (every axis, the fitted parameters' degrees of freedom restored) below
 #: which a noise level read from the data is reported as reading high: a fit cannot leave much
 #: less than the noise, but motion fast for the sampling passes for noise in the differences
@@ -471,8 +473,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     locations = locate(nominal.r, t_row, rounding * d.row_scale[:, None])
     before = _fit_summary(nominal, d)
     after = before if best is nominal else _fit_summary(best, d)
-    unexplained = not after["valid"] or max(after["rms_over_noise"]) > 1.3
+    unexplained = not after["valid"] or max(after["rms_over_noise"]) > UNEXPLAINED_RMS
     f, p = spectrum(nominal.r, float(np.median(np.diff(t_row))) if t_row.size > 1 else 1.0)
+    frame = mirrored_frame(rec, d, best) if bool(sig) or unexplained else None
     inv = invariants(d, best)
     if best is not nominal and (unexplained or not all(REGISTRY[n].keeps_invariants for n in best.names)):
         inv = _read_with_both(inv, invariants(d, nominal))  # its inertia alone is not sure
@@ -515,10 +518,35 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "unexplained_residual": unexplained,
         "beyond_catalogue": not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE,
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
+        "gyro_frame_mirrored": frame,
     }
     arrays = {"t_mid": t_row, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
               "inv": inv, "d": d, "best": best, "nominal": nominal}
     return report, arrays
+
+
+def mirrored_frame(rec: Recording, d: Data, best: Fit) -> dict | None:
+    """Where a gyro-only record (no torque, momentum or attitude) reads as a rigid body in a
+    left-handed frame (two gyro columns swapped, or one axis's sign flipped: for gyro-only data
+    the same up to a rotation the inertia's axes absorb): the rigid fit of d with its x and y
+    columns swapped, where it is within UNEXPLAINED_RMS of the noise and its BIC beats the
+    explanation's (best) by SIGNIFICANT_DELTA_BIC, as {"rms_over_noise" (3,), "delta_bic",
+    "principal_ratios"}; else None. A flat plate's clean tumble with two columns swapped has no
+    right-handed body (its mirror is a rod's limit): the fits named a gyro scale and an inertia
+    change on 17 of the 44 of scripts/thin_bodies.py --mirrored.
+    """
+    if rec.q is not None or rec.sees_scale or rec.has_momentum:
+        return None
+    swap = [1, 0, 2]
+    mirrored = fit_nominal(dataclasses.replace(d, w=d.w[:, swap], sigma=d.sigma[swap], inertia0=None,
+                                               cache={}))
+    rms = np.sqrt(np.mean(mirrored.r ** 2, axis=0)) / d.sigma[swap]
+    gain = float(best.bic - mirrored.bic)
+    if not (np.all(np.isfinite(rms)) and rms.max() <= UNEXPLAINED_RMS and gain > SIGNIFICANT_DELTA_BIC):
+        return None
+    moments = np.sort(np.linalg.eigvalsh(mirrored.inertia))[::-1]
+    return {"rms_over_noise": rms.tolist(), "delta_bic": gain,
+            "principal_ratios": (moments / moments[0]).tolist()}
 
 
 def _live_ambiguities(name: str, form: str, skipped: dict) -> list[tuple[str, str]]:
@@ -842,6 +870,18 @@ def _noise_words(report: dict) -> list[str]:
             "on it"]
 
 
+def _frame_words(report: dict) -> list[str]:
+    """The line on a gyro frame that reads left-handed (mirrored_frame), or none."""
+    frame = report.get("gyro_frame_mirrored")
+    if not frame:
+        return []
+    return [f"- **the gyro's frame reads left-handed**: with its x and y columns swapped (or one axis's "
+            f"sign flipped) the rates fit a rigid body to {_fmt(frame['rms_over_noise'])} times the noise "
+            f"(principal ratios {_fmt(frame['principal_ratios'])}), {frame['delta_bic']:.0f} better in BIC "
+            "than the explanation below: check the order and signs of the gyro's axes before reading "
+            "the effects"]
+
+
 def _clip_words(report: dict) -> list[str]:
     """A line where an axis is held at its extreme in a record's first or last samples
     (fit.clips_at_the_ends: not left out, a rate may start or end at its peak).
@@ -925,7 +965,7 @@ def markdown(report: dict, plots: list[str]) -> str:
              f"**{report['best_effect'] or 'none significant'}**",
              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
              f"after: {_fmt(report['fit_after']['rms_over_noise'])}", *_beyond_words(report),
-             *_clip_words(report),
+             *_clip_words(report), *_frame_words(report),
              *_shape_words(report), ""]
     if report.get("retimed"):
         lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]

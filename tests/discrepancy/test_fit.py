@@ -17,7 +17,7 @@ from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, Effect, rotvec_matrix
 from inertia_gym.discrepancy.model import Grid, held_cumulative
-from inertia_gym.discrepancy.recordings import Recording, retimed
+from inertia_gym.discrepancy.recordings import Recording, read_csv_recording, retimed
 from inertia_gym.discrepancy.report import diagnose, markdown, principal_ratios
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
@@ -27,7 +27,7 @@ from inertia_gym.sensors import quantisation_step
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 from slow_tumble_pairs import slow_tumble, true_gains  # noqa: E402
-from thin_bodies import thin_body  # noqa: E402
+from thin_bodies import cases, thin_body, thin_body_record  # noqa: E402
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -200,6 +200,7 @@ def test_a_short_flight_is_fitted_to_its_valleys_floor_and_its_shape_intervals_c
         lo, hi = np.array(report["fit_after"]["principal_ratios_ci95"]).T
         covered += bool(np.all((lo <= truth) & (truth <= hi)))
         named += [e["name"] for e in report["explanation"]] == (["viscous_damping"] if drag else [])
+        assert report["gyro_frame_mirrored"] is None  # a right-handed gyro: never read as mirrored
     assert covered >= 7 and named >= 7
 
 
@@ -765,3 +766,20 @@ def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path,
     np.testing.assert_allclose(fitted / fitted[-1], truth / truth[-1], atol=2e-3)
     report, _ = diagnose(rec)
     assert report["explanation"] == []
+
+
+def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path):
+    # A flat plate (moments 1 : 0.99 : 0.01) tumbling, its gyro's x and y columns swapped: no
+    # right-handed rigid body fits it (a plate's mirror is a rod's limit), and the fits named an
+    # inertia change; the same rates fitted with the columns swapped back reach the noise.
+    _, seed, moments, duration, rate, middle = next(c for c in cases() if c[0] == "s0.01_e0.0_d1.2_seed0")
+    path = tmp_path / "mirrored.csv"
+    thin_body_record(path, seed, moments, duration, rate, middle, mirrored=True)
+    report, _ = diagnose(read_csv_recording(path))
+    frame = report["gyro_frame_mirrored"]
+    assert frame is not None and max(frame["rms_over_noise"]) < 1.3 and frame["delta_bic"] > 10
+    np.testing.assert_allclose(frame["principal_ratios"], [1.0, 0.99, 0.01], atol=2e-3)
+    assert "the gyro's frame reads left-handed" in markdown(report, [])
+    plain, _ = thin_body(tmp_path, "s0.01_e0.0_d1.2_seed0")
+    report, _ = diagnose(plain)
+    assert report["gyro_frame_mirrored"] is None and report["explanation"] == []
