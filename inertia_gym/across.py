@@ -78,8 +78,10 @@ def _reading(report: dict) -> str:
 def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     """diagnosed, leading_effects {effect: count} (the first effect of each explanation; "none"
     where none is selected), most_common_lead {name, count, share} (share of the diagnosed),
-    valid_fits, beyond_catalogue (count), invariants_readings {reading: count} (what the drifts
-    of |H| and of the energy say of the missing torque, model-free but for the inertia),
+    valid_fits, beyond_catalogue (count), gyro_frame_mirrored (count of reports whose gyro
+    reads as a left-handed frame), invariants_readings
+    {reading: count} (what the drifts of |H| and of the energy say of the missing torque,
+    model-free but for the inertia),
     worst_rms_over_noise {before_median, after_median, fall} (each recording's worst axis;
     fall = before / after of the medians), principal_ratios
     (the body's shape from the fits after, shape_combined(); each fit's covariance taken as
@@ -103,6 +105,7 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
                              "share": top[1] / len(reports) if reports else None},
         "valid_fits": sum(bool(r["fit_after"]["valid"]) for r in reports),
         "beyond_catalogue": sum(bool(r["beyond_catalogue"]) for r in reports),
+        "gyro_frame_mirrored": sum(bool(r["gyro_frame_mirrored"]) for r in reports),
         "invariants_readings": dict(collections.Counter(_reading(r) for r in reports).most_common()),
         "worst_rms_over_noise": {"before_median": median_before, "after_median": median_after,
                                  "fall": median_before / median_after if median_before and median_after
@@ -341,6 +344,10 @@ def _diagnoses_lines(result: dict) -> list[str]:
              "- The missing torque as the drifts of |H| and of the energy read it (the invariants): "
              + ", ".join(f"{name} on {count}" for name, count in result["invariants_readings"].items())
              + "."]
+    if result["gyro_frame_mirrored"]:
+        lines.append(f"- **The gyro's frame reads left-handed** on {result['gyro_frame_mirrored']} of {n} "
+                     "(two columns swapped or one axis's sign flipped fit a rigid body better than any "
+                     "explanation): check the order and signs of the gyro's axes before reading the effects.")
     if worst["fall"] is not None:
         lines.append(f"- Worst-axis rms over the noise, median: {worst['before_median']:.3g} before, "
                      f"{worst['after_median']:.3g} after ({worst['fall']:.3g}x lower).")

@@ -115,17 +115,18 @@ def test_the_shapes_covariance_is_the_delta_method_of_the_inertias():
     assert np.all(cov[0] == 0) and np.all(cov[:, 0] == 0)
 
 
-def _report(lead, before, after, ratios, valid=True, half=0.01, reading=None, singles=None, params=None):
+def _report(lead, before, after, ratios, valid=True, half=0.01, reading=None, singles=None, params=None,
+            mirrored=None):
     """A report.json dict as diagnose writes it, with what the summaries read: singles {effect:
     its single-effect delta BIC (None: no valid fit)}, params {effect: its params in the
-    explanation}."""
+    explanation}, mirrored its gyro_frame_mirrored."""
     fit_after = {"valid": valid, "rms_over_noise": after if valid else None,
                  "principal_ratios": ratios if valid else None,
                  "principal_ratios_ci95": None if not valid else
                  [[r - half * (k > 0), r + half * (k > 0)] for k, r in enumerate(ratios)]}
     return {"explanation": [{"name": n, "params": (params or {}).get(n, {})} for n in lead],
             "effects": [{"name": n, "delta_bic": v} for n, v in (singles or {}).items()],
-            "beyond_catalogue": not valid or max(after) > 20,
+            "beyond_catalogue": not valid or max(after) > 20, "gyro_frame_mirrored": mirrored,
             "fit_before": {"rms_over_noise": before}, "fit_after": fit_after,
             "invariants": ({"applicable": False} if reading is None
                            else {"applicable": True, "reading": reading})}
@@ -137,9 +138,15 @@ def test_diagnoses_across_counts_leads_and_compares_fits():
                           reading=drag)),
             ("b", _report(["viscous_damping"], [80, 20, 9], [3, 2, 1], [1, 0.94, 0.066], reading=drag)),
             ("c", _report(["internal_momentum"], [200, 9, 9], [30, 2, 2], [1, 0.8, 0.2],
-                          reading="adds to the rotation")),
+                          reading="adds to the rotation",
+                          mirrored={"rms_over_noise": [1, 1, 1], "delta_bic": 50.0,
+                                    "principal_ratios": [1, 0.99, 0.01]})),
             ("d", _report([], [1.1, 1.0, 0.9], [1.1, 1.0, 0.9], [1, 0.92, 0.07], valid=False))]
     out = diagnoses_across(done, [("e", "too short")])
+    assert out["gyro_frame_mirrored"] == 1
+    assert "The gyro's frame reads left-handed** on 1 of 4" in diagnoses_markdown(out)
+    assert diagnoses_across(done[:2], [])["gyro_frame_mirrored"] == 0
+    assert "left-handed" not in diagnoses_markdown(diagnoses_across(done[:2], []))
     assert out["recordings"] == 5 and out["diagnosed"] == 4
     assert out["refused"] == [{"name": "e", "reason": "too short"}]
     assert out["leading_effects"] == {"viscous_damping": 2, "internal_momentum": 1, "none": 1}
