@@ -67,6 +67,30 @@ def thin_body_record(path: Path, seed: int, moments, duration: float, rate: floa
     return inertia
 
 
+def forced_record(path: Path, seed: int, moments, duration: float = 8.0) -> np.ndarray:
+    """A thin body (principal moments `moments` (3,) kg·m², axes turned at random) pushed by
+    logged torque bursts (0.5 s on every 2 s from 0.5 s, each about trace/3 x 2 rad/s² along a
+    random direction, held per row), 3 rad/s about a random direction, 100 Hz, gyro noise SIGMA,
+    no attitude; each row's interval integrated by DOP853. Returns the true inertia (3, 3)."""
+    rng = np.random.default_rng(seed)
+    inertia = (lambda turn: turn @ np.diag(moments) @ turn.T)(Rotation.random(random_state=rng).as_matrix())
+    t = np.arange(0, duration, 0.01)
+    tau = np.zeros((t.size, 3))
+    for start in np.arange(0.5, duration, 2.0):
+        tau[(t >= start) & (t < start + 0.5)] = np.trace(inertia) / 3 * 2.0 * rng.standard_normal(3)
+    u = rng.standard_normal(3)
+    w = [3.0 * u / np.linalg.norm(u)]
+    for i in range(t.size - 1):
+        sol = solve_ivp(lambda _, x, i=i: np.linalg.solve(inertia, tau[i] - np.cross(x, inertia @ x)),
+                        (t[i], t[i + 1]), w[-1], rtol=1e-11, atol=1e-13, method="DOP853")
+        w.append(sol.y[:, -1])
+    w = np.array(w) + SIGMA * rng.standard_normal((t.size, 3))
+    np.savetxt(path, np.column_stack([t, w, tau]), delimiter=",", header="t,wx,wy,wz,tau_x,tau_y,tau_z",
+               comments="", fmt="%.10g")
+    path.with_suffix(".json").write_text(json.dumps({"gyro_sigma": SIGMA}))
+    return inertia
+
+
 def thin_body(folder: Path, name: str):
     """(recording, true inertia (3, 3) kg·m²) of the case `name` of cases(), written in folder."""
     _, seed, moments, duration, rate, middle = next(c for c in cases() if c[0] == name)
