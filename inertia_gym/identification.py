@@ -41,6 +41,7 @@ import numpy as np
 
 from inertia_gym.discrepancy.fit import (
     CLIP_ADVICE,
+    UNEXPLAINED_RMS,
     clips_at_the_ends,
     end_impulses,
     fit_nominal,
@@ -109,9 +110,6 @@ RIGID_MISFIT = 3.0
 #: rates 10x too large stop unconverged at 84x; time 1000x and the rotor's momentum 100x too
 #: large, at 5x the noise and 584x the nominal).
 UNEXPLAINED_MISFIT = 30.0
-#: Largest rms / noise (worst axis, whitened) at which diagnose's segmented rigid fit is pointed
-#: to where identify's trajectory follows only part of a record.
-SEGMENTED_FIT_RMS = 1.3
 #: A located impulse is left out unless the rest of the record then fits worse by more than this
 #: factor (mean square of the whitened residual over the same rows) or converges less.
 TRIM_TOLERANCE = 1.1
@@ -998,12 +996,12 @@ def _identify_ml_started(rec, prob, phi0, sigma_w, source, trace_ref, reference)
 def _segmented_note(rigid, d, scale_seen: bool) -> list[str]:
     """Where identify's trajectory follows only part of a record: a note on diagnose's rigid fit
     of it (fit.Fit rigid on data d, each segment with its own initial rates) where that follows
-    every row within SEGMENTED_FIT_RMS of the noise on every axis, else none. On a thin body's
+    every row within fit.UNEXPLAINED_RMS of the noise on every axis, else none. On a thin body's
     8-s record with torque bursts (1 : 0.99 : 0.01) identify followed 0.49 s, its moments 15 %
     off, where that fit held them within 0.004 %.
     """
     rms = np.sqrt(np.mean(rigid.z ** 2, axis=0))
-    if not (np.all(np.isfinite(rms)) and rms.max() <= SEGMENTED_FIT_RMS):
+    if not (np.all(np.isfinite(rms)) and rms.max() <= UNEXPLAINED_RMS):
         return []
     moments = np.sort(np.linalg.eigvalsh(rigid.inertia))[::-1]
     body = (f"principal moments {np.array2string(moments, precision=4)} kg·m²" if scale_seen

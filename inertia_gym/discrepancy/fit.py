@@ -72,6 +72,8 @@ MAX_TURN = 20.0
 #: Fewest residual rows in a segment, and in a recording diagnose accepts (3 residuals each);
 #: records of fewer segments than SHORT_SEGMENTS choose between starts cut into that many.
 MIN_SEGMENT_ROWS, MIN_ROWS, SHORT_SEGMENTS = 30, 20, 4
+#: Residual rms / noise (on some axis) over which a fit leaves the record unexplained.
+UNEXPLAINED_RMS = 1.3
 #: A rigid fit's continued start is polished on the record cut into these many times its own
 #: segments in turn, before the record itself.
 CONTINUATION_PIECES = (8, 4, 2)

@@ -18,6 +18,7 @@ from inertia_gym.discrepancy.fit import (
     LATTICE_REPLAYS,
     MIN_ROWS,
     SIGNIFICANT_DELTA_BIC,
+    UNEXPLAINED_RMS,
     Data,
     Fit,
     claim_margin,
@@ -67,8 +68,6 @@ RATIO_SPREAD = 0.1
 #: whatever is added, and the real rotor throws, their rotor named, at 19.7-169 (a 4-kHz gyro
 #: whose noise is far below what the model leaves; README).
 BEYOND_CATALOGUE = 5.0
-#: Residual rms / noise (on some axis) over which a fit leaves the record unexplained.
-UNEXPLAINED_RMS = 1.3
 #: Residual rms / noise (every axis, the fitted parameters' degrees of freedom restored) below
 #: which a noise level read from the data is reported as reading high: a fit cannot leave much
 #: less than the noise, but motion fast for the sampling passes for noise in the differences
@@ -872,7 +871,7 @@ def _noise_words(report: dict) -> list[str]:
 
 def _frame_words(report: dict) -> list[str]:
     """The line on a gyro frame that reads left-handed (mirrored_frame), or none."""
-    frame = report.get("gyro_frame_mirrored")
+    frame = report["gyro_frame_mirrored"]
     if not frame:
         return []
     return [f"- **the gyro's frame reads left-handed**: with its x and y columns swapped (or one axis's "
