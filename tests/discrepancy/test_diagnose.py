@@ -275,7 +275,8 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
                      "gyro_sigma_source": "given", "mismatch_detected": True,
                      "best_effect": "internal_momentum", "fit_before": {"rms_over_noise": [1.0] * 3},
                      "fit_after": {"rms_over_noise": [1.0] * 3}, "effects": [], "skipped_effects": {},
-                     "locations": [], "invariants": {}, "sparse_terms": [], **report}, [])
+                     "locations": [], "invariants": {}, "sparse_terms": [],
+                     "gyro_frame_mirrored": None, **report}, [])
     assert page.count("cannot be told apart") == 1 and "'aero_drag']: close BIC" in page
 
 
@@ -294,7 +295,7 @@ def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
                      "gyro_sigma_source": "sidecar", "mismatch_detected": True, "best_effect": None,
                      "fit_before": {"rms_over_noise": [1.0] * 3}, "fit_after": {"rms_over_noise": [1.0] * 3},
                      "effects": [{**torque, "significant": True}], "skipped_effects": {}, "locations": [],
-                     "invariants": {}, "sparse_terms": [], **report}, [])
+                     "invariants": {}, "sparse_terms": [], "gyro_frame_mirrored": None, **report}, [])
     assert "gyro noise: [2.04e-05, 3.33e-05, 2e-05] rad/s" in page
     assert "'torque': [1.235e-06, -2.5e-07, 0.0]" in page
 
