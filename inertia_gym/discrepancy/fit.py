@@ -30,9 +30,10 @@ import functools
 
 import numpy as np
 from scipy import signal, stats
+from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6, skew
-from inertia_gym.discrepancy.model import Grid, effect_terms, gyro_output, held_cumulative, simulate
+from inertia_gym.discrepancy.model import Grid, Motion, effect_terms, gyro_output, held_cumulative, simulate
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.equation_error import (
@@ -247,6 +248,22 @@ class Data:
         """(n_rows,) s: mean time of each row's samples."""
         keep = self.row >= 0
         return np.bincount(self.row[keep], self.t[keep]) / np.bincount(self.row[keep])
+
+    def motion(self, grid: Grid) -> Motion:
+        """The recording's own motion on grid (model.Motion): the measured rates interpolated
+        to its points and the attitude integrated from them (each interval turned by its mean
+        rate), relative to the first sample's.
+        """
+        key = ("motion", grid.steps)
+        if key not in self.cache:
+            rates = np.stack([np.interp(grid.t, self.t, self.w[:, i]) for i in range(3)], 1)
+            turns = Rotation.from_rotvec(0.5 * (rates[1:] + rates[:-1]) * np.diff(grid.t)[:, None])
+            rotation = np.empty((grid.t.size, 3, 3))
+            rotation[0] = np.eye(3)
+            for k, turn in enumerate(turns.as_matrix()):
+                rotation[k + 1] = rotation[k] @ turn
+            self.cache[key] = Motion(grid.t, rotation, rates)
+        return self.cache[key]
 
     def q0(self) -> np.ndarray:
         """(S, 4) attitude at each segment's start (measured, else identity)."""
@@ -617,7 +634,8 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     for i, (effect_key, x) in enumerate(zip(effect_keys, xs)):
         if effect_key not in effects:
             p = layout.parts(x, d)
-            effects[effect_key] = p, effect_terms(p, grid, cumulative, h_known, commanded), []
+            motion = d.motion(grid) if "flight" in layout.forms else None
+            effects[effect_key] = p, effect_terms(p, grid, cumulative, h_known, commanded, motion), []
         p, shared, members = effects[effect_key]
         members.append(i)
         key = x[:6].tobytes() + effect_key

@@ -67,6 +67,19 @@ def held_cumulative(t_rows, tau_rows) -> Cumulative:
 
 
 @dataclasses.dataclass(frozen=True)
+class Motion:
+    """The recording's own motion on an integration grid, for a torque that the body's motion
+    through the air sets (EffectModel.motion_torque): t (m+1,) s the grid, rotation (m+1, 3, 3)
+    each grid point's body axes in the frame of the body at the first sample (R(t0) = I),
+    integrated from the measured rates; rates (m+1, 3) rad/s the measured rates there.
+    """
+
+    t: np.ndarray
+    rotation: np.ndarray
+    rates: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
 class Terms:
     """The integrator's inputs of one model: inertia and inertia_after (3, 3) kg·m², change_t s
     (inf: none), tau (m, 3) N·m applied over each grid interval, h (m+1, 3) kg·m²/s internal
@@ -84,15 +97,17 @@ class Terms:
 
 
 def model_terms(inertia, effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
-                commanded=None) -> Terms:
+                commanded=None, motion: Motion | None = None) -> Terms:
     """Integrator inputs of the body `inertia` (3, 3) with effects [(EffectModel, params)].
 
     cumulative: running integral of the commanded torque (held_cumulative), None for none;
     h_known (m+1, 3) kg·m²/s: the recording's known internal momentum on the grid, or None;
     commanded (m, 3) N·m: the command on the grid when already computed (used as is when no
-    effect changes what the body receives: the same array, so simulate() passes it once).
+    effect changes what the body receives: the same array, so simulate() passes it once);
+    motion: the recording's own motion on the grid (Motion), which an effect whose torque the
+    body's flight sets reads (None: no recording, and no such effect may be given).
     """
-    return effect_terms(effects, grid, cumulative, h_known, commanded).on(inertia)
+    return effect_terms(effects, grid, cumulative, h_known, commanded, motion).on(inertia)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,7 +134,7 @@ class EffectTerms:
 
 
 def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
-                 commanded=None) -> EffectTerms:
+                 commanded=None, motion: Motion | None = None) -> EffectTerms:
     """model_terms' inputs that do not depend on the body's inertia (the same arguments but it):
     computed once for models that differ in their inertia alone.
     """
@@ -127,6 +142,7 @@ def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=Non
     change_t, change, true_inertia = np.inf, None, None
     h = h_known
     damping = _ones(grid.steps)
+    moved = None  # the torques the body's motion sets, at the grid points
     for model, params in effects:
         true = model.true_inertia(params)
         true_inertia = true_inertia if true is None else np.asarray(true, float)
@@ -151,12 +167,17 @@ def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=Non
             damping = damping * 0.5 * (factor[1:] + factor[:-1])
         if applied is not None:
             applied = model.applied(params, applied)
+        torque = model.motion_torque(params, motion)
+        if torque is not None:
+            moved = torque if moved is None else moved + torque
     if applied is None:
         tau = _zeros(grid.steps)
     elif applied is cumulative and commanded is not None:
         tau = commanded
     else:
         tau = np.diff(applied(grid.t), axis=0) / np.diff(grid.t)[:, None]
+    if moved is not None:  # held over each interval at its mean, as a damping factor
+        tau = tau + 0.5 * (moved[1:] + moved[:-1])
     if h is None:
         h = _zeros(grid.t.size)
     return EffectTerms(true_inertia, change_t, change, tau, h, pack_fields(fields), damping)
