@@ -15,6 +15,8 @@ import re
 import numpy as np
 from scipy import stats
 
+from inertia_gym.discrepancy.effects import REGISTRY
+
 RATIO_LABELS = ("I1/I1", "I2/I1", "I3/I1")
 #: deg: internal_momentum's axes, fitted on several recordings of one body, lie along one axis
 #: (a rotor fixed in the body) where their median angle to their common axis is within this (the
@@ -67,6 +69,16 @@ def leading_effect(report: dict) -> str:
     return report["explanation"][0]["name"] if report["explanation"] else "none"
 
 
+def leading_cause(report: dict) -> str:
+    """The physical cause (the catalogue's family: "drag" for viscous_damping and aero_drag) of a
+    report's leading effect ("none" where none is selected).
+    """
+    if not report["explanation"]:
+        return "none"
+    name = report["explanation"][0]["name"]
+    return REGISTRY[name].family if name in REGISTRY else name
+
+
 def _reading(report: dict) -> str:
     """What a report's invariants say of the missing torque (report.invariants' `reading`), or
     "not applicable" where an input changes them.
@@ -77,7 +89,11 @@ def _reading(report: dict) -> str:
 
 def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     """diagnosed, leading_effects {effect: count} (the first effect of each explanation; "none"
-    where none is selected), most_common_lead {name, count, share} (share of the diagnosed),
+    where none is selected), leading_causes {family: {count, effects {effect: count}}} (the
+    physical cause of each leading effect, the catalogue's family: two effects that model one
+    cause at different fidelity, a thrown body's air as linear drag on one toss and as the air
+    of its flight on another, count as one), most_common_lead {name, count, share} (share of the
+    diagnosed),
     valid_fits, beyond_catalogue (count), gyro_frame_mirrored (count of reports whose gyro
     reads as a left-handed frame), invariants_readings
     {reading: count} (what the drifts of |H| and of the energy say of the missing torque,
@@ -93,6 +109,13 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
                             [np.diag(((np.ptp(f["principal_ratios_ci95"], axis=1)) / (2 * 1.96)) ** 2)
                              for f in fits])
     leads = collections.Counter(leading_effect(r) for r in reports)
+    causes: dict = {}
+    for report in reports:
+        cause = causes.setdefault(leading_cause(report), {"count": 0, "effects": collections.Counter()})
+        cause["count"] += 1
+        cause["effects"][leading_effect(report)] += 1
+    causes = {family: {"count": c["count"], "effects": dict(c["effects"].most_common())}
+              for family, c in sorted(causes.items(), key=lambda item: -item[1]["count"])}
     top = leads.most_common(1)[0] if reports else ("none", 0)
     before = [w for r in reports if (w := _worst(r["fit_before"])) is not None]
     after = [w for r in reports if (w := _worst(r["fit_after"])) is not None]
@@ -100,6 +123,7 @@ def _diagnoses(done: list[tuple[str, dict]]) -> dict:
     median_after = float(np.median(after)) if after else None
     return {
         "diagnosed": len(reports), "leading_effects": dict(leads.most_common()),
+        "leading_causes": causes,
         "pooled_delta_bic": pooled_delta_bic(reports), "momentum_axes": momentum_axes(reports),
         "most_common_lead": {"name": top[0], "count": top[1],
                              "share": top[1] / len(reports) if reports else None},
@@ -338,7 +362,13 @@ def _diagnoses_lines(result: dict) -> list[str]:
     leads = ", ".join(f"`{name}` on {count} ({count / n:.0%})"
                       for name, count in result["leading_effects"].items())
     worst = result["worst_rms_over_noise"]
+    causes = "; ".join(
+        f"{family} on {c['count']} ({c['count'] / n:.0%}"
+        + (": " + ", ".join(f"`{name}` {count}" for name, count in c["effects"].items())
+           if family != "none" else "") + ")"
+        for family, c in result["leading_causes"].items())
     lines = [f"- Leading effect of the explanation, of {n} diagnosed: {leads}.",
+             f"- Its physical cause (the catalogue's family of each leading effect): {causes}.",
              f"- A valid fit on {result['valid_fits']} of {n}; beyond the catalogue (the explanation "
              f"leaves a large misfit) on {result['beyond_catalogue']}.",
              "- The missing torque as the drifts of |H| and of the energy read it (the invariants): "

@@ -150,6 +150,12 @@ def test_diagnoses_across_counts_leads_and_compares_fits():
     assert out["recordings"] == 5 and out["diagnosed"] == 4
     assert out["refused"] == [{"name": "e", "reason": "too short"}]
     assert out["leading_effects"] == {"viscous_damping": 2, "internal_momentum": 1, "none": 1}
+    assert out["leading_causes"] == {"drag": {"count": 2, "effects": {"viscous_damping": 2}},
+                                     "internal momentum": {"count": 1, "effects": {"internal_momentum": 1}},
+                                     "none": {"count": 1, "effects": {"none": 1}}}
+    assert ("Its physical cause (the catalogue's family of each leading effect): drag on 2 (50%: "
+            "`viscous_damping` 2); internal momentum on 1 (25%: `internal_momentum` 1); none on 1 (25%)"
+            in diagnoses_markdown(out))
     assert out["most_common_lead"] == {"name": "viscous_damping", "count": 2, "share": 0.5}
     assert out["valid_fits"] == 3 and out["beyond_catalogue"] == 2
     assert out["invariants_readings"] == {drag: 2, "adds to the rotation": 1, "not applicable": 1}
@@ -307,3 +313,16 @@ def test_one_recordings_moments_keep_their_own_intervals():
     moments = identifications_across([("throw 1", summary)], [])["principal_moments"]
     assert moments["estimate"] == pytest.approx(vals[::-1].tolist())
     assert np.allclose(moments["ci95"], np.stack([vals - half, vals + half], 1)[::-1])
+
+
+def test_two_effects_of_one_family_lead_as_one_physical_cause():
+    """A thrown body's air read as linear drag on one toss and as its flight's air (aero_drag) on
+    another is one cause: leading_causes counts the family, leading_effects the names."""
+    done = [("a", _report(["viscous_damping"], [50, 9, 9], [2, 2, 2], [1, 0.9, 0.1])),
+            ("b", _report(["aero_drag", "gyro_bias"], [80, 9, 9], [3, 2, 2], [1, 0.9, 0.1])),
+            ("c", _report(["internal_momentum"], [60, 9, 9], [3, 2, 2], [1, 0.9, 0.1]))]
+    out = diagnoses_across(done, [])
+    assert out["leading_effects"] == {"viscous_damping": 1, "aero_drag": 1, "internal_momentum": 1}
+    assert out["leading_causes"] == {"drag": {"count": 2, "effects": {"viscous_damping": 1, "aero_drag": 1}},
+                                     "internal momentum": {"count": 1, "effects": {"internal_momentum": 1}}}
+    assert "drag on 2 (67%: `viscous_damping` 1, `aero_drag` 1)" in diagnoses_markdown(out)
