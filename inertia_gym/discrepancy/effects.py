@@ -959,7 +959,7 @@ class AeroDrag(_Drag):
     #: Gravity's directions (in the body's axes at the first sample) the flight form's screen tries.
     SCREEN_DIRECTIONS = 64
     #: Starts the screen keeps (its best directions, at least FLIGHT_APART_DEG apart).
-    SCREEN_KEEP = 4
+    SCREEN_KEEP = 2
     FLIGHT_APART_DEG = 30.0
 
     def _flight_screen(self, d, inertia) -> list[np.ndarray]:
