@@ -23,6 +23,11 @@ the flight, which this script first measured as a prototype):
   (6 parameters): what a torque about a fixed body axis with a free time course (the
   time-varying internal momentum) can mimic on a steady spin.
 
+Since 2026-12-03 the catalogue has the air of a flight itself, `aero_drag`'s form `flight`
+(effects.AeroDrag: a centre of pressure that moves with the flow, one off the centre of mass and
+the plate's damping, from the same flight), which leads the explanation of all 7 round-1 tosses;
+``flight_aero`` here is the earlier prototype as it was measured.
+
 Each prototype is registered in this process only, so `diagnose` is unchanged. It is fitted by
 the same solver as the catalogue (fit.fit_effect) on the record as diagnose prepares it
 (re-timed, its ends trimmed where the rigid fit locates impulses; diagnose may trim again after

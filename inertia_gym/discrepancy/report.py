@@ -733,6 +733,23 @@ def _rotor_reading(expl: list[dict], duration: float | None) -> str | None:
             "along that axis, a rotor spinning up and down where the body has one.")
 
 
+def _flight_reading(expl: list[dict]) -> str | None:
+    """The sentence that reads aero_drag's flight form in the explanation as a throw, or None: the
+    plate's normal, the launch speed and how far above the horizontal it was thrown.
+    """
+    flight = next((e for e in expl if e["name"] == "aero_drag" and e["form"] == "flight"), None)
+    if flight is None:
+        return None
+    p = flight["params"]
+    v0, down = np.asarray(p["launch_velocity"], float), np.asarray(p["gravity_direction"], float)
+    speed = float(np.linalg.norm(v0))
+    climb = float(np.degrees(np.arcsin(np.clip(-(v0 @ down) / speed, -1.0, 1.0)))) if speed > 0 else 0.0
+    return (f"aero_drag's flight form reads the body as a flat plate of normal "
+            f"{np.round(p['normal'], 3).tolist()} (body axes) thrown at {speed:.3g} m/s, {climb:.0f} deg "
+            "above the horizontal, through still air: the air's torque follows the throw's speed "
+            "and the plate's attitude to it.")
+
+
 def _explanation_words(report: dict) -> str:
     """The compound explanation and what was left out, in sentences."""
     expl = report["explanation"]
@@ -758,6 +775,8 @@ def _explanation_words(report: dict) -> str:
                 text += f"\n\n{e['name']} is confounded with {c['with']}: {c['reason']}."
         rotor = _rotor_reading(expl, report.get("duration_s"))  # (a hand-made report may lack it)
         text += f"\n\n{rotor}" if rotor else ""
+        flight = _flight_reading(expl)
+        text += f"\n\n{flight}" if flight else ""
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
         text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "

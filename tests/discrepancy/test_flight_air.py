@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from inertia_gym.discrepancy.effects import FLIGHT_MAX_S, GRAVITY, REGISTRY, Effect
 from inertia_gym.discrepancy.model import Motion
 from inertia_gym.discrepancy.recordings import read_recordings
-from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.discrepancy.report import diagnose, markdown
 from inertia_gym.errors import ConfigError
 
 AERO = REGISTRY["aero_drag"]
@@ -141,6 +141,10 @@ def test_a_thrown_plate_is_read_as_the_air_of_its_flight(tmp_path, seed):
     angle = np.degrees(np.arccos(min(1.0, abs(np.dot(lead["params"]["normal"], normal)))))
     assert angle < 5.0
     assert {c["with"] for c in lead["confounded_with"]} >= {"viscous_damping", "internal_momentum"}
+    # thrown up at 4.9 m/s (0.5 m/s at most sideways per axis): the throw's speed and climb
+    v0, down = np.array(lead["params"]["launch_velocity"]), np.array(lead["params"]["gravity_direction"])
+    assert 4.0 < np.linalg.norm(v0) < 6.0 and -(v0 @ down) / np.linalg.norm(v0) > np.sin(np.radians(70))
+    assert "flat plate of normal" in markdown(report, [])
 
 
 @pytest.mark.parametrize("seed", [0, 1])
