@@ -50,38 +50,19 @@ import json
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from typing_extensions import override
 
 from inertia_gym.discrepancy import effects as E
 from inertia_gym.discrepancy import fit as F
+from inertia_gym.discrepancy.effects import GRAVITY, direction, direction_angles, plane_basis
+from inertia_gym.discrepancy.model import integrated_attitude
 from inertia_gym.discrepancy.recordings import read_recordings, retimed
 from inertia_gym.discrepancy.report import impulses
-
-GRAVITY = 9.81  # m/s^2
-
-
-def unit(polar: float, azimuth: float) -> np.ndarray:
-    """The unit vector (3,) of polar and azimuth angles (rad)."""
-    return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
-
-
-def plane(polar: float, azimuth: float) -> np.ndarray:
-    """(2, 3): the unit vectors along increasing polar and azimuth angle, both normal to
-    unit(polar, azimuth) and smooth in the angles."""
-    return np.array([[np.cos(polar) * np.cos(azimuth), np.cos(polar) * np.sin(azimuth), -np.sin(polar)],
-                     [-np.sin(azimuth), np.cos(azimuth), 0.0]])
 
 
 def arm(p) -> np.ndarray:
     """The flight_aero arm a (3,) m: its two in-plane components p[0:2] on the plate's plane."""
-    return p[0:2] @ plane(p[3], p[4])
-
-
-def angles(v) -> tuple[float, float]:
-    """Polar and azimuth angles (rad) of the direction of v (3,)."""
-    v = np.asarray(v, float) / np.linalg.norm(v)
-    return float(np.arccos(np.clip(v[2], -1, 1))), float(np.arctan2(v[1], v[0]))
+    return plane_basis(p[3], p[4]) @ p[0:2]
 
 
 class Flight:
@@ -94,18 +75,13 @@ class Flight:
 
     @classmethod
     def set(cls, t, w) -> None:
-        turns = Rotation.from_rotvec(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None])
-        rot = [Rotation.identity()]
-        for step in turns:
-            rot.append(rot[-1] * step)
-        cls.t, cls.w = t, w
-        cls.rotation = np.stack([r.as_matrix() for r in rot])
+        cls.t, cls.w, cls.rotation = t, w, integrated_attitude(t, w)
 
 
 def plate_torque(p) -> np.ndarray:
     """The flight_aero torque (n, 3) at the measured rows for the vector p (10,)."""
-    a, k, normal = arm(p), p[2], unit(p[3], p[4])
-    v0, down = p[5:8], unit(p[8], p[9])
+    a, k, normal = arm(p), p[2], direction(p[3], p[4])
+    v0, down = p[5:8], direction(p[8], p[9])
     velocity = v0[None] + GRAVITY * down[None] * (Flight.t - Flight.t[0])[:, None]
     u = np.einsum("kji,kj->ki", Flight.rotation, velocity)  # R^T v: in the body frame
     u_n = u @ normal + Flight.w @ a
@@ -130,15 +106,15 @@ class FlightAero(E.EffectModel):
     @override
     def starts(self, form, d, probe):
         _, axes = np.linalg.eigh(probe.base.inertia)  # minor, intermediate, major
-        normal = angles(axes[:, 2])
+        normal = direction_angles(axes[:, 2])
         duration = float(d.t[-1] - d.t[0])
         out = []
-        in_plane = plane(*normal) @ (0.3 * axes[:, 1])
+        in_plane = plane_basis(*normal).T @ (0.3 * axes[:, 1])
         for sign in (1.0, -1.0):
             for down in np.vstack([np.eye(3), -np.eye(3)]):
                 for k in (0.3, 3.0):
                     out.append(np.r_[sign * in_plane, k, normal,
-                                     -GRAVITY * down * duration / 2, angles(down)])
+                                     -GRAVITY * down * duration / 2, direction_angles(down)])
         return out
 
     @override
@@ -245,9 +221,9 @@ def main() -> None:
                 row["viscous_damping+" + second] = [round(float(nominal.bic - pair.bic)), worst(pair)]
             p = fits["flight_aero"].params["p"]
             row["plate"] = {"arm_m": round(float(np.linalg.norm(arm(p))), 3),
-                            "normal": np.round(unit(p[3], p[4]), 2).tolist(),
+                            "normal": np.round(direction(p[3], p[4]), 2).tolist(),
                             "launch_m_s": round(float(np.linalg.norm(p[5:8])), 2),
-                            "gravity_at_start": np.round(unit(p[8], p[9]), 2).tolist()}
+                            "gravity_at_start": np.round(direction(p[8], p[9]), 2).tolist()}
             row["best_single"] = max(singles, key=lambda n: row[n][0])
             rows.append(row)
             print(json.dumps(row), flush=True)

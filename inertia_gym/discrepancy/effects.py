@@ -853,7 +853,7 @@ FLIGHT_MAX_S = 5.0
 GRAVITY = 9.80665
 
 
-def _plane_basis(polar: float, azimuth: float) -> np.ndarray:
+def plane_basis(polar: float, azimuth: float) -> np.ndarray:
     """(3, 2): two unit vectors normal to the direction (polar, azimuth) rad and to each other,
     along increasing polar and azimuth angle (smooth in both).
     """
@@ -862,12 +862,12 @@ def _plane_basis(polar: float, azimuth: float) -> np.ndarray:
                      [-np.sin(polar), 0.0]])
 
 
-def _direction(polar: float, azimuth: float) -> np.ndarray:
+def direction(polar: float, azimuth: float) -> np.ndarray:
     """The unit vector (3,) of the angles polar and azimuth (rad)."""
     return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
 
 
-def _angles(v) -> tuple[float, float]:
+def direction_angles(v) -> tuple[float, float]:
     """Polar and azimuth angles (rad) of the direction of v (3,)."""
     v = np.asarray(v, float) / np.linalg.norm(v)
     return float(np.arccos(np.clip(v[2], -1.0, 1.0))), float(np.arctan2(v[1], v[0]))
@@ -977,8 +977,8 @@ class AeroDrag(_Drag):
         rotation = d.motion(d.grid).rotation[d.grid.sample_pos]
         w_dot = signal.savgol_filter(w, window, 3, deriv=1, delta=d.dt, axis=0)
         asked = w_dot @ inertia.T + np.cross(w, w @ inertia.T) - d.tau
-        polar, azimuth = _angles(np.linalg.eigh(inertia)[1][:, 2])
-        n, e = _direction(polar, azimuth), _plane_basis(polar, azimuth)
+        polar, azimuth = direction_angles(np.linalg.eigh(inertia)[1][:, 2])
+        n, e = direction(polar, azimuth), plane_basis(polar, azimuth)
         shapes = [np.outer(e[:, 0], e[:, 0]), np.outer(e[:, 1], e[:, 1]),
                   np.outer(e[:, 0], e[:, 1]) + np.outer(e[:, 1], e[:, 0])]
         golden = np.pi * (3.0 - np.sqrt(5.0))
@@ -1005,7 +1005,7 @@ class AeroDrag(_Drag):
         for _, down, sol in sorted(fits, key=lambda f: f[0]):
             if all(down @ v < np.cos(np.radians(self.FLIGHT_APART_DEG)) for v in kept):
                 kept.append(down)
-                start = np.r_[polar, azimuth, sol, -self._speed(d) * down, _angles(down)]
+                start = np.r_[polar, azimuth, sol, -self._speed(d) * down, direction_angles(down)]
                 out.append(self.feasible(start, None))
             if len(out) == self.SCREEN_KEEP:
                 break
@@ -1015,23 +1015,23 @@ class AeroDrag(_Drag):
     def unpack(self, p):
         if p.size != self.FLIGHT_SIZE:
             return super().unpack(p)
-        e = _plane_basis(p[0], p[1])
-        return {"normal": _direction(p[0], p[1]), "static": _in_plane(e, *p[2:5]), "arm": e @ p[5:7],
+        e = plane_basis(p[0], p[1])
+        return {"normal": direction(p[0], p[1]), "static": _in_plane(e, *p[2:5]), "arm": e @ p[5:7],
                 "arm_sided": e @ p[7:9], "flow_damping": _in_plane(e, *p[9:12]),
-                "launch_velocity": np.array(p[12:15]), "gravity_direction": _direction(p[15], p[16])}
+                "launch_velocity": np.array(p[12:15]), "gravity_direction": direction(p[15], p[16])}
 
     @override
     def pack(self, params):
         if "normal" not in params:
             return super().pack(params)
-        polar, azimuth = _angles(params["normal"])
-        e = _plane_basis(polar, azimuth)
+        polar, azimuth = direction_angles(params["normal"])
+        e = plane_basis(polar, azimuth)
         k = e.T @ np.asarray(params["static"], float) @ e
         c = e.T @ np.asarray(params["flow_damping"], float) @ e
         return np.r_[polar, azimuth, k[0, 0], k[1, 1], k[0, 1], e.T @ np.asarray(params["arm"], float),
                      e.T @ np.asarray(params["arm_sided"], float), c[0, 0], c[1, 1], c[0, 1],
                      np.asarray(params["launch_velocity"], float),
-                     _angles(params["gravity_direction"])]
+                     direction_angles(params["gravity_direction"])]
 
     @override
     def feasible(self, p, inertia):

@@ -30,10 +30,17 @@ import functools
 
 import numpy as np
 from scipy import signal, stats
-from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6, skew
-from inertia_gym.discrepancy.model import Grid, Motion, effect_terms, gyro_output, held_cumulative, simulate
+from inertia_gym.discrepancy.model import (
+    Grid,
+    Motion,
+    effect_terms,
+    gyro_output,
+    held_cumulative,
+    integrated_attitude,
+    simulate,
+)
 from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.equation_error import (
@@ -257,12 +264,7 @@ class Data:
         key = ("motion", grid.steps)
         if key not in self.cache:
             rates = np.stack([np.interp(grid.t, self.t, self.w[:, i]) for i in range(3)], 1)
-            turns = Rotation.from_rotvec(0.5 * (rates[1:] + rates[:-1]) * np.diff(grid.t)[:, None])
-            rotation = np.empty((grid.t.size, 3, 3))
-            rotation[0] = np.eye(3)
-            for k, turn in enumerate(turns.as_matrix()):
-                rotation[k + 1] = rotation[k] @ turn
-            self.cache[key] = Motion(grid.t, rotation, rates)
+            self.cache[key] = Motion(grid.t, integrated_attitude(grid.t, rates), rates)
         return self.cache[key]
 
     def q0(self) -> np.ndarray:
@@ -628,13 +630,13 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     # the segments' rates are not in the model, and the effects' terms do not depend on the
     # inertia (a Jacobian's inertia columns share them): each built once
     effect_keys = [x[6:layout.n_global].tobytes() for x in xs]
+    motion = d.motion(grid) if "flight" in layout.forms else None  # what a flight's air reads
     effects: dict = {}  # effect key -> (its parts, EffectTerms, the indices of xs that have it)
     built: dict = {}  # the whole model's key -> its Terms
     terms = []
     for i, (effect_key, x) in enumerate(zip(effect_keys, xs)):
         if effect_key not in effects:
             p = layout.parts(x, d)
-            motion = d.motion(grid) if "flight" in layout.forms else None
             effects[effect_key] = p, effect_terms(p, grid, cumulative, h_known, commanded, motion), []
         p, shared, members = effects[effect_key]
         members.append(i)

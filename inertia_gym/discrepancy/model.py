@@ -16,6 +16,7 @@ import dataclasses
 import functools
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import Cumulative, EffectModel
 from inertia_gym.dynamics import pack_fields, propagate_model_batch
@@ -64,6 +65,20 @@ def held_cumulative(t_rows, tau_rows) -> Cumulative:
         return out
 
     return cumulative
+
+
+def integrated_attitude(t, rates) -> np.ndarray:
+    """(k, 3, 3): the body's axes at each time t (k,) s in the frame of its axes at t[0] (the
+    first the identity), integrated from its rates (k, 3) rad/s, each interval turned by the
+    mean of its ends' rates.
+    """
+    rates = np.asarray(rates, float)
+    turns = Rotation.from_rotvec(0.5 * (rates[1:] + rates[:-1]) * np.diff(t)[:, None]).as_matrix()
+    rotation = np.empty((rates.shape[0], 3, 3))
+    rotation[0] = np.eye(3)
+    for k, turn in enumerate(turns):  # a chain: each step needs the last (k of a flight's rows)
+        rotation[k + 1] = rotation[k] @ turn
+    return rotation
 
 
 @dataclasses.dataclass(frozen=True)
