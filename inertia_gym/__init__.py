@@ -11,7 +11,6 @@ use_source_keyed_cache()  # before any kernel module is imported (see kernel_cac
 use_fork_safe_threading()  # before the first parallel kernel runs (see kernel_cache.py)
 
 import inertia_gym.envs  # noqa: E402,F401  (registers "InertiaGym/Excitation-v0")
-from inertia_gym.discrepancy.recordings import Recording, read_recordings  # noqa: E402
 from inertia_gym.errors import (  # noqa: E402
     ConfigError,
     EstimatorDivergedError,
@@ -19,6 +18,8 @@ from inertia_gym.errors import (  # noqa: E402
     RecordingError,
 )
 from inertia_gym.identification import identify  # noqa: E402
+from inertia_gym.joint_identification import identify_joint  # noqa: E402
+from inertia_gym.recordings import Recording, read_recordings  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
 
 __all__ = [
@@ -29,6 +30,7 @@ __all__ = [
     "RecordingError",
     "Scenario",
     "identify",
+    "identify_joint",
     "read_recordings",
 ]
 __version__ = "0.1.0"

@@ -174,17 +174,23 @@ def inv3(m):
     return out
 
 
-@nb.njit(cache=True)
-def quat_multiply(p, q):
-    """Hamilton product p (x) q of scalar-first quaternions."""
-    return np.array(
-        (
-            p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
-            p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
-            p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
-            p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0],
-        )
-    )
+def quat_mul(p, q) -> np.ndarray:
+    """Hamilton product p (x) q of (..., 4) scalar-first quaternions."""
+    pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(np.asarray(q, float), -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw],
+                    axis=-1)
+
+
+def quat_exp(v) -> np.ndarray:
+    """Unit quaternions exp(v/2) (..., 4) of rotation vectors v (..., 3) rad."""
+    v = np.asarray(v, dtype=float)
+    a = np.linalg.norm(v, axis=-1, keepdims=True)
+    small = a < 1e-12
+    half = np.where(small, 0.5 / np.sqrt(1 + 0.25 * a * a), np.sin(a / 2) / np.where(small, 1.0, a))
+    scalar = np.where(small, 1.0 / np.sqrt(1 + 0.25 * a * a), np.cos(a / 2))
+    return np.concatenate([scalar, half * v], axis=-1)
 
 
 @nb.njit(cache=True)

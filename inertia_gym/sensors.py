@@ -14,6 +14,8 @@ import math
 import numba as nb
 import numpy as np
 
+from inertia_gym.dynamics import quat_mul
+
 N_STATE = 13
 
 
@@ -136,6 +138,16 @@ NOISE_ORDERS = (3, 4, 5, 6)
 #: over NOISE_ORDERS: on white noise alone the third differences' level is within it (their
 #: levels scatter 15 % about the truth over 100 rows, and together).
 NOISE_PLATEAU = 1.25
+
+
+def attitude_error(q_model, z_q) -> np.ndarray:
+    """(M, 3) rad: 2 vec(q_model^* (x) z_q), sign-aligned: the measured attitude's rotation
+    from the modelled one, in the body frame, for q_model and z_q (M, 4) scalar first.
+    """
+    conj = np.asarray(q_model, float) * np.array([1.0, -1.0, -1.0, -1.0])
+    dq = quat_mul(conj, z_q)
+    dq *= np.where(dq[:, :1] < 0, -1.0, 1.0)
+    return 2.0 * dq[:, 1:]
 
 
 def estimate_white_noise(w) -> np.ndarray:
@@ -392,3 +404,24 @@ def stated_noise_note(w, stated, residual_rms) -> str | None:
     return (said + ": where the gyro's noise is white, the intervals are that much wider than the "
             "data need and the noise-based flags that much lenient; a coloured noise (vibration) or "
             "a low-passed gyro reads so too, and then the sidecar's level is the one to keep")
+
+
+#: Share of consecutive rows an axis reads alike (mean runs of 5) from which the gyro reads on a
+#: lattice coarse beside its noise and the motion between rows (coarse_lattice_note).
+COARSE_REPEAT_SHARE = 0.8
+
+
+def coarse_lattice_note(w) -> str | None:
+    """For the filters, which count no rounding: a note where the gyro repeats its reading on
+    COARSE_REPEAT_SHARE or more of the consecutive rows of an axis (w (n, 3) rad/s): it reads on a
+    lattice coarse beside its noise and the motion between rows, whose rounding error follows
+    the motion (the output error counts it: estimation/ml.lattice_replayed).
+    """
+    repeat = repeat_share(w)
+    coarse = np.flatnonzero(repeat >= COARSE_REPEAT_SHARE)
+    if not coarse.size:
+        return None
+    axes = ", ".join(f"{'xyz'[i]} {100 * repeat[i]:.0f} %" for i in coarse)
+    return (f"the gyro repeats its reading from row to row ({axes} of the rows): it reads on a lattice "
+            "coarse beside its noise and the motion between rows, and its rounding error follows the "
+            "motion, which the filter's intervals do not count: they may be several times too narrow")

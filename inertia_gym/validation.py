@@ -7,7 +7,7 @@ part torque-free motion can identify), 95% interval coverage, divergence, and wh
 was identified (the filter's posterior on the log-scale shrank).
 
 Beside the filter, every run is refined by batch maximum likelihood over its whole record
-(identify.refine: output error on the gyro and quaternion readings the filter saw, the applied
+(estimation/ml.refine: output error on the gyro and quaternion readings the filter saw, the applied
 torque known, started from the filter's final estimate) and scored against the Cramér-Rao bound
 of the run (the inverse Fisher information from the sensitivities at the truth, same unknowns:
 inertia, initial rate and attitude, gyro bias). Without torque the scale is not fitted and the
@@ -22,10 +22,11 @@ import time
 import numpy as np
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation import ml
-from inertia_gym.estimation.inertia_param import dtheta_dphi, phi_from_inertia, theta_from_phi
+from inertia_gym.estimation import output_error
+from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.estimation.ml import cramer_rao_bound, refine
+from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED, relative_frobenius_bound
 from inertia_gym.excitation import burst_direction, validation_schedule
-from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED, cramer_rao_bound, refine
 from inertia_gym.information import inertia_from_theta, theta_from_inertia
 from inertia_gym.scenario import Scenario, steps
 from inertia_gym.simulation import initial_state, run_segment
@@ -230,7 +231,7 @@ def _refine_one(sc: Scenario, x_final, p_final, t_meas, meas, tau, forced: bool)
     hi = min(tau.shape[0], int(steps[-1]) + 1)
     tau_grid[: max(0, hi - first)] = tau[first:hi]
     z = meas[valid]
-    prob = ml.Problem(
+    prob = output_error.Problem(
         t_grid=grid_t - grid_t[0], tau_grid=tau_grid, h_grid=np.zeros_like(tau_grid),
         # The truth is RK4 at dt: the model integrates on the same grid with the same steps.
         n_sub=np.ones(grid_t.size, dtype=np.int64), meas_idx=steps - first,
@@ -240,16 +241,9 @@ def _refine_one(sc: Scenario, x_final, p_final, t_meas, meas, tau, forced: bool)
     n = prob.n_params
     p0 = np.zeros(n)
     p0[:6], p0[6:9] = x_final[7:13], z[0, 7:10]
-    info = np.zeros((n, n))
-    p_phi = p_final[7:13, 7:13]
-    keep = slice(1, 6) if prob.fix_scale else slice(0, 6)
-    info[keep, keep] = np.linalg.inv(p_phi[keep, keep])
-    # The filter's own relative uncertainty plans the first horizon of the refinement.
-    d = dtheta_dphi(np.ascontiguousarray(x_final[7:13]))
-    theta_hat = theta_from_phi(np.ascontiguousarray(x_final[7:13]))
-    rel = ml.relative_frobenius_bound(theta_hat, d @ p_phi @ d.T)
     q0 = z[0, 10:14] if with_att else None
-    ref = refine(prob, p0, q0, info, rel, None, "scenario gyro_sigma")
+    # the filter's own uncertainty of its inertia: the refinement's prior and its first horizon
+    ref = refine(prob, p0, q0, p_final[7:13, 7:13], None, "scenario gyro_sigma")
     # The bound at the truth: the same problem's Fisher information at the true parameters.
     truth = np.zeros(n)
     truth[:6] = phi_from_inertia(sc.inertia_true_array)
@@ -283,7 +277,7 @@ def refine_runs(sc: Scenario, state, t_meas, measurements, tau, forced: bool) ->
         truth = theta_true if est.scale_identified else theta_true * (
             (est.theta[0] + est.theta[3] + est.theta[5]) / (theta_true[0] + theta_true[3] + theta_true[5]))
         rel[r] = relative_error(est.inertia, inertia_from_theta(truth))
-        crlb[r] = ml.relative_frobenius_bound(bound.theta, bound.theta_cov)
+        crlb[r] = relative_frobenius_bound(bound.theta, bound.theta_cov)
         covered[r] = np.abs(est.theta - truth) <= 1.96 * est.sigma
         inertia[r] = est.inertia
     return RefinedScores(rel, crlb, covered, inertia, not fix_scale, time.perf_counter() - t0)

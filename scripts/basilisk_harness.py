@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.discrepancy.basilisk import TRUTH_KEY, Panel, Slosh, SpacecraftCase, Wheels, simulate
-from inertia_gym.discrepancy.recordings import read_recordings, write_recording
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.recordings import read_recordings, write_recording
 
 # What counts as a correct diagnosis of each concealed component: the catalogue names that
 # describe physics present in the Basilisk truth (docs/contracts.md, "Effect catalogue").

@@ -32,10 +32,10 @@ import numpy as np
 from scipy import optimize
 
 from inertia_gym.discrepancy import fit as F
-from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.executors import HELPERS_VARIABLE, wait_for_helpers
+from inertia_gym.recordings import Recording, read_recordings
 from inertia_gym.scenario import Scenario
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,

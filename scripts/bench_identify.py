@@ -6,11 +6,13 @@ a. the paper's scenario: --duration-a s (default 1000) at 100 Hz with torque bur
    (``simulate_recording(Scenario(), duration, seed=0, sample_dt=0.01)``; 15 parameters: phi,
    w0, dq0, gyro bias);
 b. a 0.5-s, 4-kHz throw of a 5e-4 kg·m² body, gyro only, torque-free, with a rotor whose known
-   momentum (h_max 2e-3 kg·m²/s) fixes the scale (9 parameters: phi, w0).
+   momentum (h_max 2e-3 kg·m²/s) fixes the scale (9 parameters: phi, w0);
+c. eleven such throws (seeds 0-10) of one body fitted together (identify_joint): its wall time
+   against the eleven identify() calls it makes inside, and its error against theirs' mean.
 
 identify() (compiled sensitivities, Levenberg-Marquardt over a progressive horizon) is timed as
 the median of --repeats calls after one warm-up call on a short recording that compiles the
-numba kernels. The peer solves the same problem (``ml.evaluate(prob, p, q_ref, False).r``, the
+numba kernels. The peer solves the same problem (``output_error.evaluate(prob, p, q_ref, False).r``, the
 same weights, all free parameters) with ``scipy.optimize.least_squares`` (method 'trf',
 default 2-point finite-difference Jacobian) over the whole record at once (no progressive
 horizon), from the same equation-error start; it runs once, capped by max_nfev so that it ends
@@ -48,13 +50,14 @@ from scipy.optimize import least_squares  # noqa: E402
 
 from inertia_gym.discrepancy.synthetic import simulate_recording  # noqa: E402
 from inertia_gym.errors import ConfigError, RecordingError  # noqa: E402
-from inertia_gym.estimation import ml  # noqa: E402
+from inertia_gym.estimation import output_error  # noqa: E402
 from inertia_gym.estimation.equation_error import equation_error_theta  # noqa: E402
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia  # noqa: E402
-from inertia_gym.identification import identify, problem_from_recording  # noqa: E402
+from inertia_gym.identification import identify, problem_from  # noqa: E402
 from inertia_gym.information import inertia_from_theta  # noqa: E402
+from inertia_gym.joint_identification import identify_joint  # noqa: E402
+from inertia_gym.prepare import prepared  # noqa: E402
 from inertia_gym.scenario import Scenario  # noqa: E402
-from inertia_gym.sensors import quantisation_step, stated_gyro_level  # noqa: E402
 
 SMALL_BODY = [[5.2e-4, 0.0, 0.0], [0.0, 2.2e-4, 0.0], [0.0, 0.0, 5.2e-4]]
 #: Residual returned to the peer where the model's trajectory is not finite.
@@ -81,9 +84,8 @@ def case_recording(name: str, duration_a: float):
 
 def start_and_problem(rec):
     """The problem and start identify() builds: (prob, p0 (n,), q_ref (4,))."""
-    sigma_w = (stated_gyro_level(float(rec.meta["gyro_sigma"]), quantisation_step(rec.w))
-               if "gyro_sigma" in rec.meta else None)
-    prob = problem_from_recording(rec, sigma_w, None)
+    prep = prepared(rec)
+    prob = problem_from(prep, prep.sigma)
     nominal = rec.inertia_nominal
     trace = float(np.trace(nominal)) if nominal is not None else 1.0
     theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid, trace=trace)
@@ -103,7 +105,7 @@ def run_peer(prob, p0, q_ref, budget_s: float) -> dict:
         calls[0] += 1
         p = p0.copy()
         p[free] = x
-        r = ml.evaluate(prob, p, q_ref, False).r
+        r = output_error.evaluate(prob, p, q_ref, False).r
         return np.nan_to_num(r, nan=NON_FINITE_RESIDUAL, posinf=NON_FINITE_RESIDUAL,
                              neginf=-NON_FINITE_RESIDUAL)
 
@@ -163,6 +165,28 @@ def bench_case(name: str, args) -> dict:
     return out
 
 
+def bench_joint(args) -> dict:
+    """Case c: identify_joint on eleven simulated throws of one body against identify on each."""
+    recs = []
+    for seed in range(11):
+        sc = Scenario(inertia_true=SMALL_BODY, inertia_guess=SMALL_BODY, omega0=[15.0, -6.0 + seed, -10.0],
+                      dt=0.00025, gyro_sigma=0.01)
+        rec, _ = simulate_recording(sc, 0.5, seed=seed, torque=False, rotor_h_max=2e-3)
+        recs.append(dataclasses.replace(rec, q=None, name=f"throw-{seed}"))
+    truth = np.asarray(SMALL_BODY, float)
+    t0 = time.perf_counter()
+    singles = [identify(rec) for rec in recs]
+    wall_singles = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    joint = identify_joint(recs)
+    wall_joint = time.perf_counter() - t0
+    mean = np.mean([s.estimate.inertia for s in singles], axis=0)
+    return {"case": "c", "throws": len(recs), "wall_s_joint": round(wall_joint, 3),
+            "wall_s_singles": round(wall_singles, 3), "estimator": joint.estimator,
+            "rel_error_joint": rel_error(joint.estimate.inertia, truth),
+            "rel_error_singles_mean": rel_error(mean, truth), "agreement_p": float(joint.agreement_p)}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3,
@@ -171,7 +195,7 @@ def main():
                         help="length of case a's recording, s")
     parser.add_argument("--peer-budget", type=float, default=150.0,
                         help="about how long the peer may run per case, s (sets max_nfev)")
-    parser.add_argument("--cases", default="a,b", help="comma-separated subset of a,b")
+    parser.add_argument("--cases", default="a,b,c", help="comma-separated subset of a,b,c")
     args = parser.parse_args()
     # Compile the kernels outside the timings (both branches: with and without attitude).
     warm, _ = simulate_recording(Scenario(), 5.0, seed=0, sample_dt=0.01)
@@ -179,7 +203,8 @@ def main():
     identify(dataclasses.replace(warm, q=None))
     least_squares(lambda x: x - 1.0, np.zeros(2), method="trf")  # scipy's first-call overhead
     for name in args.cases.split(","):
-        print(json.dumps(bench_case(name.strip(), args)), flush=True)
+        report = bench_joint(args) if name.strip() == "c" else bench_case(name.strip(), args)
+        print(json.dumps(report), flush=True)
 
 
 if __name__ == "__main__":

@@ -23,8 +23,8 @@ import numpy as np
 
 from inertia_gym.across import diagnoses_across, diagnoses_markdown
 from inertia_gym.commands.common import write_json
-from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
+from inertia_gym.recordings import read_recordings
 
 
 def _round(values):

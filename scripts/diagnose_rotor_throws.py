@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.commands.common import write_json
-from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.recordings import read_recordings
 
 
 def axis_error_deg(fitted, truth) -> float:

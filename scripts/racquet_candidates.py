@@ -56,8 +56,8 @@ from inertia_gym.discrepancy import effects as E
 from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy.effects import GRAVITY, direction, direction_angles, plane_basis
 from inertia_gym.discrepancy.model import integrated_attitude
-from inertia_gym.discrepancy.recordings import read_recordings, retimed
 from inertia_gym.discrepancy.report import impulses
+from inertia_gym.recordings import read_recordings, retimed
 
 
 def arm(p) -> np.ndarray:

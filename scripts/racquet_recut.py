@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.across import leading_effect
-from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.identification import identify
+from inertia_gym.recordings import Recording, read_recordings
 
 #: (start, end) shifts of each window, s: widened, narrowed, start later, end earlier, as given.
 CUTS = ((-0.05, 0.05), (0.05, -0.05), (0.1, 0.0), (0.0, -0.1), (0.0, 0.0))

@@ -30,8 +30,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from racquet_strip_sim import PLAN, simulate_toss, write_toss  # noqa: E402
 
-from inertia_gym.discrepancy.recordings import read_recordings  # noqa: E402
 from inertia_gym.discrepancy.report import diagnose  # noqa: E402
+from inertia_gym.recordings import read_recordings  # noqa: E402
 
 DRAG_FAMILY = ("viscous_damping", "aero_drag")
 

@@ -23,9 +23,9 @@ import numpy as np
 
 from inertia_gym.discrepancy.effects import REGISTRY
 from inertia_gym.discrepancy.fit import MODE_REACH, Data, Fit, Layout, Probe, claim_margin, fit_model
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.recordings import Recording
 from inertia_gym.scenario import Scenario
 
 PAIRS = (("internal_momentum", "gyro_bias"), ("internal_momentum", "constant_body_torque"),

@@ -21,8 +21,8 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.fit import UNEXPLAINED_RMS
-from inertia_gym.discrepancy.recordings import read_csv_recording
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.recordings import read_csv_recording
 
 SIGMA = 2e-3  # rad/s
 

@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy.recordings import PHYPHOX_COLUMNS, Recording, read_recordings
+from inertia_gym.recordings import PHYPHOX_COLUMNS, Recording, read_recordings
 from inertia_gym.scenario import Scenario
 
 # the suite's xdist workers already fill the cores: diagnose's fits run without helper processes

@@ -17,7 +17,7 @@ from inertia_gym.across import (
     series_name,
     source_words,
 )
-from inertia_gym.identification import InertiaEstimate
+from inertia_gym.estimation.uncertainty import InertiaEstimate
 
 
 def _random_effects(y, v):

@@ -10,7 +10,7 @@ from inertia_gym.dynamics import (
     propagate,
     propagate_batch,
     propagate_model_batch,
-    quat_multiply,
+    quat_mul,
     quat_to_rotation,
     rk4_lanes,
     rk4_step_into,
@@ -27,7 +27,7 @@ def _reference(q0, w0, inertia, tau, t_end, dist_torque=None):
     def rhs(_, y):
         q, w = y[:4], y[4:]
         extra = np.zeros(3) if dist_torque is None else dist_torque(q, w)
-        dq = 0.5 * quat_multiply(q, np.r_[0.0, w])
+        dq = 0.5 * quat_mul(q, np.r_[0.0, w])
         dw = inv @ (tau + extra - np.cross(w, inertia @ w))
         return np.r_[dq, dw]
 

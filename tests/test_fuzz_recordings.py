@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.recordings import COLUMN_NAMES
 from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.recordings import COLUMN_NAMES
 from inertia_gym.scenario import Scenario
 
 ROWS = 101  # 1 s at 100 Hz: enough for both commands, small enough to fuzz
@@ -189,7 +189,7 @@ def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     (1.0, 180.0 / np.pi, 1.0, ["--rate-unit", "deg/s"], None),
     (1e8, 1.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "cut the recording"),
     (1.0, 10.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
-    pytest.param(1e3, 1.0, 100.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "584 times the nominal's",
+    pytest.param(1e3, 1.0, 100.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "times the nominal's",
                  marks=pytest.mark.slow),
 ])
 def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
@@ -223,7 +223,7 @@ def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path,
 @pytest.mark.parametrize("command", ["diagnose", "identify"])
 @pytest.mark.parametrize("case, message", [
     ("single row", "only 1 samples"),
-    ("short", "diagnose needs at least|identify needs at least"),
+    ("short", "needs at least"),
     ("constant time", "time does not increase"),
     ("huge values", "beyond any physical scale"),
     ("NaN column", "column 'wy': value is NaN"),

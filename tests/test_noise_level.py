@@ -290,7 +290,7 @@ def test_rounding_runs_are_the_mean_run_of_equal_samples_on_a_lattice():
     """fit.rounding_runs by its definition: samples / (changes + 1) on each axis read on a lattice,
     0 on an axis that is not."""
     from inertia_gym.discrepancy.fit import prepare, rounding_runs
-    from inertia_gym.discrepancy.recordings import Recording
+    from inertia_gym.recordings import Recording
 
     t = np.arange(400) * 0.1
     lattice = np.repeat(np.arange(100) % 9, 4) * 0.01  # runs of 4 on 9 levels
@@ -324,9 +324,10 @@ def test_identify_counts_a_coarse_lattice_in_its_intervals():
     intervals missed the truth by 4.1 and 8.4 sigma on these two seeds (measured before
     identification._lattice_replayed). The spread of replays of the fit read on the lattice,
     added to the covariance, makes them cover (measured within 1.15 sigma), and identify says
-    so; the filters, which replay nothing, keep the warning (_coarse_lattice_note). Read in
+    so; the filters, which replay nothing, keep a warning (_coarse_lattice_note). Read in
     steps of 2x the ratios are within 1 % as well."""
-    from inertia_gym.identification import _coarse_lattice_note, identify
+    from inertia_gym.identification import identify
+    from inertia_gym.sensors import coarse_lattice_note
 
     def identified(seed, step):  # its sidecar's nominal (the true inertia) not given to identify
         rec = _slow_tumble_read_coarsely(seed, None, step=step)
@@ -343,8 +344,8 @@ def test_identify_counts_a_coarse_lattice_in_its_intervals():
         ratios, cov = np.asarray(summary["principal_ratios"]), np.asarray(summary["principal_ratios_cov"])
         z = (ratios - truth)[1:] / np.sqrt(np.diag(cov)[1:])
         assert np.all(np.abs(z) < 1.96), z
-    assert "repeats its reading" in _coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.01).w)
-    assert _coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.001).w) is None
+    assert "repeats its reading" in coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.01).w)
+    assert coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.001).w) is None
     fine = np.asarray(identified(0, 0.001).summary()["principal_ratios"])
     np.testing.assert_allclose(fine, truth, rtol=0.01)
 

@@ -69,7 +69,7 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
 
 def add_recording_argument(parser: argparse.ArgumentParser) -> None:
     """The positional REC of the commands that read a recording, with --columns and the units."""
-    from inertia_gym.discrepancy.recordings import RATE_UNITS, TIME_UNITS
+    from inertia_gym.recordings import RATE_UNITS, TIME_UNITS
 
     parser.add_argument("rec", metavar="REC",
                         help="project CSV/Parquet (+ sidecar JSON), a phyphox export (its "
@@ -121,7 +121,7 @@ def for_each_recording(args: argparse.Namespace, work, summarize=None) -> int:
     goes to stderr and to refused.txt in its folder, and once all are done (and summarized) a
     RecordingError says how many were refused (exit 2).
     """
-    from inertia_gym.discrepancy.recordings import recording_sources
+    from inertia_gym.recordings import recording_sources
 
     path = Path(args.rec)
     many = path.is_dir() and not (path / "Raw Data.csv").exists()  # not one phyphox export
@@ -168,7 +168,7 @@ def _read_each(sources, units):
     units = (columns, time_unit, rate_unit)); (name, the InertiaGymError) for a source that
     cannot be read (name: its path where None).
     """
-    from inertia_gym.discrepancy.recordings import read_source
+    from inertia_gym.recordings import read_source
 
     for name, source in sources:
         try:

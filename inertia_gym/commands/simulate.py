@@ -13,8 +13,8 @@ from inertia_gym.commands.common import (
     nonnegative_int,
     positive_float,
 )
-from inertia_gym.discrepancy.recordings import write_recording
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
+from inertia_gym.recordings import write_recording
 
 
 def add_parser(subparsers) -> None:

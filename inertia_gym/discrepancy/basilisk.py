@@ -27,9 +27,9 @@ import json
 
 import numpy as np
 
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.synthetic import burst_schedule
 from inertia_gym.errors import ConfigError
+from inertia_gym.recordings import Recording
 
 #: Sidecar key holding what the recording conceals; no part of the diagnosis reads it.
 TRUTH_KEY = "basilisk_truth"

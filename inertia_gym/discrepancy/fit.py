@@ -41,8 +41,8 @@ from inertia_gym.discrepancy.model import (
     integrated_attitude,
     simulate,
 )
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.errors import RecordingError
+from inertia_gym.estimation import solver
 from inertia_gym.estimation.equation_error import (
     equation_error_theta,
     modulating_windows,
@@ -60,8 +60,9 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
+from inertia_gym.prepare import end_impulses, saturated_samples
+from inertia_gym.recordings import Recording
 from inertia_gym.sensors import (
-    QUANTUM_MIN_VALUES,
     estimate_white_noise,
     lattice_replays,
     quantisation_step,
@@ -113,10 +114,6 @@ SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
 #: more a toss.
 POLISH_MAX_RMS = 1.5
 POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
-#: Levenberg-Marquardt damping at the start of a solve (and at its one restart after a stall).
-LM_START = 1e-3
-#: dampings an LM iteration tries at most (each 6x the last), and how many of them one batch holds
-LM_TRIES, SPECULATE = 12, 2
 #: Axes searched (over a hemisphere, about 7 deg apart) for a momentum varying along one, and
 #: how far apart (deg) the few kept as starts are.
 MOMENTUM_AXES, MOMENTUM_AXES_APART = 200, 30.0
@@ -136,13 +133,6 @@ KNOTS_ON_CHANGE = 0.75
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
 MODE_REACH, MODE_GRID = 1.5, 1.15
-#: A gyro axis reads as clipped where a run of its extreme value is entered and left steeply:
-#: the stretch within CLIP_DROP steps (the level spacing or the noise) of it is at most 2
-#: CLIP_REACH longer than its samples at the extreme (saturated_samples).
-CLIP_DROP, CLIP_REACH = 3.0, 0.25
-#: An impulse at a record's end: the whitened residual jumps by more than this many times its
-#: median step, within this share of the record from its end.
-IMPULSE_JUMP, IMPULSE_SPAN = 8.0, 0.15
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -272,122 +262,6 @@ class Data:
         if self.q is None:
             return np.tile([1.0, 0.0, 0.0, 0.0], (self.segments, 1))
         return self.q[self.seg[:-1]]
-
-
-def saturated_samples(rec: Recording) -> np.ndarray:
-    """(n, 3) bool: samples the gyro clipped: each axis's extreme value on either side where it
-    reads as a clip (_clipped_extreme), an axis read at one value throughout where another axis
-    is read to full precision (a gyro resolving its noise there would here too), and, with a
-    full scale in the sidecar (gyro_full_scale_rad_s), every sample within 1.5 steps of its
-    lattice of it (an int16 gyro's positive rail is one step short of its full scale; an
-    independent audit: 0.999 of it took 19 samples of a peak at 99.93 % as clipped).
-    """
-    w = rec.w
-    noise, quantum = estimate_white_noise(w), quantisation_step(w)
-    full = rec.meta.get("gyro_full_scale_rad_s")
-    rail = (np.zeros(w.shape, dtype=bool) if full is None
-            else np.abs(w) >= float(full) * (1 - 1e-9) - 1.5 * quantum)
-    constant = np.ptp(w, axis=0) == 0
-    fine = [not constant[i] and _full_precision(w[:, i], quantum[i]) for i in range(3)]
-    out = np.zeros_like(w, dtype=bool)
-    for i in range(3):
-        if constant[i]:
-            out[:, i] = w[0, i] != 0 and any(np.delete(fine, i))
-            continue
-        for a in (w[:, i], -w[:, i]):
-            out[:, i] |= _clipped_extreme(a, noise[i], fine[i])
-    return out | rail
-
-
-def _full_precision(a: np.ndarray, quantum: float) -> bool:
-    """Whether one axis's samples a (n,) rad/s are read to full precision: on no lattice
-    (quantum, rad/s, 0: none; sensors.quantisation_step), no two consecutive samples alike but
-    at its extremes (where a clip holds them), and values enough to tell (QUANTUM_MIN_VALUES:
-    an axis read on two levels has no others).
-    """
-    alike = a[1:] == a[:-1]
-    extreme = (a[1:] == a.max()) | (a[1:] == a.min())
-    return (quantum == 0 and not np.any(alike & ~extreme)
-            and np.unique(a).size >= QUANTUM_MIN_VALUES)
-
-
-def _extreme_level(a: np.ndarray, noise: float) -> tuple[float, np.ndarray, float]:
-    """(top, at, step) of one axis's samples a (n,) rad/s: its largest value, the samples (n,)
-    bool read at it, and the step beneath it (the gap to the next value, or the noise if larger;
-    inf where every sample is at the top).
-    """
-    top = float(a.max())
-    at = a >= top * (1 - 1e-12)
-    step = max(top - a[~at].max(), noise) if not at.all() else np.inf
-    return top, at, step
-
-
-def _clipped_extreme(a: np.ndarray, noise: float, full_precision: bool) -> np.ndarray:
-    """(n,) bool: the samples of a (n,) rad/s at its largest value where that value is a clip.
-
-    A clip reads the rate flat at its extreme, three or more consecutive samples alike. Read to
-    full precision (_full_precision) nothing else does that. On a lattice, a smooth peak
-    rounded to one level may also; the two differ in how the run is entered and left. A peak
-    of curvature c is read at its top level over a run of L samples where c (L / 2)^2 is within
-    about one step of the peak (the spacing of the levels, or the noise if larger), so the rate
-    is CLIP_DROP steps below the top only (sqrt(CLIP_DROP + 1) - 1) L / 2 = L / 2 or more
-    samples from the run's ends. A clip cuts the rate where it still climbs: it is that far
-    below within a few samples, whatever L. So a stretch of rates within CLIP_DROP steps of the
-    top, holding such a run, is a clip where at most 2 CLIP_REACH of its samples per sample at
-    the top are not at the top (noise breaks a clip's run near its ends). A stretch at the
-    record's start or end shows one side and is not taken alone.
-    """
-    top, at, step = _extreme_level(a, noise)
-    bounds = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
-    starts, stops = bounds[::2], bounds[1::2]
-    long_runs = stops - starts >= 3
-    if top <= 0 or not long_runs.any():
-        return np.zeros(a.size, dtype=bool)
-    if full_precision:
-        return at
-    near = np.r_[False, a > top - CLIP_DROP * step, False]  # bounded by rates well below
-    edges = np.flatnonzero(np.diff(near.astype(np.int8)))
-    for first, end in zip(edges[::2], edges[1::2]):
-        level = np.count_nonzero(at[first:end])
-        interior = first > 0 and end < a.size
-        if (interior and np.any((starts[long_runs] >= first) & (starts[long_runs] < end))
-                and end - first - level <= 2 * CLIP_REACH * level):
-            return at
-    return np.zeros(a.size, dtype=bool)
-
-
-#: What a user whose gyro may have clipped at a record's ends is asked (after clips_at_the_ends)
-CLIP_ADVICE = ("if the gyro clipped there, give its full scale in the sidecar (gyro_full_scale_rad_s) "
-               "and those rows are left out")
-
-
-def clips_at_the_ends(rec: Recording) -> list[str]:
-    """Phrases, one per axis and end, where an axis holds its extreme value for its first or last
-    three or more samples and then falls steeply (CLIP_DROP steps within CLIP_REACH of the run's
-    length, as _clipped_extreme asks of both sides): a clip there cannot be told from a rate
-    that starts or ends at its peak, so it is not left out, only said (an audit: a device clipped
-    at both ends only, read in int16 steps, refused by identify at 1.1e3 times the noise
-    without a word on clipping). Empty where the sidecar gives the full scale or those samples
-    are taken as clipped already.
-    """
-    if rec.meta.get("gyro_full_scale_rad_s") is not None:
-        return []
-    w = np.asarray(rec.w, float)
-    n = w.shape[0]
-    noise, clipped = estimate_white_noise(w), saturated_samples(rec)
-    out = []
-    for i, axis in enumerate("xyz"):
-        for a in (w[:, i], -w[:, i]):
-            top, at, step = _extreme_level(a, noise[i])
-            if top <= 0 or at.all():
-                continue
-            for end, held in (("first", at), ("last", at[::-1])):
-                run = int(np.argmin(held))  # samples at the top from this end
-                beside = (a if end == "first" else a[::-1])[run:run + max(1, int(CLIP_REACH * run))]
-                rows = slice(0, run) if end == "first" else slice(n - run, n)
-                if run >= 3 and not clipped[rows, i].any() and np.any(beside <= top - CLIP_DROP * step):
-                    out.append(f"the {axis} axis reads {w[rows, i][0]:.4g} rad/s in its {end} {run} samples")
-    return out
 
 
 def _segments(t, w, keep_rows, max_turn: float, min_rows: int, block: int, count: int = 0) -> np.ndarray:
@@ -755,127 +629,24 @@ def _jacobian_columns(x, free, layout: Layout, d: Data, r0, rs, central: bool):
     return r0, cols[:gi.size].T, js
 
 
-@dataclasses.dataclass(frozen=True)
-class NormalBlocks:
-    """The damping-free blocks of the arrow system's normal equations, formed once per Jacobian
-    and reused for every damping tried.
-
-    n_seg: the segments S; col (P,): the global columns' norms, inf for a zero column (the
-    columns are scaled to unit norm; no step along a zero one); a (P, P) and rhs (P,): the
-    scaled global block and its right side; with the segments free, dmat (S, 3, 3) and bvec
-    (S, 3): each segment's rate block and right side, bmat
-    (S, P, 3): the coupling of the globals with each segment's rates; None with the segments'
-    rates held.
+def _solver_problem(free, layout: Layout, d: Data, lb, ub) -> solver.Problem:
+    """The core solver's view of a model: its globals and the segments' rates, its bounds and
+    each effect's physical limits (Layout.feasible) by projection, their faces (Layout.face).
     """
-
-    n_seg: int
-    col: np.ndarray
-    a: np.ndarray
-    rhs: np.ndarray
-    dmat: np.ndarray | None
-    bmat: np.ndarray | None
-    bvec: np.ndarray | None
-
-    @staticmethod
-    def of(g, js, r, seg_of, n_seg: int, seg_free: bool = True) -> NormalBlocks:
-        """The blocks of global columns g (N, P), rate columns js (N, 3) (each entry's derivative
-        with respect to its own segment's rates; seg_of (N,) that segment, -1 for none),
-        residual r (N,), over n_seg segments.
-        """
-        norm = np.linalg.norm(g, axis=0)
-        # a column the residual does not see at all (an inertia change at the record's very end)
-        # takes no step: scaled by 1e-300 instead, the pseudo-inverse's round-off along it
-        # became a step of 1e280
-        col = np.where(norm > 0, norm, np.inf)
-        gsc = g / col
-        a, rhs = gsc.T @ gsc, -(gsc.T @ r)
-        if not seg_free:
-            return NormalBlocks(n_seg, col, a, rhs, None, None, None)
-        has = seg_of >= 0
-        gs, jss, rs, so = gsc[has], js[has], r[has], seg_of[has]
-        starts = np.flatnonzero(np.r_[True, np.diff(so) != 0])
-        ids = so[starts]
-        dmat = np.zeros((n_seg, 3, 3))
-        dmat[ids] = np.add.reduceat(jss[:, :, None] * jss[:, None, :], starts, axis=0)
-        bmat = np.zeros((n_seg, g.shape[1], 3))
-        if g.shape[1]:
-            bmat[ids] = np.add.reduceat(gs[:, :, None] * jss[:, None, :], starts, axis=0)
-        bvec = np.zeros((n_seg, 3))
-        bvec[ids] = np.add.reduceat(jss * rs[:, None], starts, axis=0)
-        return NormalBlocks(n_seg, col, a, rhs, dmat, bmat, bvec)
-
-    def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
-        """Damped Gauss-Newton step (dg (P,), ds (S, 3)): segment blocks eliminated (Schur
-        complement), Marquardt damping lam on every diagonal; ds = 0 with the segments' rates
-        held. A system that is not finite gives a zero step.
-        """
-        dg_sc, ds = self._scaled_step(lam)
-        return dg_sc / self.col, ds
-
-    def decrement(self) -> float:
-        """The cost's fall that the undamped Gauss-Newton step predicts (the linearized model's
-        gain, in the cost's units): about what is left to gain near the floor of a valley.
-        """
-        dg_sc, ds = self._scaled_step(0.0)
-        gain = float(self.rhs @ dg_sc)
-        return gain if self.bvec is None else gain - float(np.sum(self.bvec * ds))
-
-    def _scaled_step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
-        """step() with dg in the columns' scaled units."""
-        p = self.a.shape[0]
-        a = self.a + lam * np.diag(np.maximum(np.diag(self.a), 1e-12))
-        rhs = self.rhs
-        if self.dmat is not None:
-            diag = np.einsum("sii->si", self.dmat)
-            floor = 1e-12 * max(float(diag.max()), 1e-300)
-            dinv = np.linalg.inv(self.dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), np.eye(3))
-                                 + floor * np.eye(3))
-            a = a - np.einsum("spi,sij,sqj->pq", self.bmat, dinv, self.bmat)
-            rhs = rhs + np.einsum("spi,sij,sj->p", self.bmat, dinv, self.bvec)
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
-            return np.zeros(p), np.zeros((self.n_seg, 3))
-        dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
-        if self.dmat is None:
-            return dg_sc, np.zeros((self.n_seg, 3))
-        return dg_sc, -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
-
-
-def _moved(x, step, gi, layout: Layout, d: Data, lb, ub) -> tuple[np.ndarray, np.ndarray]:
-    """The point x moved by an LM step (dg over the free globals gi, ds over the segments'
-    rates), in the bounds, and that point projected onto the effects' physical limits.
-    """
-    dg, ds = step
-    xn = x.copy()
-    xn[gi] += dg
-    xn[layout.n_global:] += ds.ravel()
-    xn = np.clip(xn, lb, ub)
-    return xn, layout.feasible(xn, d)
-
-
-def _face_basis(a) -> np.ndarray | None:
-    """(P, P - rank a) orthonormal basis of the steps with a dg = 0, or None without face rows
-    (rows all zero, a limit on parameters that are held, count as none).
-    """
-    a = a[np.any(a != 0, axis=1)]
-    if not a.size:
-        return None
-    _, sv, vt = np.linalg.svd(a)
-    rank = int(np.sum(sv > 1e-10 * sv[0]))
-    return vt[rank:].T
+    return solver.Problem(n_global=layout.n_global, free=np.asarray(free[:layout.n_global], bool),
+                          segments=layout.segments, locals_free=bool(free[layout.n_global:].any()),
+                          project=lambda x: layout.feasible(x, d), face=layout.face, bounds=(lb, ub))
 
 
 def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: float | None = None):
-    """Levenberg-Marquardt over the free entries of x (bounds and each effect's physical limits
-    by projection: Layout.feasible). Returns (x, cost).
+    """The core solver (estimation/solver.py) over the free entries of x. Returns (x, cost).
 
     Stops when a step gains less than CONVERGED in BIC units (the cost's gain over the mean
-    square per residual: N log(mse) moves by that much) at no more damping than LM_START (a
-    stall at larger damping is tried once more from LM_START), or after max_iter iterations.
-    With `decrement` (BIC units), every step that gains more than STEP_FLOOR counts, and the solve
-    stops where the undamped Gauss-Newton step predicts a gain under `decrement`
-    (NormalBlocks.decrement; at a physical limit, the lesser of that and the same step's kept on
-    the limit's face, since the step through the limit cannot be taken), at a stall, or after
-    max_iter iterations: a polish that follows a curved valley to its floor.
+    square per residual: N log(mse) moves by that much), or after max_iter iterations. With
+    `decrement` (BIC units), every step that gains more than STEP_FLOOR counts, and the solve
+    stops where the undamped Gauss-Newton step predicts a gain under `decrement` (at a physical
+    limit, the lesser of that and the same step's kept on the limit's face): a polish that
+    follows a curved valley to its floor.
     """
     return solve_many([x0], free, layout, d, lb, ub, max_iter, decrement)[0]
 
@@ -887,96 +658,50 @@ def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
     trajectory is integrated alone, so each solve's (x, cost) is the one it gives by itself;
     the batch only saves the calls' overhead (a 1-s toss's fits spend most of their time there).
     """
-    solvers = [_lm(x0, free, layout, d, lb, ub, max_iter, decrement) for x0 in x0s]
-    out: list = [None] * len(solvers)
-    asked = {i: next(s) for i, s in enumerate(solvers)}
+    spec = _solver_problem(free, layout, d, lb, ub)
+    rel = CONVERGED if decrement is None else STEP_FLOOR
+    gens = [solver.levenberg_marquardt(spec, np.asarray(x0, float), max_iter, rel_tol=rel,
+                                       decrement=decrement) for x0 in x0s]
+    seg_of = np.full(3 * d.n_rows, -1)
+    seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
+    known: dict = {}  # the rows already integrated at a point (an accepted step's)
+    out: list = [None] * len(gens)
+    asked = {i: next(g) for i, g in enumerate(gens)}
     while asked:
         order = list(asked)
-        rows = objective(np.vstack([asked[i] for i in order]), layout, d)
-        at = 0
+        points, spans = [], []
         for i in order:
-            n, at = len(asked[i]), at + len(asked[i])
+            kind, arg = asked[i]
+            if kind == "residuals":
+                batch = list(arg)
+            else:
+                batch = (([] if arg.tobytes() in known else [arg])
+                         + list(_jacobian_points(arg, free, layout, d, False)))
+            spans.append((len(points), len(batch)))
+            points += batch
+        rows = objective(np.array(points), layout, d) if points else np.zeros((0, 0))
+        fresh = {}
+        for i, (at, count) in zip(order, spans):
+            kind, arg = asked[i]
+            block = rows[at:at + count]
+            if kind == "residuals":
+                answer = block
+                fresh.update({x.tobytes(): r for x, r in zip(arg, block)})
+            else:
+                r0 = known.get(arg.tobytes())
+                if r0 is None:
+                    r0, block = block[0], block[1:]
+                r, g, js = _jacobian_columns(arg, free, layout, d, r0, block, False)
+                sof = np.full(r.size, -1)
+                sof[:seg_of.size] = seg_of
+                answer = solver.Linearization(r, g, js, sof)
             try:
-                asked[i] = solvers[i].send(rows[at - n:at])
+                asked[i] = gens[i].send(answer)
             except StopIteration as done:
-                out[i] = done.value
+                out[i] = (done.value.x, done.value.cost)
                 del asked[i]
+        known = fresh
     return out
-
-
-def _lm(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: float | None):
-    """solve() as a generator: yields the (B, size) points whose objective rows (B, N) it needs
-    next and is sent them; returns (x, cost). Each damping tried is tried together with the
-    next SPECULATE - 1 larger ones (each 6x the one before): a step rejected costs no call of its
-    own, and the steps are taken in the same order as one at a time.
-    """
-    x = layout.feasible(np.clip(np.asarray(x0, float), lb, ub), d)
-    gi = np.flatnonzero(free[:layout.n_global])
-    seg_free = bool(free[layout.n_global:].any())
-    r = (yield x[None])[0]
-    seg_of = np.full(r.size, -1)
-    seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
-    cost, lam, restarted = np.inf, LM_START, False
-    for _ in range(max_iter):
-        rs = yield _jacobian_points(x, free, layout, d, False)
-        r, g, js = _jacobian_columns(x, free, layout, d, r, rs, False)
-        if not np.isfinite(cost):
-            cost = float(r @ r)
-        g = np.where(np.isfinite(g), g, 0.0)  # a step that breaks the model moves nothing
-        js = np.where(np.isfinite(js), js, 0.0)
-        on_face = _face_basis(layout.face(x)[:, gi])
-        blocks = NormalBlocks.of(g, js, r, seg_of, layout.segments, seg_free)
-        face_blocks = None
-        if decrement is not None:
-            left = blocks.decrement()
-            if on_face is not None:
-                face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
-                left = min(left, face_blocks.decrement())
-            if left <= decrement * cost / r.size:
-                break
-        improved, tried = None, 0
-        while improved is None and tried < LM_TRIES:
-            batch, damping = [], lam  # the trial points of the next dampings, in order
-            for _ in range(min(SPECULATE, LM_TRIES - tried)):
-                trials = [_moved(x, blocks.step(damping), gi, layout, d, lb, ub)]
-                if on_face is not None and not np.array_equal(*trials[0]):
-                    # the step left a physical limit and was projected back: the same step kept on
-                    # the limit's face where x sits is tried beside it
-                    if face_blocks is None:
-                        face_blocks = NormalBlocks.of(g @ on_face, js, r, seg_of, layout.segments, seg_free)
-                    dz, ds = face_blocks.step(damping)
-                    trials.append(_moved(x, (on_face @ dz, ds), gi, layout, d, lb, ub))
-                batch.append([xn for _, xn in trials if np.all(np.isfinite(xn))])
-                damping *= 6
-            flat = [xn for trials in batch for xn in trials]
-            rows = (yield np.array(flat)) if flat else None
-            at = 0
-            for trials in batch:
-                tried += 1
-                if not trials:
-                    lam *= 6
-                    continue
-                rs = rows[at:at + len(trials)]
-                at += len(trials)
-                best = int(np.argmin(np.einsum("ij,ij->i", rs, rs)))
-                xn, rn = trials[best], rs[best]
-                cn = float(rn @ rn)
-                if cn < cost:
-                    improved = cost - cn > (CONVERGED if decrement is None else STEP_FLOOR) * cost / r.size
-                    x, cost, lam, r = xn, cn, max(lam / 4, 1e-9), rn
-                    break
-                lam *= 6
-        if improved:
-            restarted = False
-            continue
-        # no damping tried lowered the cost, or only by a little: converged, unless the last
-        # step tried was damped more than LM_START (lam is now 6x it, or a quarter of an accepted
-        # one's); then once more from LM_START (damping grown along a curved valley stopped a
-        # drag fit at 4.7x the noise that still moves to 1x)
-        if restarted or lam <= LM_START / 4:
-            break
-        lam, restarted = LM_START, True
-    return x, cost
 
 
 # ------------------------------------------------------------------------------------------
@@ -1364,7 +1089,9 @@ class Probe:
                 r, g, js = jacobian(x, free, layout, d)
                 g, js = np.where(np.isfinite(g), g, 0.0), np.where(np.isfinite(js), js, 0.0)
                 for moved in (True, False):
-                    dg, ds = NormalBlocks.of(g, js, r, seg_of, layout.segments, moved).step(1e-9)
+                    lin = solver.Linearization(r, g, js, seg_of)
+                    dg, ds = solver.NormalBlocks.of(lin, layout.segments, moved).step(1e-9)
+                    ds = ds if ds.size else np.zeros((layout.segments, 3))
                     pred = r + g @ dg
                     pred[:n_res] += np.einsum("ij,ij->i", js[:n_res], ds[seg_of[:n_res]])
                     xn = x.copy()
@@ -2360,28 +2087,6 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
         else:
             break
     return expl, alone
-
-
-def end_impulses(z: np.ndarray, same: np.ndarray | None = None) -> tuple[int, int]:
-    """The rows to keep, start .. stop - 1, of residual rows z (n, k) (whitened: noise ~ 1)
-    without an impulse at either end (a throw's release, a catch, a knock): the residual jumps
-    from row to row by more than IMPULSE_JUMP times its median jump (and by more than 1); the
-    rows up to the last such jump near the start, and from the first one near the end, are left
-    out (each side at most IMPULSE_SPAN of the rows). A drift the model misses grows smoothly and
-    is kept. same (n - 1,) bool: whether rows i and i + 1 belong to one segment (a jump across
-    segments is not an impulse); None: all do. (0, n) when nothing is left out, or z is short
-    or not finite.
-    """
-    n = z.shape[0]
-    if n < 20 or not np.all(np.isfinite(z)):
-        return 0, n
-    same = np.ones(n - 1, bool) if same is None else same
-    jump = np.where(same, np.linalg.norm(np.diff(z, axis=0), axis=1), 0.0)
-    thr = IMPULSE_JUMP * max(float(np.median(jump[same])), 1.0)
-    span = int(IMPULSE_SPAN * n)
-    big = np.flatnonzero(jump > thr)
-    head, tail = big[big < span], big[big >= n - 1 - span]
-    return (int(head.max()) + 1 if head.size else 0), (int(tail.min()) + 1 if tail.size else n)
 
 
 def impulses(d: Data, fit: Fit) -> tuple[int, int]:

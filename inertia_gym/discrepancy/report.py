@@ -14,7 +14,6 @@ from scipy import signal, stats
 from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
-    CLIP_ADVICE,
     LATTICE_REPLAYS,
     MIN_ROWS,
     SIGNIFICANT_DELTA_BIC,
@@ -22,7 +21,6 @@ from inertia_gym.discrepancy.fit import (
     Data,
     Fit,
     claim_margin,
-    clips_at_the_ends,
     covariance,
     effective_share,
     finish,
@@ -44,17 +42,18 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
-from inertia_gym.discrepancy.recordings import (
+from inertia_gym.errors import RecordingError
+from inertia_gym.estimation.inertia_param import nearest_realizable
+from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
+from inertia_gym.executors import kernels_own_the_cores
+from inertia_gym.prepare import CLIP_ADVICE, clips_at_the_ends
+from inertia_gym.recordings import (
     Recording,
     check_input_gaps,
     retimed,
     retimed_note,
     window_note,
 )
-from inertia_gym.errors import RecordingError
-from inertia_gym.estimation.inertia_param import nearest_realizable
-from inertia_gym.executors import kernels_own_the_cores
-from inertia_gym.identification import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.sensors import quantisation_note, stated_noise_note
 
 #: The BICs are recounted with the independent rows when fewer than this share of them are.

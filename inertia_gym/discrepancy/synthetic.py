@@ -12,9 +12,9 @@ import numpy as np
 
 from inertia_gym.discrepancy.effects import EFFECTS, Effect, jsonable, random_params
 from inertia_gym.discrepancy.model import Grid, gyro_output, held_cumulative, model_terms, simulate
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.dynamics import euler_to_quat
 from inertia_gym.errors import ConfigError
+from inertia_gym.recordings import Recording
 from inertia_gym.scenario import Scenario
 
 

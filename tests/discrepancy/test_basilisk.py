@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from inertia_gym.discrepancy.basilisk import TRUTH_KEY, SpacecraftCase, equilibrium_inertia, simulate
-from inertia_gym.discrepancy.recordings import Recording, read_recordings, retimed
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.dynamics import quat_to_rotation
 from inertia_gym.errors import ConfigError
+from inertia_gym.recordings import Recording, read_recordings, retimed
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 import basilisk_harness as harness  # noqa: E402

@@ -36,7 +36,6 @@ from inertia_gym.discrepancy.fit import (
     search,
     whitened,
 )
-from inertia_gym.discrepancy.recordings import Recording, read_recordings
 from inertia_gym.discrepancy.report import (
     BEYOND_CATALOGUE,
     RATIO_SPREAD,
@@ -51,6 +50,7 @@ from inertia_gym.discrepancy.report import (
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.recordings import Recording, read_recordings
 from inertia_gym.scenario import Scenario
 
 REPORT_KEYS = {"mismatch_detected", "locations", "effects", "fit_before", "fit_after"}
@@ -371,7 +371,7 @@ def test_600s_10hz_diagnosis_is_fast(tmp_path):
     rec, _ = simulate_recording(Scenario(omega0=(0.05, 1.0, 0.045)), 600.0, "internal_momentum",
                                 seed=4, sample_dt=0.1)
     path = tmp_path / "long.csv"
-    from inertia_gym.discrepancy.recordings import write_recording
+    from inertia_gym.recordings import write_recording
 
     write_recording(path, _concealed(rec), {k: v for k, v in rec.meta.items() if k != "effect"})
     t0 = time.perf_counter()

@@ -17,13 +17,12 @@ from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, Effect, rotvec_matrix
 from inertia_gym.discrepancy.model import Grid, held_cumulative
-from inertia_gym.discrepancy.recordings import Recording, read_csv_recording, retimed
 from inertia_gym.discrepancy.report import diagnose, markdown, principal_ratios
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
-from inertia_gym.identification import _clip_hint
+from inertia_gym.estimation import solver
+from inertia_gym.recordings import Recording, read_csv_recording, retimed
 from inertia_gym.scenario import Scenario
-from inertia_gym.sensors import quantisation_step
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 from slow_tumble_pairs import slow_tumble, true_gains  # noqa: E402
@@ -95,75 +94,6 @@ def test_jacobian_columns_equal_brute_force_differences():
                      - F.objective(dn[None], layout, d)[0]) / (2 * steps[i])
             mine = np.where(seg_of == s, js[:seg_of.size, c], 0.0)
             np.testing.assert_allclose(mine, brute[:seg_of.size], rtol=1e-6, atol=1e-6 * np.abs(brute).max())
-
-
-def _arrow_problem(seed: int, n_seg: int, rows: int, column_scales) -> tuple:
-    """A random least-squares problem of the arrow shape NormalBlocks takes: (seg_of (N,),
-    global columns g (N, P) scaled by column_scales, rate columns js (N, 3), residual r (N,))."""
-    rng = np.random.default_rng(seed)
-    seg_of = np.repeat(np.arange(n_seg), rows)
-    g = rng.normal(size=(n_seg * rows, len(column_scales))) * np.asarray(column_scales)
-    return seg_of, g, rng.normal(size=(n_seg * rows, 3)), rng.normal(size=n_seg * rows)
-
-
-def _dense(g, js, seg_of, n_seg: int) -> np.ndarray:
-    """The whole Jacobian: the global columns, then each segment's three rate columns."""
-    p = g.shape[1]
-    dense = np.zeros((g.shape[0], p + 3 * n_seg))
-    dense[:, :p] = g
-    for s in range(n_seg):
-        dense[seg_of == s, p + 3 * s:p + 3 * s + 3] = js[seg_of == s]
-    return dense
-
-
-def test_normal_blocks_step_equals_the_dense_damped_least_squares():
-    n_seg, p = 4, 5
-    seg_of, g, js, r = _arrow_problem(0, n_seg, 30, np.ones(p))
-    lam = 0.3
-    blocks = F.NormalBlocks.of(g, js, r, seg_of, n_seg)
-    blocks.step(10.0)  # the blocks are formed once and serve every damping
-    dg, ds = blocks.step(lam)
-    dense = _dense(g, js, seg_of, n_seg)
-    # Marquardt damping on every diagonal of the scaled normal equations
-    a = dense.T @ dense
-    a = a + lam * np.diag(np.diag(a))
-    ref = np.linalg.solve(a, -dense.T @ r)
-    np.testing.assert_allclose(dg, ref[:p], rtol=1e-8, atol=1e-10)
-    np.testing.assert_allclose(ds.ravel(), ref[p:], rtol=1e-8, atol=1e-10)
-    # the segments' rates held: the damped least squares over the globals alone
-    dg, ds = F.NormalBlocks.of(g, js, r, seg_of, n_seg, seg_free=False).step(lam)
-    a = g.T @ g
-    ref = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g.T @ r)
-    np.testing.assert_allclose(dg, ref, rtol=1e-8, atol=1e-10)
-    assert ds.shape == (n_seg, 3) and not ds.any()
-
-
-@pytest.mark.parametrize("seg_free", [True, False])
-def test_the_decrement_is_the_fall_of_the_linear_least_squares(seg_free):
-    """NormalBlocks.decrement: |r|^2 - min |r + J d|^2 over d, by the dense least squares."""
-    n_seg = 3
-    seg_of, g, js, r = _arrow_problem(2, n_seg, 25, [1e-3, 1.0, 1e3, 1.0])
-    dense = _dense(g, js, seg_of, n_seg) if seg_free else g
-    best = np.linalg.lstsq(dense, -r, rcond=None)[0]
-    fall = r @ r - np.sum((r + dense @ best) ** 2)
-    assert F.NormalBlocks.of(g, js, r, seg_of, n_seg, seg_free).decrement() == pytest.approx(fall, rel=1e-9)
-
-
-@pytest.mark.parametrize("seg_free", [True, False])
-def test_a_parameter_the_residual_does_not_see_takes_no_step(seg_free):
-    # a flexible mode's frequency while its coupling is zero, an inertia change's time while the
-    # change is zero: the column is exactly zero, and the step along it must be too (it was the
-    # pseudo-inverse's round-off divided by 1e-300), the other entries the step without it
-    n_seg = 3
-    seg_of, g, js, r = _arrow_problem(1, n_seg, 20, [1e-3, 1.0, 1e3, 1.0])
-    dead = g.copy()
-    dead[:, 1] = 0.0
-    for lam in (1e-9, 1e-3, 0.3):
-        dg, ds = F.NormalBlocks.of(dead, js, r, seg_of, n_seg, seg_free).step(lam)
-        alive, ds_alive = F.NormalBlocks.of(g[:, [0, 2, 3]], js, r, seg_of, n_seg, seg_free).step(lam)
-        assert dg[1] == 0.0
-        np.testing.assert_allclose(dg[[0, 2, 3]], alive, rtol=1e-9, atol=0)
-        np.testing.assert_allclose(ds, ds_alive, rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("w0", [(0.3, 15.0, 0.4), (0.5, 0.5, 25.0)])
@@ -503,115 +433,6 @@ def test_rows_too_far_apart_for_the_rotation_are_refused():
         diagnose(dataclasses.replace(rec, t=rec.t * 1e5))
 
 
-def test_end_impulses_keeps_the_rows_between_the_last_jump_near_the_start_and_the_first_near_the_end():
-    z = np.random.default_rng(0).normal(size=(200, 3))
-    assert F.end_impulses(z) == (0, 200)
-    jolted = z.copy()
-    jolted[:3] += 40.0 * np.arange(3, 0, -1)[:, None]  # rows 0-2 fall back by 40 per row
-    jolted[190:] += 50.0  # a step at row 190
-    assert F.end_impulses(jolted) == (3, 190)
-    # a smooth drift to 60x the noise at the end stays; a jump in the middle is no end impulse
-    drift = z + np.linspace(0.0, 60.0, 200)[:, None] ** 2 / 60.0
-    assert F.end_impulses(drift) == (0, 200)
-    middle = z.copy()
-    middle[100:] += 50.0
-    assert F.end_impulses(middle) == (0, 200)
-    # a jump across a segment boundary is not an impulse; short or non-finite input keeps all
-    same = np.ones(199, bool)
-    same[189] = False
-    assert F.end_impulses(jolted, same) == (3, 200)
-    assert F.end_impulses(jolted[:19]) == (0, 19)
-    assert F.end_impulses(np.where(np.arange(200)[:, None] == 5, np.nan, z)) == (0, 200)
-
-
-def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_one_still_is():
-    """A slow spin read by a gyro quantized at 4x its noise repeats its extreme values at smooth
-    peaks (125 of 1201 rows were taken as clipped, and identify left them out with a false
-    note); clipped at 0.3 rad/s it sits there, and is."""
-    sc = Scenario(omega0=(0.05, 0.03, 0.5), tau_max=50.0, gyro_sigma=0.0005)
-    rec, _ = simulate_recording(sc, 120.0, None, seed=3, sample_dt=0.1, torque=False)
-    quantized = np.round(rec.w / 0.002) * 0.002
-    assert not F.saturated_samples(dataclasses.replace(rec, w=quantized)).any()
-    clipped = quantized.copy()
-    clipped[:, 1] = np.clip(quantized[:, 1], -0.3, 0.3)
-    flagged = F.saturated_samples(dataclasses.replace(rec, w=clipped))
-    np.testing.assert_array_equal(flagged[:, 1], np.abs(quantized[:, 1]) >= 0.3)
-    assert not flagged[:, [0, 2]].any()
-
-
-#: A thrown device's principal moments (kg m^2), diagonal.
-DEVICE = ((3e-4, 0.0, 0.0), (0.0, 4e-4, 0.0), (0.0, 0.0, 5e-4))
-
-
-def _free_spin(omega0, dt, duration, seed, sigma=0.001):
-    """A torque-free device read every dt s with gyro noise sigma rad/s (full precision)."""
-    sc = Scenario(inertia_true=DEVICE, inertia_guess=DEVICE, omega0=omega0, dt=dt, gyro_sigma=sigma,
-                  tau_max=1e-4)
-    return simulate_recording(sc, duration, None, seed=seed, torque=False)[0]
-
-
-@pytest.mark.parametrize("levels_per_sigma", [2.0, 8.0])
-def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still_climbing(levels_per_sigma):
-    """A device flipping about its intermediate axis, read at 400 Hz in steps of 2 or 8 noise
-    sigmas, and a slow spin read every 0.1 s in steps of 30 sigmas (its spin axis on one or two
-    levels): no sample is clipped. The former test (the extreme level read 3x as often as the
-    next) took 7 samples of the first at 8 sigmas and the whole spin axis of the second as
-    clipped (1201 of 1201 rows left out). The lattice of the first is read at 2 sigmas too (the
-    one-step gaps are rare where the rate sweeps fast: it read none on one axis). Each clipped at
-    70 % of an axis's peak (the axes whose peak lies inside the record), that axis is clipped
-    exactly there and the others not."""
-    flip = _free_spin((2.0, 15.0, 1.0), 0.0025, 2.0, seed=3)
-    step = levels_per_sigma * 0.001
-    coarse = np.round(flip.w / step) * step
-    np.testing.assert_allclose(F.saturated_samples(dataclasses.replace(flip, w=coarse)), False)
-    np.testing.assert_allclose(quantisation_step(coarse), step, rtol=1e-6)
-    for axis in (0, 2):  # the intermediate axis peaks at the record's ends
-        top = 0.7 * np.abs(coarse[:, axis]).max()
-        clipped = coarse.copy()
-        clipped[:, axis] = np.clip(coarse[:, axis], -top, top)
-        flagged = F.saturated_samples(dataclasses.replace(flip, w=clipped))
-        np.testing.assert_array_equal(flagged[:, axis], np.abs(coarse[:, axis]) >= top)
-        assert not np.delete(flagged, axis, axis=1).any()
-    # a full scale in the sidecar: an int16 gyro's rails (+FS - step, -FS) are clipped, a peak
-    # 3 steps under the full scale is not (0.999 of it took 19 samples of a peak at 99.93 %,
-    # 23 steps under, as clipped: an audit)
-    under = {"gyro_full_scale_rad_s": np.abs(coarse).max() + 3 * step}
-    assert not F.saturated_samples(dataclasses.replace(flip, w=coarse, meta=under)).any()
-    full = np.round(0.7 * np.abs(coarse[:, 0]).max() / step) * step
-    railed = coarse.copy()
-    railed[:, 0] = np.clip(coarse[:, 0], -full, full - step)
-    flagged = F.saturated_samples(dataclasses.replace(flip, w=railed, meta={"gyro_full_scale_rad_s": full}))
-    rails = (coarse[:, 0] > full - 1.5 * step) | (coarse[:, 0] < 0.5 * step - full)
-    np.testing.assert_array_equal(flagged[:, 0], rails)
-    slow = _free_spin((0.05, 0.03, 0.5), 0.1, 120.0, seed=int(levels_per_sigma))
-    levels = np.round(slow.w / 0.03) * 0.03
-    assert np.unique(levels[:, 2]).size <= 2
-    assert not F.saturated_samples(dataclasses.replace(slow, w=levels)).any()
-
-
-def test_a_clip_at_both_ends_only_is_said_not_left_out():
-    """An axis clipped at 8 rad/s only in its first and last 103 samples, read in steps of 2 noise
-    sigmas: a run with one side shows no clip by itself (a rate may start at its peak), so
-    nothing is left out, but the axis and its ends are named for identify's misfit sentences (an
-    audit's device: refused at 1.1e3 times the noise without a word on clipping); with the full
-    scale given they are clipped and nothing more is said; unclipped, nothing is."""
-    rng = np.random.default_rng(0)
-    t = np.arange(1001) / 500.0
-    w = np.stack([4.0 + 5.0 * np.cos(np.pi * t), 3.0 * np.sin(np.pi * t), 1.0 + 0.5 * t], 1)
-    coarse = np.round((w + rng.normal(0.0, 0.002, w.shape)) / 0.004) * 0.004
-    clipped = coarse.copy()
-    clipped[:, 0] = np.minimum(coarse[:, 0], 8.0)
-    assert not F.saturated_samples(Recording(t, clipped)).any()
-    assert F.clips_at_the_ends(Recording(t, clipped)) == ["the x axis reads 8 rad/s in its first 103 samples",
-                                                          "the x axis reads 8 rad/s in its last 103 samples"]
-    assert "gyro_full_scale_rad_s" in _clip_hint(Recording(t, clipped))
-    given = Recording(t, clipped, meta={"gyro_full_scale_rad_s": 8.0})
-    at_rail = clipped[:, 0] > 8.0 - 1.5 * 0.004
-    np.testing.assert_array_equal(F.saturated_samples(given)[:, 0], at_rail)
-    assert F.clips_at_the_ends(given) == []
-    assert F.clips_at_the_ends(Recording(t, coarse)) == [] and _clip_hint(Recording(t, coarse)) == ""
-
-
 def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(racquet_toss):
     """A real toss (round 1, segment 1) cut 0.05 s shorter at both ends is one segment: the start
     chosen on short pieces led the whole toss to a worst-axis rms of about 11 rad/s (1604x the
@@ -742,7 +563,7 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
     starts = [x, x + np.r_[0.1, np.zeros(x.size - 1)], np.where(np.arange(x.size) == 6, x * 2, x)]
     together = F.solve_many(starts, free, layout, d, lb, ub, F.FULL_ITER)
     for speculate in (1, 2, 3):
-        monkeypatch.setattr(F, "SPECULATE", speculate)
+        monkeypatch.setattr(solver, "SPECULATE", speculate)
         for x0, (x_batch, cost_batch) in zip(starts, together):
             x_alone, cost_alone = F.solve(x0, free, layout, d, lb, ub, F.FULL_ITER)
             np.testing.assert_array_equal(x_alone, x_batch)

@@ -13,9 +13,9 @@ from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import FLIGHT_MAX_S, GRAVITY, REGISTRY, Effect
 from inertia_gym.discrepancy.model import Motion
-from inertia_gym.discrepancy.recordings import read_recordings
 from inertia_gym.discrepancy.report import diagnose, markdown
 from inertia_gym.errors import ConfigError
+from inertia_gym.recordings import read_recordings
 
 AERO = REGISTRY["aero_drag"]
 SIGMA = 2e-3

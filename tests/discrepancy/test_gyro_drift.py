@@ -10,9 +10,9 @@ from scipy import interpolate
 
 from inertia_gym.discrepancy.effects import BIAS_KNOT_SPACING_S, GYRO_SCALE_BOUND, REGISTRY, Effect
 from inertia_gym.discrepancy.fit import prepare
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import gyro_reading, simulate_recording
+from inertia_gym.recordings import Recording
 from inertia_gym.scenario import Scenario
 
 GYRO = REGISTRY["gyro_bias"]

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from inertia_gym.discrepancy.effects import Effect
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import DRAG_RATIO_TOLERANCE, _invariants_words, _read_with_both, diagnose
 from inertia_gym.discrepancy.synthetic import simulate_truth
+from inertia_gym.recordings import Recording
 
 #: kg·m², a racquet that can exist (the speed bench's); flipping about its middle axis
 BODY = np.diag([20.7e-3, 19.5e-3, 1.39e-3])

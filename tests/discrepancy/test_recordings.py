@@ -13,7 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inertia_gym.discrepancy.recordings import (
+from inertia_gym.dynamics import propagate
+from inertia_gym.errors import ConfigError, RecordingError
+from inertia_gym.recordings import (
     FLIGHT_MIN_ROWS,
     WINDOW_FOUND,
     WINDOW_NONE_FOUND,
@@ -27,8 +29,6 @@ from inertia_gym.discrepancy.recordings import (
     window_note,
     write_recording,
 )
-from inertia_gym.dynamics import propagate
-from inertia_gym.errors import ConfigError, RecordingError
 
 GOOD = "t,wx,wy,wz\n" + "".join(f"{0.1 * i},0.1,0.2,{0.01 * i}\n" for i in range(20))
 
@@ -625,9 +625,9 @@ def test_every_real_recording_still_loads_with_the_unit_checks():
     racquet tosses at 100 Hz): none may be refused."""
     rotor = sorted((DATA / "rotor-throws").glob("*.csv"))
     racquet = sorted(p.parent for p in (DATA / "phyphox-racquet").rglob("Raw Data.csv"))
-    assert len(rotor) == 20 and len(racquet) == 3
+    assert len(rotor) == 31 and len(racquet) == 3
     recs = [r for path in rotor + racquet for r in read_recordings(path)]
-    assert len(recs) == 32  # 20 throws and the 12 kept free-flight windows of the 3 phyphox exports
+    assert len(recs) == 43  # 31 throws and the 12 kept free-flight windows of the 3 phyphox exports
     assert all(np.all(np.isfinite(r.w)) for r in recs)
 
 
@@ -678,8 +678,8 @@ def test_a_dropout_in_the_logged_torque_splits_the_recording_and_each_piece_is_r
 
 def test_an_unsplit_dropout_is_refused_and_a_torque_free_one_kept(dropout_recordings):
     from inertia_gym import identify
-    from inertia_gym.discrepancy.recordings import split_at_gaps
     from inertia_gym.discrepancy.report import diagnose
+    from inertia_gym.recordings import split_at_gaps
 
     first, second = read_recordings(dropout_recordings[True])
     whole = dataclasses.replace(first, **{k: np.concatenate([getattr(first, k), getattr(second, k)])
@@ -794,12 +794,18 @@ def test_stamps_that_are_right_are_kept_on_a_slow_body_whose_noise_dominates(see
 
 
 @pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")
-def test_real_recordings_keep_their_time_stamps():
-    """The real throws (4 kHz) and racquet tosses (100 Hz) stamp a regular clock: nothing to place."""
+def test_real_recordings_keep_their_time_stamps_or_move_by_a_hair():
+    """The real throws (4 kHz) and racquet tosses (100 Hz) stamp a regular clock: nothing to place,
+    but for one throw (A_LOG00134) whose stamps scatter by 4 us, 1.7 % of an interval, where the
+    gyro does not favour the stamps (z = -1.0): it is placed on the clock, no sample moving by
+    more than 5 % of an interval."""
     paths = sorted((DATA / "rotor-throws").glob("*.csv")) + sorted(
         p.parent for p in (DATA / "phyphox-racquet").rglob("Raw Data.csv"))
     recs = [r for path in paths for r in read_recordings(path)]
-    assert all(retimed(r) is r for r in recs)
+    moved = [r for r in recs if retimed(r) is not r]
+    assert len(moved) <= 2
+    for r in moved:
+        assert retimed(r).meta["retimed"]["max_shift_s"] < 0.05 * float(np.median(np.diff(r.t)))
 
 
 @pytest.mark.skipif(DATA is None, reason="development data (../shared/data) absent")

@@ -6,9 +6,9 @@ frequency (found by an audit with an independent simulator, on 3 of 3 seeds)."""
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_truth
+from inertia_gym.recordings import Recording
 
 #: kg·m², a hand-sized device with products of inertia; its rotor's axis (body frame), final
 #: momentum kg·m²/s and spin-up time constant s; gyro noise rad/s

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from inertia_gym.discrepancy.fit import Layout, Probe, fit_nominal, prepare
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import burst_schedule, simulate_truth
+from inertia_gym.recordings import Recording
 
 #: kg·m², a 6U cubesat; its rates rad/s; gyro noise rad/s; torque bursts N·m
 CUBESAT = np.array([[0.10, 0.002, -0.001], [0.002, 0.12, 0.0015], [-0.001, 0.0015, 0.05]])

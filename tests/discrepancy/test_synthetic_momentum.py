@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from inertia_gym.cli import main
-from inertia_gym.discrepancy.recordings import MOMENTUM, read_recordings
 from inertia_gym.discrepancy.synthetic import (
     rotor_momentum,
     rotor_profile,
@@ -17,6 +16,7 @@ from inertia_gym.discrepancy.synthetic import (
 )
 from inertia_gym.dynamics import quat_to_rotation
 from inertia_gym.errors import ConfigError
+from inertia_gym.recordings import MOMENTUM, read_recordings
 from inertia_gym.scenario import Scenario
 
 

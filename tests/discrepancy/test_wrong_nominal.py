@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from inertia_gym.discrepancy.recordings import Recording
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
+from inertia_gym.recordings import Recording
 from inertia_gym.scenario import Scenario
 
 #: kg·m², rad/s, N·m, s, Hz: the audit's cubesat (principal moments turned by xyz Euler angles

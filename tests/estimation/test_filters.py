@@ -10,7 +10,7 @@ from inertia_gym.estimation import ukf
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.filters import InertiaFilter
 from inertia_gym.estimation.inertia_param import phi_from_inertia
-from inertia_gym.estimation.ml import trajectory
+from inertia_gym.estimation.integrator import trajectory
 from inertia_gym.simulation import initial_state
 from inertia_gym.validation import validate
 

@@ -42,8 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from inertia_gym.errors import ConfigError, RecordingError
-from inertia_gym.estimation.ml import attitude_error
-from inertia_gym.sensors import estimate_white_noise
+from inertia_gym.sensors import attitude_error, estimate_white_noise
 
 GYRO = ("wx", "wy", "wz")
 QUAT = ("qw", "qx", "qy", "qz")
@@ -494,7 +493,7 @@ ATTITUDE_AGREEMENT = (0.8, 0.95, 0.99)
 
 def _attitude_agreement(t, w, q, lag: int) -> float:
     """Median cosine between the body-frame rotation of q_k* q_(k+lag) (q body to inertial,
-    scalar first; ml.attitude_error) and the gyro integrated over the same span.
+    scalar first; sensors.attitude_error) and the gyro integrated over the same span.
     """
     v = attitude_error(q[:-lag], q[lag:])
     gyro = _gyro_turns(t, w, lag)

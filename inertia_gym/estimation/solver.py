@@ -1,0 +1,353 @@
+"""The one least-squares solver: damped Gauss-Newton (Levenberg-Marquardt) with an arrow structure.
+
+Every fit of the project minimises a sum of squares 0.5 |r(x)|^2 over x = [g (globals: the
+inertia, effect and sensor parameters), s_1 .. s_S (locals: each segment's initial state, in a
+multiply shot record)]. A residual row belongs to at most one segment, so the Jacobian is
+arrow-shaped: dense in the globals, block-diagonal in the locals. The step eliminates the
+locals segment by segment (Schur complement) and solves for the globals; with no locals it is
+the least-squares solution of the column-scaled Jacobian from its triangular factor: Cholesky of
+the scaled normal matrix where that is well conditioned, else QR (over a long tumble the
+sensitivities span eight orders and J^T J would square that condition number).
+
+Marquardt's damping lam (on the scaled columns' unit diagonal) falls fourfold after a step that
+lowers the cost and grows sixfold after one that does not. A step may be refused before it is
+tried: it moves a global by more than its trust radius (a short, poorly conditioned window can
+leap to another basin), or it leaves the parameters' physical domain (the caller's project()
+then puts it back: an inertia beyond the triangle inequality, an effect past its limit). Where
+the point sits on such a limit (the caller's face() gives its rows), the step kept on the
+limit's face is tried beside the projected one, so a fit can move along the limit instead of
+creeping by projections.
+
+The solver is written as a generator: it yields what it needs evaluated, so that the caller may
+answer with analytic sensitivities (the rigid model: integrator.py) or with finite differences
+batched over many points (the effect catalogue: discrepancy/fit.py), and run several solves
+side by side. run() drives one solve from a plain evaluate function.
+
+Convergence: a point no damped step improves by more than ``tol + rel_tol * cost / N`` (N
+residuals: rel_tol is in units of the mean square, i.e. of an information criterion) ends the
+solve, at the initial damping or below (where the damping had grown along a curved valley, the
+solve goes on once more from the initial damping). With ``decrement`` the solve instead
+stops where the undamped step predicts a gain below ``decrement * cost / N``: a polish that
+follows a curved valley to its floor, every improving step counting.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Generator
+
+import numpy as np
+
+#: Damping at the start of a solve (and at its one restart after a stall), its fall after an
+#: accepted step and its growth after a refused one.
+LM_START, LM_FALL, LM_GROWTH = 1e-3, 4.0, 6.0
+#: Dampings one iteration tries at most, and how many of them one request holds (tried together:
+#: a refused step costs no evaluation of its own).
+LM_TRIES, SPECULATE = 12, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Linearization:
+    """The residual r (N,) at a point and its derivatives: g (N, P) with respect to the free
+    globals (in the order of their indices; or all globals, of which the free are taken), js
+    (N, L) with respect to the L locals of each row's own segment (None without locals), seg_of
+    (N,) each row's segment (-1: none).
+    """
+
+    r: np.ndarray
+    g: np.ndarray
+    js: np.ndarray | None = None
+    seg_of: np.ndarray | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """What the solver needs to know of a fit besides its evaluations.
+
+    n_global: globals at the head of x; segments: S segments of local_size locals each at its
+    tail (0: none); free (n_global,) bool: the globals it moves (the locals always move);
+    locals_free: the locals move; project(x) -> x: the point put back into the parameters'
+    domain (default: as it is); face(x) -> (m, n_global) rows A of the limits x sits on (steps
+    with A dg = 0 stay on them; default none); max_step (n_global,): trust radius of each
+    global (inf: none); bounds (lo, hi) over x: a step is clipped to them before project().
+    """
+
+    n_global: int
+    free: np.ndarray
+    segments: int = 0
+    locals_free: bool = True
+    project: Callable[[np.ndarray], np.ndarray] | None = None
+    face: Callable[[np.ndarray], np.ndarray] | None = None
+    max_step: np.ndarray | None = None
+    local_size: int = 3
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def size(self) -> int:
+        """Length of x."""
+        return self.n_global + self.local_size * self.segments
+
+
+@dataclasses.dataclass(frozen=True)
+class Result:
+    """A solve's end: x, cost = |r|^2 at x (twice the least-squares objective), iterations, and
+    converged (a convergence test met, not the iteration limit).
+    """
+
+    x: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class NormalBlocks:
+    """The damping-free pieces of one Jacobian's step, formed once and reused for every damping.
+
+    col (P,): the global columns' norms (inf for a column the residual does not see: it takes no
+    step); rhs (P,): -g_scaled^T r. Without locals: qr_r (P, P), qr_b (P,) the triangular factor
+    of the scaled Jacobian and Q^T (-r). With locals: a (P, P) the scaled normal matrix, dmat
+    (S, L, L), bmat (S, P, L), bvec (S, L): each segment's block, its coupling with the globals
+    and its right side.
+    """
+
+    col: np.ndarray
+    rhs: np.ndarray
+    qr_r: np.ndarray | None = None
+    qr_b: np.ndarray | None = None
+    a: np.ndarray | None = None
+    dmat: np.ndarray | None = None
+    bmat: np.ndarray | None = None
+    bvec: np.ndarray | None = None
+
+    @staticmethod
+    def of(lin: Linearization, segments: int, locals_free: bool) -> "NormalBlocks":
+        """The blocks of a linearization over `segments` segments."""
+        norm = np.linalg.norm(lin.g, axis=0)
+        col = np.where(norm > 0, norm, np.inf)
+        gsc = lin.g / col
+        rhs = -(gsc.T @ lin.r)
+        if not (locals_free and segments and lin.js is not None):
+            return NormalBlocks(col, rhs, *_triangular(gsc, lin.r))
+        has = lin.seg_of >= 0
+        gs, jss, rs, so = gsc[has], lin.js[has], lin.r[has], lin.seg_of[has]
+        size = jss.shape[1]
+        starts = np.flatnonzero(np.r_[True, np.diff(so) != 0])
+        ids = so[starts]
+        # a segment's rows may come in several runs (its gyro rows, then its attitude rows)
+        dmat = np.zeros((segments, size, size))
+        bmat = np.zeros((segments, gsc.shape[1], size))
+        bvec = np.zeros((segments, size))
+        for seg, a, b in zip(ids, starts, np.r_[starts[1:], so.size]):
+            js_run = jss[a:b]
+            dmat[seg] += js_run.T @ js_run
+            bmat[seg] += gs[a:b].T @ js_run
+            bvec[seg] += js_run.T @ rs[a:b]
+        return NormalBlocks(col, rhs, a=gsc.T @ gsc, dmat=dmat, bmat=bmat, bvec=bvec)
+
+    @property
+    def segments(self) -> int:
+        """Segments whose locals move (0: none)."""
+        return 0 if self.dmat is None else self.dmat.shape[0]
+
+    def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """The damped step (dg (P,), ds (S, L)). A system that is not finite gives a zero step."""
+        dg_sc, ds = self._scaled(lam)
+        return dg_sc / self.col, ds
+
+    def global_covariance(self) -> np.ndarray:
+        """(P, P) the globals' block of (J^T J)^-1, the locals eliminated (their Schur complement)."""
+        a = self.a if self.qr_r is None else self.qr_r.T @ self.qr_r
+        if self.dmat is not None:
+            d_inv = np.linalg.pinv(self.dmat, hermitian=True)
+            a = a - np.einsum("spi,sij,sqj->pq", self.bmat, d_inv, self.bmat)
+        return np.linalg.pinv(a, hermitian=True) / np.outer(self.col, self.col)
+
+    def decrement(self) -> float:
+        """The cost's fall (|r|^2 units) that the undamped step predicts: what is left to gain."""
+        dg_sc, ds = self._scaled(0.0)
+        gain = float(self.rhs @ dg_sc)
+        if self.bvec is not None:
+            gain -= float(np.sum(self.bvec * ds))
+        return gain
+
+    def _scaled(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        p = self.col.size
+        if self.qr_r is not None:  # no locals: damped least squares on the triangular factor
+            lhs = np.vstack([self.qr_r, math.sqrt(lam) * np.eye(p)]) if lam > 0 else self.qr_r
+            rhs = np.r_[self.qr_b, np.zeros(p)] if lam > 0 else self.qr_b
+            if not (np.all(np.isfinite(lhs)) and np.all(np.isfinite(rhs))):
+                return np.zeros(p), np.zeros((0, 3))
+            return np.linalg.lstsq(lhs, rhs, rcond=None)[0], np.zeros((0, 3))
+        a = self.a + lam * np.diag(np.maximum(np.diag(self.a), 1e-12))
+        rhs = self.rhs
+        diag = np.einsum("sii->si", self.dmat)
+        floor = 1e-12 * max(float(diag.max()), 1e-300)
+        eye = np.eye(self.dmat.shape[1])
+        damped = self.dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), eye) + floor * eye
+        dinv = np.linalg.inv(damped)
+        a = a - np.einsum("spi,sij,sqj->pq", self.bmat, dinv, self.bmat)
+        rhs = rhs + np.einsum("spi,sij,sj->p", self.bmat, dinv, self.bvec)
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
+            return np.zeros(p), np.zeros(self.bvec.shape)
+        dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
+        ds = -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
+        return dg_sc, ds
+
+
+#: The scaled normal matrix is factored directly (Cholesky) while its condition number stays
+#: below this (the Jacobian's squared: at 1e10 six of sixteen digits are kept); beyond, the
+#: Jacobian itself is (QR), which keeps the digits but costs thirty times as much.
+GRAM_CONDITION = 1e10
+
+
+def _triangular(gsc: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R (P, P) upper triangular with R^T R = gsc^T gsc, and R^-T gsc^T (-r) (= Q^T (-r))."""
+    p = gsc.shape[1]
+    gram = gsc.T @ gsc
+    rhs = -(gsc.T @ r)
+    if p and np.all(np.isfinite(gram)):
+        vals = np.linalg.eigvalsh(gram)
+        if vals[0] > vals[-1] / GRAM_CONDITION:
+            upper = np.linalg.cholesky(gram).T
+            return upper, np.linalg.solve(upper.T, rhs)
+    r_aug = np.linalg.qr(np.column_stack([gsc, -r]), mode="r")
+    return r_aug[:p, :p], r_aug[:p, p]
+
+
+def face_basis(rows: np.ndarray) -> np.ndarray | None:
+    """(P, P - rank) orthonormal basis of the steps dg with rows @ dg = 0, or None where no row
+    is given (rows all zero, a limit on parameters that are held, count as none).
+    """
+    rows = rows[np.any(rows != 0, axis=1)] if rows.size else rows
+    if not rows.size:
+        return None
+    _, sv, vt = np.linalg.svd(rows)
+    rank = int(np.sum(sv > 1e-10 * sv[0]))
+    return vt[rank:].T
+
+
+#: What the solver asks of its caller: ("linearize", x) is answered with a Linearization at x,
+#: ("residuals", xs (B, size)) with the residuals (B, N) at each point.
+Request = tuple[str, np.ndarray]
+
+
+def levenberg_marquardt(prob: Problem, x0, max_iter: int, tol: float = 0.0, rel_tol: float = 0.0,
+                        decrement: float | None = None) -> Generator[Request, object, Result]:
+    """The solve as a generator (see the module docstring); returns its Result."""
+    gi = np.flatnonzero(prob.free)
+    x = _put_back(prob, np.asarray(x0, float))
+    lin = yield ("linearize", x)
+    cost = float(lin.r @ lin.r)
+    if not math.isfinite(cost):
+        return Result(x, cost, 0, False)
+    lam, restarted, converged, iterations = LM_START, False, False, 0
+    for iterations in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
+        g = lin.g[:, gi] if lin.g.shape[1] == prob.n_global != gi.size else lin.g
+        g = np.where(np.isfinite(g), g, 0.0)  # a column that breaks the model moves nothing
+        js = None if lin.js is None else np.where(np.isfinite(lin.js), lin.js, 0.0)
+        lin = dataclasses.replace(lin, g=g, js=js)
+        blocks = NormalBlocks.of(lin, prob.segments, prob.locals_free)
+        face = None if prob.face is None else face_basis(prob.face(x)[:, gi])
+        # the step kept on a limit's face: the same least squares over the face's directions
+        on_face = None if face is None else (face, NormalBlocks.of(dataclasses.replace(lin, g=g @ face),
+                                                                   prob.segments, prob.locals_free))
+        n_res = lin.r.size
+        if decrement is not None:
+            left = blocks.decrement()
+            if on_face is not None:
+                left = min(left, on_face[1].decrement())
+            if left <= decrement * cost / n_res:
+                converged = True
+                break
+        accepted, tried = None, 0
+        while accepted is None and tried < LM_TRIES:
+            batch, damping = [], lam
+            for _ in range(min(SPECULATE, LM_TRIES - tried)):
+                batch.append(_trials(prob, x, blocks, damping, on_face, gi))
+                damping *= LM_GROWTH
+            flat = [xn for trials in batch for xn in trials]
+            rows = (yield ("residuals", np.array(flat))) if flat else None
+            at = 0
+            for trials in batch:
+                tried += 1
+                if not trials:
+                    lam *= LM_GROWTH
+                    continue
+                rs = np.asarray(rows[at:at + len(trials)], float)
+                at += len(trials)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    costs = np.where(np.all(np.isfinite(rs), axis=1), np.einsum("ij,ij->i", rs, rs), np.inf)
+                best = int(np.argmin(costs))
+                if costs[best] < cost:
+                    accepted = (trials[best], float(costs[best]))
+                    break
+                lam *= LM_GROWTH
+        improved = False
+        if accepted is not None:
+            x_new, cost_new = accepted
+            improved = cost - cost_new > tol + rel_tol * cost / n_res
+            x, cost, lam = x_new, cost_new, max(lam / LM_FALL, 1e-12)
+            lin = yield ("linearize", x)
+        if improved:
+            restarted = False
+            continue
+        # no damping lowered the cost, or only by the tolerance: converged, unless the damping had
+        # grown along a curved valley (it stands above the initial one); then once more from it
+        if restarted or lam <= LM_START / LM_FALL:
+            converged = True
+            break
+        lam, restarted = LM_START, True
+    return Result(x, cost, iterations, converged)
+
+
+def _put_back(prob: Problem, x) -> np.ndarray:
+    if prob.bounds is not None:
+        x = np.clip(x, *prob.bounds)
+    return x if prob.project is None else prob.project(x)
+
+
+def _trials(prob: Problem, x, blocks: NormalBlocks, lam: float, on_face, gi) -> list[np.ndarray]:
+    """The points one damping tries: x moved by the step, put back into the domain; where that
+    moved it (a limit) and x sits on a face (on_face: its basis (P, F) and the blocks of the
+    columns projected on it), also the step kept on the face. Points whose step breaks a trust
+    radius, or that are not finite, are left out.
+    """
+    out = []
+    steps = [blocks.step(lam)]
+    for k, (dg, ds) in enumerate(steps):
+        xn = x.copy()
+        xn[gi] += dg
+        if prob.segments and prob.locals_free and ds.size:
+            xn[prob.n_global:] += ds.ravel()
+        moved = np.abs(xn[:prob.n_global] - x[:prob.n_global])
+        if prob.max_step is not None and np.any(moved > prob.max_step):
+            continue
+        clipped = xn if prob.bounds is None else np.clip(xn, *prob.bounds)
+        put = clipped if prob.project is None else prob.project(clipped)
+        if np.all(np.isfinite(put)):
+            out.append(put)
+        if k == 0 and on_face is not None and not np.array_equal(put, clipped):
+            dz, ds_face = on_face[1].step(lam)
+            steps.append((on_face[0] @ dz, ds_face))
+    return out
+
+
+def run(gen: Generator[Request, object, Result], linearize: Callable[[np.ndarray], Linearization],
+        residuals: Callable[[np.ndarray], np.ndarray]) -> Result:
+    """Drive one solve: linearize(x) -> Linearization, residuals(x) -> (N,) for one point."""
+    try:
+        kind, arg = next(gen)
+        while True:
+            if kind == "linearize":
+                answer = linearize(arg)
+            else:
+                answer = np.array([residuals(x) for x in arg])
+            kind, arg = gen.send(answer)
+    except StopIteration as done:
+        return done.value
+
+
+__all__ = ["Linearization", "Problem", "Result", "NormalBlocks", "face_basis", "levenberg_marquardt",
+           "run"]
