@@ -12,14 +12,17 @@ level), then the estimation core. Two estimates are always made:
   every gyro (and attitude) sample by maximum likelihood, efficient where the model holds, its
   covariance the Fisher bound, the coloured-noise sandwich or the model-error covariance.
 
-Which is reported: the output error where it passes the lack-of-fit test (its whitened residual
-sum of squares within the chi-square's 99.9 % range at the noise level): it is then the efficient
-estimate. Where the data reject it, the model leaves physics out, and the equation error is
-reported: an unmodelled torque moves it only through the windows it acts in, while the output
-error carries it along the whole trajectory; both covariances count the model error (as a white
-disturbance torque of the intensity the residuals' excess implies). Their agreement is tested
-(the difference against the sum of their covariances, a chi-square on 6 degrees of freedom, or 5
-at a fixed trace) and the notes say where they disagree.
+Which is reported: the output error, the maximum-likelihood estimate of the stated model, where
+it passes the lack-of-fit test (its whitened residual sum of squares within the chi-square's
+99.9 % range at the noise level): it is then efficient. Where the data reject the model, neither
+estimate is efficient and each is biased in its own way (an unmodelled torque correlated with
+the rates moves the windowed regression directly; one that drifts bends the whole trajectory),
+so they are compared out of sample: each is fitted on one half of the record, its inertia
+predicts the other half (the profile likelihood, the initial state refitted), and the one with
+the smaller held-out residual over both folds is reported (held_out_costs). Both covariances
+count the model error as a white disturbance torque of the intensity the residuals' excess
+implies. Their agreement is tested (the difference against the sum of their covariances, a
+chi-square on 6 degrees of freedom, or 5 at a fixed trace) and the notes say where they disagree.
 
 The scale is a quantity: with a known torque or a known internal momentum h that is not zero
 the inertia is absolute, its intervals carrying the scale's uncertainty; only without either is
@@ -44,38 +47,23 @@ from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_in
 from inertia_gym.estimation.integrator import substeps
 from inertia_gym.estimation.uncertainty import (
     SCALE_SIGMA_IDENTIFIED,
+    TEST_LEVEL,
     TRACE_WEIGHTS,
+    Agreement,
     InertiaEstimate,
     NoiseModel,
+    agreement,
     inertia_estimate,
     relative_frobenius_bound,
     with_gyro_scale,
 )
-from inertia_gym.prepare import Prepared, clip_hint, prepared
+from inertia_gym.prepare import MIN_SAMPLES, Prepared, clip_hint, prepared
 from inertia_gym.recordings import Recording
 from inertia_gym.sensors import coarse_lattice_note, stated_noise_note
 
 METHODS = ("ml", "ekf", "ukf")
-#: The chi-square level of every test here (lack of fit, a gyro bias, the two estimates' agreement).
-TEST_LEVEL = 0.999
 #: An identified scale this many times off the nominal's (either way) gets a note on units.
 NOMINAL_SCALE_FACTOR = 3.0
-
-
-@dataclasses.dataclass(frozen=True)
-class Agreement:
-    """The output-error and equation-error estimates against each other: statistic (chi-square
-    of their difference over the sum of their covariances), dof, p_value.
-    """
-
-    statistic: float
-    dof: int
-    p_value: float
-
-    @property
-    def disagree(self) -> bool:
-        """The difference is beyond both intervals at TEST_LEVEL."""
-        return self.p_value < 1.0 - TEST_LEVEL
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,20 +169,6 @@ def lack_of_fit(refinement: ml.Refinement, level: np.ndarray, prob: output_error
     z = fit.evaluation.e_w / level
     dof = max(z.size - prob.n_params, 1) / (1 + refinement.noise.hac_lags)
     return float(stats.chi2.sf(float(np.sum(z ** 2)) / (1 + refinement.noise.hac_lags), dof))
-
-
-def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:
-    """Agreement of two estimates of one inertia (see Agreement); at a fixed trace the trace's
-    direction is left out.
-    """
-    d = a.theta - b.theta
-    cov = a.theta_cov + b.theta_cov
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
-    keep = vals > 1e-12 * max(vals.max(), 1e-300)
-    proj = vecs[:, keep].T @ d
-    stat = float(np.sum(proj ** 2 / vals[keep]))
-    dof = int(keep.sum())
-    return Agreement(stat, dof, float(stats.chi2.sf(stat, dof)))
 
 
 def _starts(ee_phi: np.ndarray, trace: float) -> list[np.ndarray]:
@@ -345,29 +319,83 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
     notes = list(prep.notes)
     nominal = rec.inertia_nominal
     trace_ref = float(np.trace(nominal)) if nominal is not None else None
+    if method == "ml":
+        return _identify_ml(prep, fit_bias, fit_drag, trace_ref, notes, started)
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
-    ee_misfit = ee.misfit_z > stats.norm.ppf(TEST_LEVEL)
     ee_phi = phi_from_inertia(nearest_realizable(reference.inertia))
-    prob = problem_from(prep, prep.sigma, bool(fit_bias), fit_drag and method == "ml")
-    if method != "ml":
-        notes = [f"{n}'s start; the {method} uses them as read" if n.startswith("the gyro clipped") else n
-                 for n in notes]
-        run = run_over_recording(rec, prob.t_grid, prob.tau_grid, prob.h_grid, ee_phi, prob.sigma_w, method,
-                                 prob.fix_scale)
-        coarse = coarse_lattice_note(rec.w[prep.usable])
-        notes += [coarse] if coarse else []
-        est = inertia_estimate(run.phi, run.cov_phi, prob.fix_scale, trace_ref)
-        p = np.r_[run.phi, rec.w[0], np.zeros(prob.n_params - 9)]
-        bound = ml.cramer_rao_bound(prob, p, rec.q[0] if rec.q is not None else None, trace_ref)
-        return dataclasses.replace(_result(prep, method, method, est, reference, None,
-                       relative_frobenius_bound(bound.theta, bound.theta_cov), run.e_w,
-                       NoiseModel("white", prob.sigma_w, "filter measurement noise R", 0, 1.0), None, True,
-                       True, notes + list(run.notes), started), reference_q=ee.torque_q)
-    oe = output_error_fit(prep, prob, reference, ee_misfit, trace_ref)
-    if fit_bias is None and rec.q is None:
+    prob = problem_from(prep, prep.sigma, bool(fit_bias), False)
+    notes = [f"{n}'s start; the {method} uses them as read" if n.startswith("the gyro clipped") else n
+             for n in notes]
+    run = run_over_recording(rec, prob.t_grid, prob.tau_grid, prob.h_grid, ee_phi, prob.sigma_w, method,
+                             prob.fix_scale)
+    coarse = coarse_lattice_note(rec.w[prep.usable])
+    notes += [coarse] if coarse else []
+    est = inertia_estimate(run.phi, run.cov_phi, prob.fix_scale, trace_ref)
+    p = np.r_[run.phi, rec.w[0], np.zeros(prob.n_params - 9)]
+    bound = ml.cramer_rao_bound(prob, p, rec.q[0] if rec.q is not None else None, trace_ref)
+    return dataclasses.replace(_result(prep, method, method, est, reference, None,
+                   relative_frobenius_bound(bound.theta, bound.theta_cov), run.e_w,
+                   NoiseModel("white", prob.sigma_w, "filter measurement noise R", 0, 1.0), None, True,
+                   True, notes + list(run.notes), started), reference_q=ee.torque_q)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Estimates:
+    """Both estimates of one prepared record: the equation error (ee; as an InertiaEstimate,
+    reference), the output-error problem (prob, with the bias where _with_bias fits one) and its
+    fit (oe), and the bias's note (or None).
+    """
+
+    ee: EquationError
+    reference: InertiaEstimate
+    prob: output_error.Problem
+    oe: ml.Refinement
+    bias_note: str | None
+
+
+def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
+    """The equation error, then the output error started from it (output_error_fit, _with_bias)."""
+    ee = _equation_error_estimate(prep, trace_ref)
+    reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
+    prob = problem_from(prep, prep.sigma, bool(fit_bias), fit_drag)
+    oe = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref)
+    said = None
+    if fit_bias is None and prep.rec.q is None:
         prob, oe, said = _with_bias(prep, prob, oe, trace_ref)
-        notes += [said] if said else []
+    return _Estimates(ee, reference, prob, oe, said)
+
+
+def held_out_costs(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> np.ndarray | None:
+    """(2,) the output error's and the equation error's held-out cost: the record cut into two
+    halves, both estimators fitted on one half (_estimates) and each inertia's profile cost on
+    the other (output_error.profile_cost: its whitened residual sum, the initial state, bias and
+    drag refitted), summed over both folds. None where a half has fewer usable rows than a fit
+    takes or a half's fit fails.
+    """
+    n = prep.rec.t.size
+    halves = ((0, n // 2), (n // 2, n))
+    if min(int(np.count_nonzero(prep.usable[a:b])) for a, b in halves) < MIN_SAMPLES:
+        return None
+    costs = np.zeros(2)
+    for train, test in (halves, halves[::-1]):
+        try:
+            part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
+        except (EstimatorDivergedError, ConfigError, RecordingError):
+            return None
+        held = problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
+        q0 = None if prep.rec.q is None else prep.rec.q[test[0]]
+        for k, est in enumerate((part.oe.estimate, part.reference)):
+            costs[k] += output_error.profile_cost(held, phi_from_inertia(nearest_realizable(est.inertia)), q0)
+    return costs
+
+
+def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref, notes: list,
+                 started: float) -> Identification:
+    """identify_prepared's 'ml': both estimates, the one reported chosen as the module says."""
+    both = _estimates(prep, fit_bias, fit_drag, trace_ref)
+    prob, oe, reference = both.prob, both.oe, both.reference
+    notes += [both.bias_note] if both.bias_note else []
     est = oe.estimate
     if oe.fit.segments == 1:
         est, replayed = ml.lattice_replayed(est, prob, oe.fit)
@@ -381,20 +409,24 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
     estimator = "output error"
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
     if not explained:
-        est, estimator = reference, "equation error"
-        notes.append("the rigid model leaves physics out (the output-error fit's residuals fail the "
-                     "lack-of-fit test): reported is the equation-error estimate, which an unmodelled torque "
-                     "moves only through the windows it acts in, where the output error carries it along the "
-                     "whole trajectory (run `inertia-gym diagnose` to find what is missing)")
+        costs = held_out_costs(prep, fit_bias, fit_drag, trace_ref)
+        if costs is not None and costs[1] < costs[0]:
+            est, estimator = reference, "equation error"
+        compared = ("" if costs is None else
+                    f"; fitted on one half, each predicts the other with a residual sum of {costs[0]:.4g} "
+                    f"(output error) and {costs[1]:.4g} (equation error) noise variances")
+        notes.append(f"the rigid model leaves physics out (the output-error fit's residuals fail the "
+                     f"lack-of-fit test): reported is the {estimator}{compared}; the intervals count the "
+                     "model error as a white disturbance torque (run `inertia-gym diagnose` to find what "
+                     "is missing)")
     if agree.disagree:
         notes.append(f"the output-error and equation-error estimates disagree beyond their intervals "
                      f"(chi-square {agree.statistic:.3g} on {agree.dof} degrees of freedom): the rigid "
                      "model misses something that moves them differently")
-    e_w = oe.fit.evaluation.e_w
     bias = oe.fit.p[-3:].copy() if prob.fit_bias else None
-    result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, e_w, oe.noise, bias,
-                     oe.fit.converged, explained, notes, started)
-    return dataclasses.replace(result, reference_q=ee.torque_q)
+    result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
+                     bias, oe.fit.converged, explained, notes, started)
+    return dataclasses.replace(result, reference_q=both.ee.torque_q)
 
 
 def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,

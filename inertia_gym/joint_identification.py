@@ -28,9 +28,8 @@ from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingErr
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.equation_error import pooled, system_of
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia
-from inertia_gym.estimation.uncertainty import InertiaEstimate, inertia_estimate
+from inertia_gym.estimation.uncertainty import TEST_LEVEL, InertiaEstimate, inertia_estimate
 from inertia_gym.identification import (
-    TEST_LEVEL,
     Identification,
     estimate_keys,
     identify_prepared,

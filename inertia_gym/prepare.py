@@ -229,6 +229,11 @@ class Prepared:
     kept: tuple[int, int]
     notes: tuple[str, ...]
 
+    def rows(self, start: int, stop: int) -> "Prepared":
+        """The prepared record's rows start:stop, with the same noise level."""
+        return dataclasses.replace(self, rec=self.rec.rows(start, stop), usable=self.usable[start:stop],
+                                   kept=(self.kept[0] + start, self.kept[0] + stop))
+
     @property
     def sigma_source(self) -> str:
         """Where the noise level that weights the fit comes from."""

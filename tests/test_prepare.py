@@ -153,3 +153,13 @@ def test_a_prepared_record_leaves_out_an_end_impulse_and_says_so():
     clean = prepared(dataclasses.replace(rec, meta={"gyro_sigma": 0.001}))
     assert clean.kept == (0, rec.t.size) and not any("impulse" in n for n in clean.notes)
     assert clean.usable.all()
+
+
+def test_rows_of_a_prepared_record_keep_its_noise_level_and_count_kept_rows_from_the_original():
+    rec, _ = simulate_recording(Scenario(), 20.0, seed=1, sample_dt=0.05)
+    prep = prepared(rec)
+    part = prep.rows(10, 50)
+    assert part.rec.t.size == part.usable.size == 40
+    np.testing.assert_array_equal(part.rec.w, prep.rec.w[10:50])
+    np.testing.assert_array_equal(part.level, prep.level)
+    assert part.kept == (prep.kept[0] + 10, prep.kept[0] + 50)

@@ -57,7 +57,8 @@ class Problem:
     each measurement's: several records of one body in one problem);
     sigma_att rad (per axis of the attitude error); fit_bias: estimate a constant gyro bias;
     fix_scale: the scale s is not a free parameter (no torque and h zero); fit_drag:
-    estimate a body-axis aerodynamic damping c (3,) N·m·s².
+    estimate a body-axis aerodynamic damping c (3,) N·m·s²; fixed_inertia: the inertia is held
+    where p puts it and only the other parameters move (profile_cost).
     """
 
     t_grid: np.ndarray
@@ -72,6 +73,7 @@ class Problem:
     fit_bias: bool
     fix_scale: bool
     fit_drag: bool = False
+    fixed_inertia: bool = False
 
     @property
     def with_att(self) -> bool:
@@ -93,6 +95,8 @@ class Problem:
         """Bool mask (n_params,) of the parameters the fit moves."""
         mask = np.ones(self.n_params, dtype=bool)
         mask[0] = not self.fix_scale
+        if self.fixed_inertia:
+            mask[:6] = False
         return mask
 
     def window(self, n_meas: int) -> "Problem":
@@ -406,6 +410,25 @@ def solve(prob: Problem, p, q_ref, prior: Prior | None = None, max_iter: int = S
     return _Stage(p_new, q_ref, evaluate(prob, p_new, q_ref, True), res.iterations, res.converged)
 
 
+def evaluate_rms(prob: Problem, p, q_ref) -> float:
+    """The whitened residual's rms of one trajectory over the whole record from p."""
+    ev = evaluate(prob, p, q_ref, False)
+    return float(np.sqrt(np.mean(ev.r ** 2))) if ev.ok else np.inf
+
+
+def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = FINAL_ITER) -> float:
+    """The record's whitened residual sum of squares at the inertia phi (6,), minimised over the
+    other parameters (initial rate and attitude, bias, drag): the profile likelihood of that
+    inertia, infinite where the trajectory does not stay finite.
+    """
+    fixed = dataclasses.replace(prob, fixed_inertia=True)
+    p = np.zeros(prob.n_params)
+    p[:6], p[6:9] = phi, prob.z_w[0]
+    q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_ref is None else np.asarray(q_ref, float)
+    ev = solve(fixed, p, q_ref, None, max_iter).evaluation
+    return float(np.sum(ev.r ** 2)) if ev.ok and np.all(np.isfinite(ev.r)) else np.inf
+
+
 def _cuts(m: int, count: int) -> np.ndarray:
     """(count+1,) measurement indices cutting m measurements into count equal segments."""
     return np.unique(np.round(np.linspace(0, m, count + 1)).astype(int))
@@ -419,11 +442,13 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
     before the last; first_horizon: the measurements the start's trajectory can be trusted over
     (default: all). Multiple shooting with continuation: the record is cut into segments of at
     most first_horizon measurements, each from its own initial state (the measured rate and
-    attitude at its start), and solved; then every other cut is dropped, the kept segments'
-    states carried over, and solved again, until one trajectory spans the record (solved
-    without the prior for up to final_iter iterations). A merge whose residual rms exceeds the
-    last stage's by SLIP_FACTOR has lost the trajectory (near a separatrix the sensitivities grow
-    exponentially): the fit then keeps the last stage's segments.
+    attitude at its start), and solved; then, where the first segment's trajectory does not
+    yet follow the whole record within SLIP_FACTOR of the segments' rms, every other cut is
+    dropped, the kept segments' states carried over, and solved again, until one trajectory
+    spans the record (solved without the prior for up to final_iter iterations). A merge whose
+    residual rms exceeds the last stage's by SLIP_FACTOR has lost the trajectory (near a
+    separatrix the sensitivities grow exponentially): the fit then keeps the last stage's
+    segments.
     """
     m = prob.meas_idx.size
     horizon = m if first_horizon is None else int(np.clip(first_horizon, 1, m))
@@ -447,11 +472,16 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
             if good is not None and stage.rms > SLIP_FACTOR * good[1].rms:
                 break
             good = (seg, stage)
+            if evaluate_rms(prob, stage.p, stage.q_ref) <= SLIP_FACTOR * stage.rms:
+                # the first segment's trajectory already follows the whole record: join them all
+                x = np.r_[stage.x[:gl.size], stage.x[gl.size:gl.size + lo.size]]
+                q_refs, seg = stage.q_refs[:1], np.array([0, m])
+                break
             keep = np.arange(0, seg.size - 1, 2)
             seg = np.r_[seg[:-1][keep], m]
             x = np.r_[stage.x[:gl.size], stage.x[gl.size:].reshape(-1, lo.size)[keep].ravel()]
             q_refs = stage.q_refs[keep]
-        else:
+        if seg.size == 2:
             p, q_ref = Shooting(prob, seg).p_of(x, 0), q_refs[0]
     if good is None or seg.size == 2:
         whole = solve(prob, p, q_ref, None, final_iter)
@@ -465,4 +495,5 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
                stage.converged, seg.size - 1, stage.global_cov)
 
 
-__all__ = ["Problem", "Evaluation", "Prior", "Fit", "Shooting", "evaluate", "solve", "solve_shooting", "fit"]
+__all__ = ["Problem", "Evaluation", "Prior", "Fit", "Shooting", "evaluate", "solve", "solve_shooting", "fit",
+           "profile_cost"]

@@ -20,6 +20,7 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy import stats
 
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
@@ -30,6 +31,9 @@ from inertia_gym.information import inertia_from_theta
 
 #: A scale whose relative standard deviation exceeds this is poorly determined (said in notes).
 SCALE_SIGMA_IDENTIFIED = 0.05
+#: The chi-square level of identify's tests (lack of fit, a gyro bias, two estimates' agreement):
+#: one false alarm in a thousand records.
+TEST_LEVEL = 0.999
 #: The trace of theta: theta @ TRACE_WEIGHTS.
 TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 
@@ -319,3 +323,33 @@ def with_gyro_scale(est: InertiaEstimate, reference: InertiaEstimate, scale_sigm
     return dataclasses.replace(est, theta_cov=cov), (
         f"the intervals include the gyro's scale-factor uncertainty ({100 * float(scale_sigma):.3g} %, 1 "
         "sigma, sidecar gyro_scale_sigma), common to every moment")
+
+
+@dataclasses.dataclass(frozen=True)
+class Agreement:
+    """The output-error and equation-error estimates against each other: statistic (chi-square
+    of their difference over the sum of their covariances), dof, p_value.
+    """
+
+    statistic: float
+    dof: int
+    p_value: float
+
+    @property
+    def disagree(self) -> bool:
+        """The difference is beyond both intervals at TEST_LEVEL."""
+        return self.p_value < 1.0 - TEST_LEVEL
+
+
+def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:
+    """Agreement of two estimates of one inertia (see Agreement); at a fixed trace the trace's
+    direction is left out.
+    """
+    d = a.theta - b.theta
+    cov = a.theta_cov + b.theta_cov
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    keep = vals > 1e-12 * max(vals.max(), 1e-300)
+    proj = vecs[:, keep].T @ d
+    stat = float(np.sum(proj ** 2 / vals[keep]))
+    dof = int(keep.sum())
+    return Agreement(stat, dof, float(stats.chi2.sf(stat, dof)))
