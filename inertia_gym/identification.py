@@ -120,7 +120,8 @@ def estimate_keys(est: InertiaEstimate) -> dict:
     principal moments, axes and ratios with theirs, whether its scale is identified and the
     relative standard deviation of its trace.
     """
-    vals, half, axes, cone = est.principal()
+    principal = est.principal()
+    vals, half, axes, cone = principal.moments, principal.half, principal.axes, principal.cone_deg
     ratios, ratio_cov = est.principal_ratios()
     ratio_half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
     return {"inertia": est.inertia.tolist(), "theta": est.theta.tolist(), "theta_cov": est.theta_cov.tolist(),
@@ -342,9 +343,8 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
 
 @dataclasses.dataclass(frozen=True)
 class _Estimates:
-    """Both estimates of one prepared record: the equation error (ee; as an InertiaEstimate,
-    reference), the output-error problem (prob, with the bias where _with_bias fits one) and its
-    fit (oe), and the bias's note (or None).
+    """Both estimates of one record: the equation error (ee; as an InertiaEstimate, reference),
+    the output-error problem (prob, with _with_bias's bias), its fit (oe), the bias's note.
     """
 
     ee: EquationError
@@ -408,10 +408,13 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     agree = agreement(est, reference)
     estimator = "output error"
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
-    if not explained:
+    nominal = prep.rec.inertia_nominal
+    costs = None  # where both are off the nominal, _result refuses the record whichever is reported
+    if not explained and not all(_off(_nominal_factor(e, nominal)) for e in (est, reference)):
         costs = held_out_costs(prep, fit_bias, fit_drag, trace_ref)
         if costs is not None and costs[1] < costs[0]:
             est, estimator = reference, "equation error"
+    if not explained:
         compared = ("" if costs is None else
                     f"; fitted on one half, each predicts the other with a residual sum of {costs[0]:.4g} "
                     f"(output error) and {costs[1]:.4g} (equation error) noise variances")
@@ -427,6 +430,18 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
                      bias, oe.fit.converged, explained, notes, started)
     return dataclasses.replace(result, reference_q=both.ee.torque_q)
+
+
+def _nominal_factor(est: InertiaEstimate, nominal) -> float:
+    """The estimate's trace over the nominal's (1 without a nominal or an identified scale)."""
+    if nominal is None or not est.scale_identified:
+        return 1.0
+    return float(TRACE_WEIGHTS @ est.theta) / float(np.trace(nominal))
+
+
+def _off(factor: float) -> bool:
+    """Whether a trace factor is more than NOMINAL_SCALE_FACTOR off the nominal's, either way."""
+    return not 1.0 / NOMINAL_SCALE_FACTOR <= factor <= NOMINAL_SCALE_FACTOR
 
 
 def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
@@ -456,8 +471,8 @@ def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
         if sigma_s > SCALE_SIGMA_IDENTIFIED:
             notes.append(f"the scale is poorly determined (relative sigma of the trace {sigma_s:.2g}): the "
                          "intervals carry it; the ratios are known better than the absolute values")
-        factor = float(TRACE_WEIGHTS @ est.theta) / float(np.trace(nominal)) if nominal is not None else 1.0
-        if not 1.0 / NOMINAL_SCALE_FACTOR <= factor <= NOMINAL_SCALE_FACTOR:
+        factor = _nominal_factor(est, nominal)
+        if _off(factor):
             off_nominal = factor
             notes.append(f"the identified inertia is {factor:.3g} times the nominal's (trace): check the "
                          "units of the torque (N·m) and the momentum (kg·m²/s) columns, or the nominal; a "

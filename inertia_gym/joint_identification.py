@@ -66,7 +66,7 @@ class JointIdentification:
         return {"names": list(self.names), **estimate_keys(self.estimate), "estimator": self.estimator,
                 "equation_error": estimate_keys(self.reference),
                 "per_recording": [{"name": s.name, "estimator": s.estimator,
-                                   "principal_moments": s.estimate.principal()[0].tolist(),
+                                   "principal_moments": s.estimate.principal().moments.tolist(),
                                    "theta": s.estimate.theta.tolist(), "ci95": s.estimate.ci95().tolist()}
                                   for s in self.singles],
                 "agreement_chi2": float(self.agreement_chi2), "agreement_dof": int(self.agreement_dof),

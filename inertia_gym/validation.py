@@ -198,7 +198,8 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
     # Identified: the log-scale's posterior sigma is at most SCALE_SIGMA_IDENTIFIED (5 %) and at
     # most half the prior's.
     scale_ok = (sigma_s <= SCALE_SIGMA_IDENTIFIED) & (sigma_s <= 0.5 * prior_sigma_s)
-    t_meas, th, th_sig, w_est, measurements = _concat_logs(logs, sc.dt)
+    log = _concat_logs(logs, sc.dt)
+    t_meas, th, th_sig, w_est, measurements = log.t, log.theta, log.theta_sigma, log.w_est, log.measurements
     w_true = measurements[..., 4:7]
     t_step, tau = _concat_torque(torques, sc.dt) if record_torque else (np.zeros(0),
                                                                         np.zeros((len(seeds), 0, 3)))
@@ -283,7 +284,21 @@ def refine_runs(sc: Scenario, state, t_meas, measurements, tau, forced: bool) ->
     return RefinedScores(rel, crlb, covered, inertia, not fix_scale, time.perf_counter() - t0)
 
 
-def _concat_logs(logs, dt):
+@dataclasses.dataclass(frozen=True)
+class _RunLogs:
+    """Each run's measurement log over all its episodes, NaN-padded to the longest run: t
+    (R, M) s, theta (R, M, 6) and theta_sigma (R, M, 6) the filter's estimate and its standard
+    deviations, w_est (R, M, 3) rad/s, measurements (R, M, 14) the rows as measured.
+    """
+
+    t: np.ndarray
+    theta: np.ndarray
+    theta_sigma: np.ndarray
+    w_est: np.ndarray
+    measurements: np.ndarray
+
+
+def _concat_logs(logs, dt) -> _RunLogs:
     batch = logs[0].n_meas.shape[0]
     per_run = []
     for r in range(batch):
@@ -301,7 +316,7 @@ def _concat_logs(logs, dt):
         k = len(st)
         t[r, :k], th[r, :k], sig[r, :k] = st * dt, tht, np.sqrt(np.clip(var, 0, None))
         we[r, :k], meas[r, :k] = west, z
-    return t, th, sig, we, meas
+    return _RunLogs(t, th, sig, we, meas)
 
 
 def _concat_torque(torques, dt):

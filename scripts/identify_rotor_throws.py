@@ -86,7 +86,8 @@ def score(rec, truth) -> dict:
     t0 = time.perf_counter()
     result = identify(rec)
     wall = time.perf_counter() - t0
-    vals, half, _, _ = result.estimate.principal()
+    principal = result.estimate.principal()
+    vals, half = principal.moments, principal.half
     row = {"throw": rec.name, "configuration": configuration(rec.name), "estimator": result.estimator,
            "scale_identified": bool(result.estimate.scale_identified), "wall_s": wall,
            "moments_covered": (np.abs(vals - np.linalg.eigvalsh(truth)) <= half).tolist(),
@@ -158,7 +159,8 @@ def main():
         joint = identify_joint([recordings[n] for n in names])
         wall = time.perf_counter() - t0
         true = np.mean([np.linalg.eigvalsh(np.asarray(truth[n]["inertia"], float)) for n in names], axis=0)
-        vals, half, _, _ = joint.estimate.principal()
+        principal = joint.estimate.principal()
+        vals, half = principal.moments, principal.half
         classic = np.mean([np.linalg.eigvalsh(np.asarray(r["classic_inertia"])) for r in rows
                            if body(r["throw"]) == config], axis=0)
         joints[config] = {"throws": len(names), "estimator": joint.estimator,

@@ -254,7 +254,7 @@ def test_identifications_across_combines_the_shape_and_the_moments_where_scaled(
         cov = a @ a.T
         theta = truth + np.linalg.cholesky(cov) @ rng.standard_normal(6)
         est = InertiaEstimate(theta, cov, True)
-        vals, half, _, _ = est.principal()
+        vals = est.principal().moments
         ratios, ratio_cov = est.principal_ratios()
         summaries.append((f"throw {k}", {
             "principal_moments": vals.tolist(), "principal_moments_cov": est.moment_covariance().tolist(),
@@ -304,7 +304,7 @@ def test_one_recordings_moments_keep_their_own_intervals():
     intervals identify gave them (ascending in identify.json): the covariance is turned with them."""
     a = np.random.default_rng(3).normal(size=(6, 6)) * 1e-4
     est = InertiaEstimate(np.array([0.45, 0.01, 0.0, 0.30, 0.0, 0.05]), a @ a.T, True)
-    vals, half, _, _ = est.principal()
+    vals, half = est.principal().moments, est.principal().half
     ratios, ratio_cov = est.principal_ratios()
     summary = {"principal_moments": vals.tolist(), "principal_moments_cov": est.moment_covariance().tolist(),
                "principal_ratios": ratios.tolist(), "principal_ratios_cov": ratio_cov.tolist(),

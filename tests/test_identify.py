@@ -446,7 +446,7 @@ def test_a_gyro_both_quantised_and_clipped_is_fitted_at_its_rounding_error_witho
     assert any(note.startswith("the gyro clipped at its full scale (x 18 rad/s) in") for note in res.notes)
     assert any("quantised in steps of (0.05, 0.05, 0.05) rad/s" in note for note in res.notes), res.notes
     assert 0.8 < res.rms_over_noise < 1.2
-    moments, half = res.estimate.principal()[:2]
+    moments, half = res.estimate.principal().moments, res.estimate.principal().half
     assert np.all(np.abs(moments - np.linalg.eigvalsh(sc.inertia_true_array)) <= half)
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
@@ -586,8 +586,8 @@ def test_a_long_thin_body_record_with_torque_bursts_is_identified(tmp_path):
     inertia = forced_record(tmp_path / "forced.csv", 12012, np.array([1.0, 0.99, 0.01]) * 40.0)
     result = identify(read_recordings(tmp_path / "forced.csv")[0])
     assert result.estimator == "output error" and result.rms_over_noise < 1.2
-    np.testing.assert_allclose(np.sort(result.estimate.principal()[0]), np.sort(np.linalg.eigvalsh(inertia)),
-                               rtol=2e-3)
+    np.testing.assert_allclose(np.sort(result.estimate.principal().moments),
+                               np.sort(np.linalg.eigvalsh(inertia)), rtol=2e-3)
 
 
 def test_both_estimates_are_reported_and_the_output_error_where_the_model_holds(paper_recording):

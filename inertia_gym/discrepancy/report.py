@@ -374,7 +374,21 @@ def _fitted_nominal(d: Data) -> tuple[Data, Fit]:
     return (d, nominal) if level is d else (level, finish(nominal.layout, nominal.x, level, nominal.k))
 
 
-def _fits(rec: Recording):
+@dataclasses.dataclass(frozen=True)
+class _Fits:
+    """What diagnose fitted to one record: data (the prepared Data, impulses trimmed), nominal
+    (the rigid fit), singles (the single-effect fits, ranked), skipped (the effects not fitted,
+    each with why), chosen (the explanation).
+    """
+
+    data: Data
+    nominal: Fit
+    singles: list
+    skipped: dict
+    chosen: object
+
+
+def _fits(rec: Recording) -> _Fits:
     """Nominal, single-effect and compound fits of a recording, its impulses trimmed.
 
     Impulses at the ends are located on the nominal fit's residual and, once the explanation
@@ -383,7 +397,6 @@ def _fits(rec: Recording):
     repeats the fits on the trimmed record. On a coarsely rounded record
     (rounding_floors), the explanation's effects are then checked against the rounding
     (rounding_checked), which raises the floors of those it checks alone.
-    Returns (data, nominal, singles ranked, skipped, explanation).
     """
     d = prepare(rec)
     check_enough_rows(rec, d)
@@ -424,7 +437,7 @@ def _fits(rec: Recording):
     if chosen.fit is not None:  # the fit the report reads its inertia and intervals from (the
         # selection's delta BICs, chosen.added, are kept as selected)
         chosen = dataclasses.replace(chosen, chain=chosen.chain[:-1] + tuple(polished([chosen.fit], d)))
-    return d, nominal, fits, skipped, chosen
+    return _Fits(d, nominal, fits, skipped, chosen)
 
 
 def _impulses_left(d: Data, expl, attempt: int) -> tuple[int, int]:
@@ -441,7 +454,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     """
     check_input_gaps(rec)
     rec = retimed(rec)
-    d, nominal, fits, skipped, chosen = _fits(rec)
+    found = _fits(rec)
+    d, nominal, fits, skipped, chosen = found.data, found.nominal, found.singles, found.skipped, found.chosen
     ranked = []
     for f in fits:
         delta = float(nominal.bic - f.bic)

@@ -8,6 +8,7 @@ batch of one, the native vector env (envs/vector.py) a batch of B.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -111,15 +112,25 @@ def start_runs(sc: Scenario, rngs: list[np.random.Generator]) -> tuple[SimState,
     return state, infos
 
 
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """One env step of B runs: state (the new SimState), results (one EpisodeResult per run),
+    xi (B, 3) the actions as burst parameters, costs (B,).
+    """
+
+    state: SimState
+    results: list
+    xi: np.ndarray
+    costs: np.ndarray
+
+
 def step_runs(sc: Scenario, state: SimState, actions, rngs: list[np.random.Generator], *,
-              cost: str, carry_over: bool) -> tuple[SimState, list[EpisodeResult], np.ndarray,
-                                                    np.ndarray]:
+              cost: str, carry_over: bool) -> Step:
     """One env step of B runs: one excitation episode each, in one call of the batched loop.
 
     actions (B, 3) in [-1, 1], checked row by row (:func:`action_to_xi`); rngs: one Generator
     per run. With carry_over False every run first restarts from the scenario's start.
-    Returns (new state, one EpisodeResult per run, xi (B, 3), cost (B,)), the cost of a
-    diverged run being :func:`divergence_cost`. The single env (B = 1) and the vector env
+    The cost of a diverged run is :func:`divergence_cost`. The single env (B = 1) and the vector env
     both step through here.
     """
     xi = np.array([action_to_xi(sc, action) for action in actions]).reshape(-1, 3)
@@ -128,7 +139,7 @@ def step_runs(sc: Scenario, state: SimState, actions, rngs: list[np.random.Gener
     state, results = run_episode(sc, state, xi, rngs, cost=cost)
     costs = np.array([divergence_cost(sc, cost) if res.diverged else float(res.cost)
                       for res in results])
-    return state, results, xi, costs
+    return Step(state, results, xi, costs)
 
 
 def observations(sc: Scenario, state: SimState, steps, budget: int) -> np.ndarray:
@@ -252,9 +263,9 @@ class ExcitationEnv(gym.Env):
         """Run one excitation episode with xi from `action`; returns the Gymnasium 5-tuple."""
         if self._state is None:
             raise ResetNeededError("call reset() before step() (and after a diverged run)")
-        self._state, (res,), (xi,), (cost,) = step_runs(
-            self.scenario, self._state, [action], [self.np_random], cost=self.cost,
-            carry_over=self.carry_over)
+        step = step_runs(self.scenario, self._state, [action], [self.np_random], cost=self.cost,
+                         carry_over=self.carry_over)
+        self._state, res, xi, cost = step.state, step.results[0], step.xi[0], step.costs[0]
         self._steps += 1
         self._time += float(res.duration)
         obs = self._observation()

@@ -136,10 +136,10 @@ class ExcitationVectorEnv(VectorEnv):
         stepping = np.flatnonzero(~self._autoreset)
         resetting = np.flatnonzero(self._autoreset)
         if stepping.size:
-            state, results, xis, costs = step_runs(
-                self.scenario, self._state.select(stepping), actions[stepping],
-                [self._rngs[i] for i in stepping], cost=self.cost, carry_over=self.carry_over)
-            self._state = self._state.with_rows(stepping, state)
+            step = step_runs(self.scenario, self._state.select(stepping), actions[stepping],
+                             [self._rngs[i] for i in stepping], cost=self.cost, carry_over=self.carry_over)
+            results, xis, costs = step.results, step.xi, step.costs
+            self._state = self._state.with_rows(stepping, step.state)
             self._steps[stepping] += 1
             self._time[stepping] += [res.duration for res in results]
             for i, res, xi, cost in zip(stepping, results, xis, costs):

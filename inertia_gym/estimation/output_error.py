@@ -416,10 +416,12 @@ def evaluate_rms(prob: Problem, p, q_ref) -> float:
     return float(np.sqrt(np.mean(ev.r ** 2))) if ev.ok else np.inf
 
 
-def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = FINAL_ITER) -> float:
+def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> float:
     """The record's whitened residual sum of squares at the inertia phi (6,), minimised over the
-    other parameters (initial rate and attitude, bias, drag): the profile likelihood of that
-    inertia, infinite where the trajectory does not stay finite.
+    other parameters (initial rate and attitude, bias, drag) in at most max_iter iterations: the
+    profile likelihood of that inertia (an inertia whose trajectory needs more iterations than a
+    stage's to follow the record predicts it poorly), infinite where the trajectory does not
+    stay finite.
     """
     fixed = dataclasses.replace(prob, fixed_inertia=True)
     p = np.zeros(prob.n_params)

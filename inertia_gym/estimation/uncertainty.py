@@ -104,6 +104,18 @@ class NoiseModel:
 
 
 @dataclasses.dataclass(frozen=True)
+class Principal:
+    """An estimate's principal moments (3,) kg·m² ascending with their 95 % half-widths (3,),
+    the axes (3, 3) as columns, and each axis' 95 % cone half-angle (3,) in degrees.
+    """
+
+    moments: np.ndarray
+    half: np.ndarray
+    axes: np.ndarray
+    cone_deg: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
 class InertiaEstimate:
     """An inertia with its uncertainty.
 
@@ -129,10 +141,8 @@ class InertiaEstimate:
         """(6, 2) 95 % intervals of theta."""
         return np.stack([self.theta - 1.96 * self.sigma, self.theta + 1.96 * self.sigma], axis=1)
 
-    def principal(self):
-        """Principal moments (3,) ascending with 95 % half-widths (3,), axes (3, 3) as columns,
-        and each axis' 95 % cone half-angle (3,) in degrees (delta method).
-        """
+    def principal(self) -> "Principal":
+        """The principal moments, axes and their 95 % intervals (delta method)."""
         vals, vecs, grads = self._moment_gradients()
         half = 1.96 * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", grads, self.theta_cov, grads), 0, None))
         cone = np.zeros(3)
@@ -143,7 +153,7 @@ class InertiaEstimate:
                     g = _eig_gradient(vecs[:, k], vecs[:, i]) / (vals[i] - vals[k])
                     var += float(g @ self.theta_cov @ g)
             cone[i] = math.degrees(min(math.pi / 2, 1.96 * math.sqrt(max(var, 0.0))))
-        return vals, half, vecs, cone
+        return Principal(vals, half, vecs, cone)
 
     def _moment_gradients(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Principal moments (3,) ascending, axes (3, 3) as columns, and each moment's gradient

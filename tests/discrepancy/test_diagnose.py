@@ -543,7 +543,8 @@ def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
     recounted); with its spline profile (2026-11-28) both end at the varying drag and the varying
     momentum, 476.6. The runner-up's search finding the better explanation is tested on a rotor
     throw below and on Basilisk's slosh with a hidden torque (test_basilisk.py)."""
-    d, nominal, singles, _, chosen = _fits(racquet_toss("round2", 3))
+    found = _fits(racquet_toss("round2", 3))
+    d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
     first = search(d, nominal, singles, MAX_EFFECTS)
     runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
     assert first.fit.names[0] == singles[0].name
@@ -560,7 +561,8 @@ def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
     the ΔBICs along the new chain adding up to the whole gain."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
                                 seed=1000)
-    d, nominal, singles, _, chosen = _fits(_concealed(rec))
+    found = _fits(_concealed(rec))
+    d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
     assert sorted(chosen.fit.names) == ["constant_body_torque", "gyro_bias"]
     assert chosen.fit.names[0] == singles[0].name  # the selection's own listing
     names, forms = chosen.fit.names[::-1], chosen.fit.forms[::-1]
@@ -586,7 +588,7 @@ def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_thro
     kept = []
     monkeypatch.setattr(report_module, "_fits", lambda r: kept.append(_fits(r)) or kept[-1])
     report, _ = diagnose(rec)
-    _, _, singles, _, chosen = kept[0]
+    singles, chosen = kept[0].singles, kept[0].chosen
     listed = [name for name, _ in chosen.added]
     assert listed[0] == singles[0].name == "internal_momentum"
     assert sorted(listed) == sorted(chosen.fit.names) == ["constant_body_torque", "internal_momentum"]
@@ -631,7 +633,8 @@ def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monke
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     from bench_diagnose import toss
 
-    d, _, _, _, chosen = _fits(toss())
+    found = _fits(toss())
+    d, chosen = found.data, found.chosen
     real = report_module.covariance
     monkeypatch.setattr(report_module, "covariance",
                         lambda fit, dd: (real(fit, dd)[0] * widen, real(fit, dd)[1]))
