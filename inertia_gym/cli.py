@@ -13,7 +13,7 @@ from pathlib import Path
 
 from inertia_gym.errors import InertiaGymError
 
-COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose", "identify")
+COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose", "identify", "example")
 
 
 def build_parser() -> argparse.ArgumentParser:
