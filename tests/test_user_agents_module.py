@@ -29,6 +29,7 @@ COMMAND_LINES = {
                   "--no-progress", "--out", "bench"],
     "diagnose": ["diagnose", "rec.csv", "--no-plots", "--out", "diag"],
     "identify": ["identify", "rec.csv", "--no-plots", "--out", "ident"],
+    "example": ["example", "thrown-rotor", "--out", "ex"],
 }
 
 
@@ -60,7 +61,8 @@ def test_each_command_runs_beside_a_user_agents_module(user_folder, command):
     assert done.returncode == 0, done.stderr
     assert "agents.py was imported" not in done.stderr and "Traceback" not in done.stderr
     outputs = {"simulate": "rec.json", "validate": "val", "optimize": "opt", "benchmark": "bench",
-               "diagnose": "diag/report.json", "identify": "ident/identify.json"}
+               "diagnose": "diag/report.json", "identify": "ident/identify.json",
+               "example": "ex/thrown-rotor.json"}
     out = user_folder / outputs[command]
     assert out.exists()
     if out.suffix == ".json":
