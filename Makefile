@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench clean
+.PHONY: run test check-science docs lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q torch==2.13.0
 	$(BIN)/pip install -q -e '.[dev,ray,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins
-	# (they would downgrade matplotlib and others: README, Basilisk harness); where it cannot be
+	# (they would downgrade matplotlib and others); where it cannot be
 	# had, its tests skip.
 	$(BIN)/pip install -q --no-deps bsk==2.12.1 colorama==0.4.6 pooch==1.9.0 \
 		|| echo "bsk not installed: the Basilisk tests will skip"
@@ -22,7 +22,14 @@ run: $(STAMP)
 	$(BIN)/inertia-gym optimize --agent bo --budget 100 --seed 0 --out runs/optimize
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --durations=15
+	$(BIN)/python -m pytest -q -n 2 --durations=15 -m "not science"
+
+# The long studies (statistical sweeps, real-data tables): on demand, not in CI.
+check-science: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 --durations=15 -m science
+
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
 	$(BIN)/ruff check inertia_gym scripts tests
@@ -31,4 +38,4 @@ bench: $(STAMP)
 	$(BIN)/python scripts/bench_speed.py
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs .pytest_cache site

@@ -63,7 +63,7 @@ def kernels_own_the_cores(fn: Callable) -> Callable:
 
     For work that alternates numba's parallel kernels with small linear algebra (diagnose's
     fits): after each call OpenBLAS's idle workers spin for a while on the cores that the next
-    kernel's threads need, and the kernel runs slower by a third (README, diagnose speed).
+    kernel's threads need, and the kernel runs slower by a third (docs/results.md, speed).
     Work whose BLAS calls are large gains from their threads instead (identify's sensitivities
     on a long record: it is not wrapped).
     """

@@ -28,7 +28,7 @@ AGENTS = tuple(AGENT_REGISTRY)  # "bo", "random", "sac", "td3", "ppo"
 
 
 #: The objective `optimize` and `benchmark` use unless told otherwise, chosen by measurement
-#: (README, "Choosing the default objective"): every evaluation is one episode from the
+#: (docs/benchmark.md, the default objective): every evaluation is one episode from the
 #: scenario's start (a stationary objective), scored by the posterior cost (change of
 #: log det P_theta). The paper's Algorithm 1 is ``cost="info", carry_over=True``.
 DEFAULT_COST = "posterior"

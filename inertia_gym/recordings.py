@@ -1,7 +1,7 @@
 """Recordings: the project's CSV (+ sidecar JSON), Parquet, phyphox exports (folder, .zip, .xlsx).
 
 A recording holds gyro samples and, optionally, attitude, commanded torque and known internal
-angular momentum (README.md, "Recording format"; docs/contracts.md). Columns (one row per gyro sample):
+angular momentum (docs/recording-format.md; docs/contracts.md). Columns (one row per gyro sample):
 
     t                    s, strictly increasing (required)
     wx, wy, wz           rad/s, body-frame gyro (required)
@@ -20,7 +20,7 @@ gyro_sigma, quat_sigma, gyro_scale_sigma, simulation truth ...); keys it does no
 Every reader validates its input and raises RecordingError naming the file, row and column;
 readers never write to the input. Columns named otherwise are mapped with ``columns`` (target ->
 source, e.g. {"t": "time", "wx": "gx"}); units that are evidently not s and rad/s are refused
-(check_units; the rule is in README.md, "Recording format") unless stated with ``time_unit`` /
+(check_units; the rule is in docs/recording-format.md) unless stated with ``time_unit`` /
 ``rate_unit``, which also converts them.
 
 Gaps: where a commanded torque or a changing internal momentum is logged, a row interval over
@@ -672,7 +672,7 @@ def _is_numeric(value) -> bool:
 
 def read_csv_recording(path: str | Path, columns: dict | None = None, time_unit: str | None = None,
                        rate_unit: str | None = None) -> Recording:
-    """Read the project's CSV format (README.md, "Recording format") and its sidecar.
+    """Read the project's CSV format (docs/recording-format.md) and its sidecar.
 
     columns, time_unit, rate_unit: as for read_recordings.
     """

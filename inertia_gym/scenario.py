@@ -153,7 +153,7 @@ def burst_time_scale(guess_trace: float, tau_max: float, gyro_sigma: float,
 
 def derived_defaults(guess_trace: float, tau_max: float, gyro_sigma: float, quat_sigma: float,
                      dt: float, meas_interval_max: float) -> dict[str, Any]:
-    """Every scale-carrying default, from the body's own scales (the rules of the README).
+    """Every scale-carrying default, from the body's own scales (docs/scenarios.md).
 
     guess_trace kg·m² (trace of the estimator's initial inertia: the truth is not known to a
     user), tau_max N·m, gyro_sigma rad/s, quat_sigma (quaternion component), dt and

@@ -157,7 +157,7 @@ def estimate_white_noise(w) -> np.ndarray:
     NOISE_PLATEAU of the lowest level over the orders. Where the motion is slow for the sampling
     that is k = 3; where it is not, its own k-th differences, of size (rate x interval)^k, inflate
     the low orders' level: a phone's third differences on a racquet flipping at 30 rad/s at
-    100 Hz read 31-44 mrad/s where the sixth read 2-3.5 (README, noise level).
+    100 Hz read 31-44 mrad/s where the sixth read 2-3.5.
 
     Never under the rounding error of the samples' quantisation, q / sqrt(12) (q from
     quantisation_step): on a lattice coarse for the noise most differences are exactly zero and

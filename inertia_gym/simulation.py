@@ -507,7 +507,7 @@ def compile_loop() -> None:
     time the stack pops back over the chunk's start. Started deep in a caller's stack (the
     CLI's optimize: agent, env, episode, run_segment), the compile crossed such a border so
     often that it spent 170 s of system time and 20 M page faults on it: a cold short optimize
-    took 401 s against 238 s with the compile in this thread (README). A new thread's stack
+    took 401 s against 238 s with the compile in this thread. A new thread's stack
     starts empty, whoever calls.
     """
     if _loop_ready.is_set():

@@ -5,7 +5,7 @@ unit cube with ``Normalize`` inputs and ``Standardize`` outcomes models the cost
 xi maximizes PI(xi) = Phi((J_ref - kappa - mu(xi)) / sigma(xi)) (or its log, ``LogPI``) with
 ``optimize_acqf``. The first ``n_init`` points are a scrambled Sobol design (Algorithm 1, line 8).
 
-Speed (docs/speed-notes.md): the GP hyperparameters are warm-started from the previous fit and
+Speed: the GP hyperparameters are warm-started from the previous fit and
 refitted only every ``refit_every`` evaluations (in between the GP is only conditioned on the new
 data), and ``optimize_acqf`` uses 2 L-BFGS-B restarts from 256 raw samples (enough for a 3-D
 box) and does not retry a start that ends with a warning (the best point found is kept). All

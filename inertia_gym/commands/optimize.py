@@ -8,7 +8,7 @@ style: the cost of each evaluation, its running best and moving mean, xi* marked
 
 xi* is the xi the agent recommends (the evaluated xi with the lowest GP posterior mean cost);
 cost_star its predicted cost. By default every evaluation is one episode from the scenario's
-start scored by the posterior cost (the mode that identified the inertia best, README);
+start scored by the posterior cost (the mode that identified the inertia best, docs/benchmark.md);
 `--carry-over --cost info` is the paper's Algorithm 1.
 """
 

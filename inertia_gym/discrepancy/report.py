@@ -65,7 +65,7 @@ RATIO_SPREAD = 0.1
 #: what is missing. The own and Basilisk harnesses end at most at 3.6 and the racquet tosses the
 #: catalogue explains (round 2) at 2.3-4.3 (coloured noise); racquet round 1 stays at 18.7-104
 #: whatever is added, and the real rotor throws, their rotor named, at 19.7-169 (a 4-kHz gyro
-#: whose noise is far below what the model leaves; README).
+#: whose noise is far below what the model leaves).
 BEYOND_CATALOGUE = 5.0
 #: Residual rms / noise (every axis, the fitted parameters' degrees of freedom restored) below
 #: which a noise level read from the data is reported as reading high: a fit cannot leave much
