@@ -190,7 +190,7 @@ def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     (1e8, 1.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "cut the recording"),
     (1.0, 10.0, 1.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "does not explain this recording"),
     pytest.param(1e3, 1.0, 100.0, ["--time-unit", "s", "--rate-unit", "rad/s"], "times the nominal's",
-                 marks=pytest.mark.slow),
+                 marks=pytest.mark.science),
 ])
 def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
                                                                   rate_factor, momentum_factor, stated,

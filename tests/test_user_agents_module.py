@@ -53,7 +53,8 @@ def test_every_command_is_covered():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("command", list(COMMAND_LINES))  # simulate first: the others read its file
+@pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.science) if c == "validate" else c
+                                     for c in COMMAND_LINES])  # simulate first: the others read its file
 def test_each_command_runs_beside_a_user_agents_module(user_folder, command):
     if command in ("diagnose", "identify") and not (user_folder / "rec.csv").exists():
         assert _run(user_folder, COMMAND_LINES["simulate"]).returncode == 0

@@ -76,7 +76,7 @@ def test_process_pool_gives_the_sequential_results(sequential, tmp_path):
     assert without_wall_times(pooled) == without_wall_times(seq)
 
 
-@pytest.mark.slow
+@pytest.mark.science  # a local Ray cluster starts in minutes on 2 cores
 def test_ray_backend_gives_the_local_results(sequential, tmp_path, monkeypatch):
     seq = without_wall_times(json.loads((sequential / "benchmark.json").read_text()))
     # A local Ray cluster started for the sweep.
