@@ -1,6 +1,6 @@
 """Identify a body's inertia from its recording, with honest error bars.
 
-``identify(recording, method="ml" | "ekf" | "ukf")`` and ``identify_joint(recordings)``.
+``identify(recording, method="ml" | "ekf" | "ukf")`` (several records: identify_joint).
 
 The record passes down once: prepare.prepared (retiming, clipped rows, end impulses, the noise
 level), then the estimation core. Two estimates are always made:
@@ -184,17 +184,10 @@ def _starts(ee_phi: np.ndarray, trace: float) -> list[np.ndarray]:
 
 def _fit_from(prob: output_error.Problem, phi, cov_phi, q0, final_iter: int = output_error.FINAL_ITER
               ) -> output_error.Fit:
-    """output_error.fit from inertia phi (6,) with covariance cov_phi (6, 6) (a prior on the early
-    horizon stages, which also plans the first: ml.first_horizon), the first row's rate and q0.
+    """ml.fit_from_prior from inertia phi (6,) with covariance cov_phi (6, 6), the first row's
+    rate and q0.
     """
-    n = prob.n_params
-    p0 = np.zeros(n)
-    p0[:6], p0[6:9] = phi, prob.z_w[0]
-    info = np.zeros((n, n))
-    keep = np.flatnonzero(prob.free()[:6])
-    info[np.ix_(keep, keep)] = np.linalg.pinv(cov_phi[np.ix_(keep, keep)], hermitian=True)
-    return output_error.fit(prob, p0, q0, info, ml.first_horizon(prob, p0, q0, cov_phi),
-                            final_iter=final_iter)
+    return ml.fit_from_prior(prob, prob.start(phi), q0, cov_phi, final_iter)
 
 
 #: Every start is fitted as if each of its log-Cholesky parameters were this far off (its prior
@@ -333,12 +326,11 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
     coarse = coarse_lattice_note(rec.w[prep.usable])
     notes += [coarse] if coarse else []
     est = inertia_estimate(run.phi, run.cov_phi, prob.fix_scale, trace_ref)
-    p = np.r_[run.phi, rec.w[0], np.zeros(prob.n_params - 9)]
-    bound = ml.cramer_rao_bound(prob, p, rec.q[0] if rec.q is not None else None, trace_ref)
+    bound = ml.cramer_rao_bound(prob, prob.start(run.phi), rec.q[0] if rec.q is not None else None, trace_ref)
     return dataclasses.replace(_result(prep, method, method, est, reference, None,
                    relative_frobenius_bound(bound.theta, bound.theta_cov), run.e_w,
                    NoiseModel("white", prob.sigma_w, "filter measurement noise R", 0, 1.0), None, True,
-                   True, notes + list(run.notes), started), reference_q=ee.torque_q)
+                   False, notes + list(run.notes), started), reference_q=ee.torque_q)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -409,7 +401,9 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     estimator = "output error"
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
     nominal = prep.rec.inertia_nominal
-    costs = None  # where both are off the nominal, _result refuses the record whichever is reported
+    # refused: a misfit whose reported inertia is off the nominal (columns in other units than
+    # stated); where both estimates are off, the held-out comparison cannot change that
+    costs = None
     if not explained and not all(_off(_nominal_factor(e, nominal)) for e in (est, reference)):
         costs = held_out_costs(prep, fit_bias, fit_drag, trace_ref)
         if costs is not None and costs[1] < costs[0]:
@@ -428,7 +422,8 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
                      "model misses something that moves them differently")
     bias = oe.fit.p[-3:].copy() if prob.fit_bias else None
     result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
-                     bias, oe.fit.converged, explained, notes, started)
+                     bias, oe.fit.converged, not explained and _off(_nominal_factor(est, nominal)), notes,
+                     started)
     return dataclasses.replace(result, reference_q=both.ee.torque_q)
 
 
@@ -446,11 +441,11 @@ def _off(factor: float) -> bool:
 
 def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
             reference: InertiaEstimate, agree: Agreement | None, crlb: float, e_meas, noise: NoiseModel,
-            bias, converged: bool, explained: bool, notes: list, started: float) -> Identification:
+            bias, converged: bool, refused: bool, notes: list, started: float) -> Identification:
     """The Identification of one record: residuals on every row (NaN where the fit has none),
-    the scale's notes, and the refusal of a record that the rigid model does not explain
-    (explained false) and whose inertia is NOMINAL_SCALE_FACTOR off the sidecar's nominal: two
-    signs of columns in other units than stated, which no estimate survives.
+    the scale's notes; refused: raise EstimatorDivergedError instead (a record the rigid model
+    does not explain whose reported inertia is NOMINAL_SCALE_FACTOR off the sidecar's nominal: two
+    signs of columns in other units than stated, which no estimate survives).
     """
     rec = prep.rec
     e_w = np.full(rec.w.shape, np.nan)
@@ -465,7 +460,6 @@ def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
         notes.append(said)
         reference = with_gyro_scale(reference, reference, rec.meta.get("gyro_scale_sigma"))[0]
     nominal = rec.inertia_nominal
-    off_nominal = None
     if est.scale_identified:
         sigma_s = est.scale_sigma()
         if sigma_s > SCALE_SIGMA_IDENTIFIED:
@@ -473,7 +467,6 @@ def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
                          "intervals carry it; the ratios are known better than the absolute values")
         factor = _nominal_factor(est, nominal)
         if _off(factor):
-            off_nominal = factor
             notes.append(f"the identified inertia is {factor:.3g} times the nominal's (trace): check the "
                          "units of the torque (N·m) and the momentum (kg·m²/s) columns, or the nominal; a "
                          "torque in mN·m makes the inertia 1000x")
@@ -481,11 +474,11 @@ def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
         notes.append("neither a torque nor a known internal momentum acts: the inertia is identified up "
                      f"to scale; it is reported normalised to trace {TRACE_WEIGHTS @ est.theta:.6g} kg·m² "
                      + ("(the nominal's)" if nominal is not None else "(no nominal given)"))
-    if not explained and off_nominal is not None:
+    if refused:
         raise EstimatorDivergedError(
             f"the rigid-body model leaves residuals {rms_over_noise:.3g} times the noise and its inertia "
-            f"comes out {off_nominal:.3g} times the nominal's: it does not explain this recording (check "
-            "its units and columns, or run diagnose on it)" + clip_hint(rec))
+            f"comes out {_nominal_factor(est, nominal):.3g} times the nominal's: it does not explain this "
+            "recording (check its units and columns, or run diagnose on it)" + clip_hint(rec))
     if not converged:
         notes.append("the output-error fit stopped at its iteration limit before converging")
     if prep.sigma is not None:

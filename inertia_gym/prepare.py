@@ -48,8 +48,8 @@ def saturated_samples(rec: Recording) -> np.ndarray:
     reads as a clip (_clipped_extreme), an axis read at one value throughout where another axis
     is read to full precision (a gyro resolving its noise there would here too), and, with a
     full scale in the sidecar (gyro_full_scale_rad_s), every sample within 1.5 steps of its
-    lattice of it (an int16 gyro's positive rail is one step short of its full scale; an
-    independent audit: 0.999 of it took 19 samples of a peak at 99.93 % as clipped).
+    lattice of it (an int16 gyro's positive rail is one step short of its full scale, and a
+    narrower band would take a peak just under the rail for a clip).
     """
     w = rec.w
     noise, quantum = estimate_white_noise(w), quantisation_step(w)
@@ -134,10 +134,9 @@ def clips_at_the_ends(rec: Recording) -> list[str]:
     """Phrases, one per axis and end, where an axis holds its extreme value for its first or last
     three or more samples and then falls steeply (CLIP_DROP steps within CLIP_REACH of the run's
     length, as _clipped_extreme asks of both sides): a clip there cannot be told from a rate
-    that starts or ends at its peak, so it is not left out, only said (an audit: a device clipped
-    at both ends only, read in int16 steps, refused by identify at 1.1e3 times the noise
-    without a word on clipping). Empty where the sidecar gives the full scale or those samples
-    are taken as clipped already.
+    that starts or ends at its peak, so it is not left out, only said (where such a clip makes
+    the fit fail, the user then knows why). Empty where the sidecar gives the full scale or
+    those samples are taken as clipped already.
     """
     if rec.meta.get("gyro_full_scale_rad_s") is not None:
         return []

@@ -915,9 +915,9 @@ def _frame_words(report: dict) -> list[str]:
 
 def _clip_words(report: dict) -> list[str]:
     """A line where an axis is held at its extreme in a record's first or last samples
-    (fit.clips_at_the_ends: not left out, a rate may start or end at its peak).
+    (prepare.clips_at_the_ends: not left out, a rate may start or end at its peak).
     """
-    ends = report.get("clipped_at_ends")  # (a report written before the key existed has none)
+    ends = report.get("clipped_at_ends")  # absent from reports of older versions
     if not ends:
         return []
     return [f"- **held at its extreme at the record's end**: {'; '.join(ends)}: {CLIP_ADVICE}"]

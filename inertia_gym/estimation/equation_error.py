@@ -171,11 +171,6 @@ def _normal(system: dict) -> tuple[np.ndarray, np.ndarray]:
     return (vecs * vals) @ vecs.T, a.T @ c - system["noise_ac"]
 
 
-def _solve_system(system: dict, trace: float) -> np.ndarray:
-    """Theta (6,) of a valid inertia from the windows' system (_system)."""
-    return _solve_normal(*_normal(system), system["forced"], trace)
-
-
 def _solve_normal(gram, rhs, forced: bool, trace: float) -> np.ndarray:
     """Theta (6,) of a valid inertia from noise-corrected normal equations (_normal): their
     solution; without forcing, the corrected Gram's null vector at the given trace.

@@ -30,6 +30,7 @@ from inertia_gym.estimation.inertia_param import (
     theta_from_phi,
 )
 from inertia_gym.estimation.integrator import MAX_ROTATION_PER_STEP
+from inertia_gym.estimation.uncertainty import TRACE_WEIGHTS
 
 
 class InertiaFilter:
@@ -197,7 +198,7 @@ def run_over_recording(rec, t, tau, h, phi0, sigma_w, estimator: str, fix_scale:
     h (n, 3) kg·m²/s), started from phi0 (6,) with FILTER_START_SIGMA on each log-Cholesky
     parameter (the scale held where the record cannot fix it) and the first row's rate.
     """
-    trace = float(np.array([1.0, 0, 0, 1.0, 0, 1.0]) @ theta_from_phi(phi0))
+    trace = float(TRACE_WEIGHTS @ theta_from_phi(phi0))
     cfg = filter_config_for(rec, sigma_w, estimator, trace)
     x0 = np.r_[rec.q[0] if rec.q is not None else [1.0, 0, 0, 0], rec.w[0], phi0]
     p0 = np.zeros((13, 13))
@@ -232,8 +233,8 @@ def realizable_estimate(phi, cov, scale_fixed: bool) -> tuple[np.ndarray, np.nda
     data do not fix it), and the shift s it moved is added to the covariance, cov + s s^T (the
     mean square error about the projected estimate: its intervals reach back to the filter's
     own). The filter itself runs unconstrained, as in the paper; this is the estimate projection
-    of constrained Kalman filtering. On a nearly flat body (a racquet) the filter's mean crossed
-    the limit on 4 of 12 real tosses, and the command then refused a usable estimate.
+    of constrained Kalman filtering: on a nearly flat body the filter's mean can cross the limit
+    while the estimate it carries is usable.
     """
     phi, cov = np.asarray(phi, dtype=float), np.asarray(cov, dtype=float)
     moments = np.linalg.eigvalsh(inertia_from_phi(phi))

@@ -28,7 +28,7 @@ PHI_BOUND = np.array([100.0, np.inf, 30.0, np.inf, np.inf, 30.0])
 #: An inertia whose largest principal moment exceeds the sum of the other two by at most this
 #: share counts as on the limit of the bodies that exist (a flat plate), not beyond it: one
 #: tolerance for the fits' face (realizable_face), a filter's projected estimate
-#: (identification.realizable_estimate) and the commands' check (check_physical_inertia).
+#: (filters.realizable_estimate) and the commands' check (check_physical_inertia).
 REALIZABLE_TOLERANCE = 1e-6
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from inertia_gym.errors import EstimatorDivergedError
 from inertia_gym.estimation import output_error
-from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
+from inertia_gym.estimation.inertia_param import theta_from_phi
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.estimation.uncertainty import (
     TRACE_WEIGHTS,
@@ -94,16 +94,6 @@ def first_horizon(prob: output_error.Problem, p, q0, cov_phi) -> int:
     return int(min(m, max(20, half_turn, lost[0] if lost.size else m)))
 
 
-def phi_covariance(phi, theta_cov) -> np.ndarray:
-    """(6, 6) the covariance of phi (6,) that gives theta the covariance theta_cov (6, 6) (the delta
-    method inverted), with a floor of 1e-12 on its diagonal (a direction the estimate holds
-    exactly still carries the start no certainty it does not have).
-    """
-    d_inv = np.linalg.inv(dtheta_dphi(np.ascontiguousarray(phi, dtype=float)))
-    cov = d_inv @ np.asarray(theta_cov, float) @ d_inv.T
-    return 0.5 * (cov + cov.T) + 1e-12 * np.eye(6)
-
-
 def _check_error_bars(q_dist: float, cov: np.ndarray, rms_ratio: float) -> None:
     """Raise EstimatorDivergedError where the parameters' covariance cov (n, n) in phi
     coordinates, or the model error's intensity q_dist, is not finite, or gives a shape
@@ -171,12 +161,21 @@ def refine(prob: output_error.Problem, p_start, q_start, start_cov_phi, trace_re
     prior on the early horizon stages, which also plans the first one: first_horizon) and build
     its statistics (statistics()).
     """
+    return statistics(prob, fit_from_prior(prob, p_start, q_start, start_cov_phi), trace_ref, sigma_source,
+                      model_error)
+
+
+def fit_from_prior(prob: output_error.Problem, p_start, q_start, start_cov_phi,
+                   final_iter: int = output_error.FINAL_ITER) -> output_error.Fit:
+    """output_error.fit from p_start whose inertia has the covariance start_cov_phi (6, 6): its
+    inverse a prior on the early horizon stages, which also plans the first (first_horizon).
+    """
     info = np.zeros((prob.n_params, prob.n_params))
     keep = np.flatnonzero(prob.free()[:6])
     start = np.asarray(start_cov_phi, float)[np.ix_(keep, keep)]
     info[np.ix_(keep, keep)] = np.linalg.pinv(start, hermitian=True)
-    fit = output_error.fit(prob, p_start, q_start, info, first_horizon(prob, p_start, q_start, start_cov_phi))
-    return statistics(prob, fit, trace_ref, sigma_source, model_error)
+    horizon = first_horizon(prob, p_start, q_start, start_cov_phi)
+    return output_error.fit(prob, p_start, q_start, info, horizon, final_iter=final_iter)
 
 
 #: Share of consecutive rows an axis reads alike from which the gyro's rounding is counted by

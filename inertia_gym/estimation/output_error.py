@@ -91,6 +91,12 @@ class Problem:
         start = 12 if self.with_att else 9
         return slice(start, start + (3 if self.fit_drag else 0))
 
+    def start(self, phi) -> np.ndarray:
+        """P (n_params,) from the inertia phi (6,) and the first measured rate, the rest zero."""
+        p = np.zeros(self.n_params)
+        p[:6], p[6:9] = phi, self.z_w[0]
+        return p
+
     def free(self) -> np.ndarray:
         """Bool mask (n_params,) of the parameters the fit moves."""
         mask = np.ones(self.n_params, dtype=bool)
@@ -424,8 +430,7 @@ def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> 
     stay finite.
     """
     fixed = dataclasses.replace(prob, fixed_inertia=True)
-    p = np.zeros(prob.n_params)
-    p[:6], p[6:9] = phi, prob.z_w[0]
+    p = prob.start(phi)
     q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_ref is None else np.asarray(q_ref, float)
     ev = solve(fixed, p, q_ref, None, max_iter).evaluation
     return float(np.sum(ev.r ** 2)) if ev.ok and np.all(np.isfinite(ev.r)) else np.inf

@@ -83,11 +83,6 @@ class Problem:
     local_size: int = 3
     bounds: tuple[np.ndarray, np.ndarray] | None = None
 
-    @property
-    def size(self) -> int:
-        """Length of x."""
-        return self.n_global + self.local_size * self.segments
-
 
 @dataclasses.dataclass(frozen=True)
 class Result:
@@ -145,11 +140,6 @@ class NormalBlocks:
             bmat[seg] += gs[a:b].T @ js_run
             bvec[seg] += js_run.T @ rs[a:b]
         return NormalBlocks(col, rhs, a=gsc.T @ gsc, dmat=dmat, bmat=bmat, bvec=bvec)
-
-    @property
-    def segments(self) -> int:
-        """Segments whose locals move (0: none)."""
-        return 0 if self.dmat is None else self.dmat.shape[0]
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """The damped step (dg (P,), ds (S, L)). A system that is not finite gives a zero step."""

@@ -23,7 +23,7 @@ import numpy as np
 from scipy import stats
 
 from inertia_gym.errors import ConfigError
-from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, theta_from_phi
 from inertia_gym.estimation.longrun import long_run_covariance
 from inertia_gym.estimation.output_error import Evaluation, Problem
 from inertia_gym.estimation.solver import GRAM_CONDITION
@@ -39,19 +39,8 @@ TRACE_WEIGHTS = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
 
 
 #: The intervals' widening by white residuals' rms over the noise level is said (NoiseModel.
-#: describe) from this factor on; it was applied but unsaid (an independent audit: 1.98x).
+#: describe) from this factor on: a widening the user is not told of is an interval they misread.
 WIDENING_SAID = 1.05
-#: Share of consecutive rows an axis reads alike (mean runs of 5 samples) from which the gyro's
-#: lattice is coarse beside its noise and the motion between rows (_coarse_lattice_note).
-COARSE_REPEAT_SHARE = 0.8
-#: Share of consecutive rows an axis reads alike from which the ML intervals are checked against
-#: replays of the fit read on the gyro's lattice (_lattice_replayed): on 600-s simulated tumbles
-#: read in steps of 5x the noise (28-78 % of an axis's rows repeated) the ratios were up to 2.8 of
-#: their sigmas off; the 20 real rotor throws repeat at most 18 % (steps 1.07e-3 rad/s).
-REPLAY_REPEAT_SHARE = 0.25
-#: Replays of the fit on the lattice (_lattice_replayed): the widening's own scatter is about
-#: sqrt(2 / (REPLAYS x 5)) (12 % for 8 replays of the 5 shape parameters).
-REPLAYS = 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,10 +50,7 @@ class NoiseModel:
     the intervals widened over the white-noise Fisher bound (for white residuals their rms over
     the noise level where over 1, said by describe());
     disturbance_q N²·m²·s the intensity of the white disturbance torque that stands for the
-    model error (0: none; see model_error_covariance); estimator 'output error' or 'filter
-    error' (the model error as process noise, estimation/filter_error.py), which adds
-    disturbance_q_rw N²·m²/s, the intensity of a random-walk disturbance torque's rate, and the
-    logged momentum's noise log_sigma kg·m²/s and lag behind the gyro log_delay s.
+    model error (0: none; see model_error_covariance).
     """
 
     kind: str
@@ -73,10 +59,6 @@ class NoiseModel:
     hac_lags: int
     inflation: float
     disturbance_q: float = 0.0
-    disturbance_q_rw: float = 0.0
-    estimator: str = "output error"
-    log_sigma: float = 0.0
-    log_delay: float = 0.0
 
     def describe(self) -> str:
         """One sentence for reports."""
@@ -89,12 +71,7 @@ class NoiseModel:
             return text
         text = (f"coloured residuals (autocorrelated over {self.hac_lags} samples): weighted with "
                 f"sigma = ({sig}) rad/s ({self.source}), ")
-        if self.estimator == "filter error":
-            text += ("model error as process noise (filter-error maximum likelihood): a white "
-                     f"disturbance torque of intensity {self.disturbance_q:.3g} N²·m²·s and a "
-                     f"random-walk one of {self.disturbance_q_rw:.3g} N²·m²/s estimated with the "
-                     "inertia, covariance the robust M-estimator's sandwich")
-        elif self.disturbance_q > 0:
+        if self.disturbance_q > 0:
             text += ("covariance = the noise's Fisher bound plus the model error's, the model "
                      "error represented as a white disturbance torque of intensity "
                      f"{self.disturbance_q:.3g} N²·m²·s estimated from the residuals' excess")
@@ -281,7 +258,7 @@ def model_error_covariance(prob: "Problem", p, ev: "Evaluation") -> tuple[float,
     m = ev.e_w.shape[0]
     n = prob.n_params
     free = prob.free()
-    jm = inertia_from_theta(theta_from_phi(np.ascontiguousarray(p[:6])))
+    jm = inertia_from_phi(np.ascontiguousarray(p[:6]))
     jinv = np.linalg.inv(jm)
     blocks = 2 if prob.with_att else 1
     jb = ev.jac.reshape(blocks, m, 3, n)
@@ -292,8 +269,8 @@ def model_error_covariance(prob: "Problem", p, ev: "Evaluation") -> tuple[float,
     g = -jb[0][:, :, 6:9] * np.asarray(prob.sigma_w)[..., None]  # dw/dw0 (m, 3, 3)
     try:
         phi_ll_inv = np.linalg.inv(jm @ g @ jinv)  # (dL(s)/dL0)^-1
-    except np.linalg.LinAlgError:  # sensitivities grown past inversion (a real toss re-cut to
-        return np.inf, np.full((n, n), np.inf)  # hold its catch: entries 1e8): no error bars
+    except np.linalg.LinAlgError:  # sensitivities grown past inversion (a catch left in the
+        return np.inf, np.full((n, n), np.inf)  # record): no error bars
     back = np.zeros((m, n_state, 3))  # Phi(s, 0)^-1[:, :3]
     back[:, :3] = phi_ll_inv
     if prob.with_att:
