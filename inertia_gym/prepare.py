@@ -217,7 +217,8 @@ class Prepared:
     quantised gyro added), None where the sidecar states none; level (3,) rad/s: the level the
     residuals are judged against (the stated one, else read from the samples' high-order
     differences: never a fit's own residual); step (3,) rad/s: the gyro's quantisation step (0:
-    none); kept (start, stop): the original rows kept; notes: what was done, in words.
+    none); kept (start, stop): the original rows kept; notes: what was done, in words; total: the
+    rows of the retimed recording, before any was left out.
     """
 
     rec: Recording
@@ -227,6 +228,7 @@ class Prepared:
     step: np.ndarray
     kept: tuple[int, int]
     notes: tuple[str, ...]
+    total: int
 
     def rows(self, start: int, stop: int) -> "Prepared":
         """The prepared record's rows start:stop, with the same noise level."""
@@ -309,7 +311,7 @@ def prepared(rec: Recording) -> Prepared:
     if stated is not None:
         said = quantisation_note(float(rec.meta["gyro_sigma"]), step)
         notes += [said] if said else []
-    return Prepared(rec, ~clipped, stated, level, step, (start, stop), tuple(notes))
+    return Prepared(rec, ~clipped, stated, level, step, (start, stop), tuple(notes), n)
 
 
 def impulse_rows(rec: Recording, start: int, stop: int) -> str:

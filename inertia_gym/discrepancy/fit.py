@@ -60,14 +60,12 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.prepare import end_impulses, saturated_samples
+from inertia_gym.prepare import Prepared, end_impulses, prepared, saturated_samples
 from inertia_gym.recordings import Recording
 from inertia_gym.sensors import (
     estimate_white_noise,
     lattice_replays,
-    quantisation_step,
     read_on_lattice,
-    stated_gyro_level,
 )
 
 SIGNIFICANT_DELTA_BIC = 10.0  # "very strong" evidence on the Kass-Raftery scale
@@ -306,11 +304,20 @@ def _substeps(t, w, sigma: float) -> np.ndarray:
     return np.clip(np.ceil(rate * np.diff(t) / turn), 1, 256).astype(np.int64)
 
 
-def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MAX_TURN) -> Data:
-    """The recording prepared for fitting: blocks, segments, noise level, what is left out.
+def prepare(source: Recording | Prepared, trim: tuple[int, int] = (0, 0), max_turn: float = MAX_TURN) -> Data:
+    """A record prepared for the output-error fits: blocks, segments, noise level, what is left out.
 
-    trim: samples left out at the start and at the end (impulses); max_turn rad per segment.
+    source: the one preparation (prepare.prepared: retimed, clipped rows, end impulses, noise
+    level), or a Recording, which is prepared so first. trim: samples of the prepared record
+    cut at its start and end (impulses a fit's residual shows); max_turn rad per segment.
+    notes["trimmed"] counts the rows left out at each end of the retimed recording, by the
+    preparation and by trim together.
     """
+    prep = source if isinstance(source, Prepared) else prepared(source)
+    # the impulses are cut away, not masked: each segment's initial state then sits on a row the
+    # fit sees, as on a record that ends there
+    prep = prep.rows(int(trim[0]), prep.rec.t.size - int(trim[1]))
+    rec = prep.rec
     t, w = np.asarray(rec.t, float), np.asarray(rec.w, float)
     n = t.size
     dt = float(np.median(np.diff(t)))
@@ -319,30 +326,29 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
         raise RecordingError(f"{rec.name}: the body turns {turn:.3g} rad between consecutive rows "
                              f"(median rate x median interval {dt:.3g} s): the rows are too far apart "
                              "to follow the rotation; is the time column in seconds (--time-unit)?")
-    clipped = saturated_samples(rec)
-    keep = ~clipped.any(axis=1)
-    keep[:trim[0]] = False
-    keep[n - trim[1]:] = False
+    keep = prep.usable
     speed = float(np.percentile(np.linalg.norm(w, axis=1), 99))
     keep_rate = max(BLOCK_MIN_RATE, BLOCK_RATE_PER_ROTATION * speed / (2 * np.pi))
     block = max(1, int(1.0 / (dt * keep_rate)))
     seg = _segments(t, w, int(keep.sum()) // block, max_turn, MIN_SEGMENT_ROWS, block)
     row, row_seg, row_scale = _rows(seg, keep, block)
     # the step of the lattice the samples lie on (rows of one sample each: a mean of several is not)
-    quantum = quantisation_step(w[keep]) if block == 1 else np.zeros(3)
-    notes = {"block": block, "saturated_samples": int(clipped.any(axis=1).sum()),
-             "trimmed": [int(trim[0]), int(trim[1])], "segments": int(seg.size - 1),
+    quantum = prep.step if block == 1 else np.zeros(3)
+    left_out = (prep.kept[0], prep.total - prep.kept[1])
+    notes = {"block": block, "saturated_samples": int(np.count_nonzero(~prep.usable)),
+             "trimmed": [int(left_out[0]), int(left_out[1])], "segments": int(seg.size - 1),
              "quantisation_step": quantum}
-    if clipped.any():
+    if not prep.usable.all():
+        clipped = saturated_samples(rec)
         notes["saturation_rad_s"] = [float(np.abs(w[clipped[:, i], i]).min()) if clipped[:, i].any()
                                      else None for i in range(3)]
-    if block == 1 and "gyro_sigma" in rec.meta:
-        sigma, source = stated_gyro_level(float(rec.meta["gyro_sigma"]), quantum), "sidecar"
+    if block == 1 and prep.sigma is not None:
+        sigma, source_words = prep.sigma, "sidecar"
     else:
         means = np.stack([np.bincount(row[keep], w[keep, i]) / np.bincount(row[keep]) for i in range(3)], 1)
         sigma = np.maximum(estimate_white_noise(means if means.shape[0] > 8 else w), 1e-9)
-        source = ("estimated from the data (differences of order 3 to 6)" if block == 1 else
-                  f"estimated from the data (differences of order 3 to 6 of {block}-sample means)")
+        source_words = ("estimated from the data (differences of order 3 to 6)" if block == 1 else
+                        f"estimated from the data (differences of order 3 to 6 of {block}-sample means)")
     nominal = rec.inertia_nominal
     has_momentum = rec.has_momentum
     excited = rec.sees_scale
@@ -356,7 +362,7 @@ def prepare(rec: Recording, trim: tuple[int, int] = (0, 0), max_turn: float = MA
     grid = Grid.of(t, _substeps(t, w, float(sigma.min() / np.sqrt(block))))
     return Data(t, w, None if rec.q is None else np.asarray(rec.q, float), tau,
                 None if rec.h is None else np.asarray(rec.h, float), grid, seg, row,
-                row_seg, row_scale, sigma, source, rec.has_torque, has_momentum, trace0,
+                row_seg, row_scale, sigma, source_words, rec.has_torque, has_momentum, trace0,
                 not excited, nominal, omega_ref, trace0 / 3, tau_ref, dt,
                 duration, block, notes)
 
@@ -2090,9 +2096,9 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
 
 
 def impulses(d: Data, fit: Fit) -> tuple[int, int]:
-    """Samples to leave out at the start and the end of the record (counted from its ends,
-    those already left out included) for an impulse at either end of fit's whitened residual
-    rows (:func:`end_impulses`).
+    """Samples to cut at the start and the end of d (counted from its ends, clipped samples
+    there included) for an impulse at either end of fit's whitened residual rows
+    (:func:`end_impulses`).
     """
     start_row, stop_row = end_impulses(fit.z, d.row_seg[1:] == d.row_seg[:-1])
     kept = np.flatnonzero(d.row >= 0)

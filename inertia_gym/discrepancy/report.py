@@ -46,7 +46,7 @@ from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.inertia_param import nearest_realizable
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.executors import kernels_own_the_cores
-from inertia_gym.prepare import CLIP_ADVICE, clips_at_the_ends
+from inertia_gym.prepare import CLIP_ADVICE, Prepared, clips_at_the_ends, prepared
 from inertia_gym.recordings import (
     Recording,
     check_input_gaps,
@@ -388,8 +388,8 @@ class _Fits:
     chosen: object
 
 
-def _fits(rec: Recording) -> _Fits:
-    """Nominal, single-effect and compound fits of a recording, its impulses trimmed.
+def _fits(prep: Prepared) -> _Fits:
+    """Nominal, single-effect and compound fits of a prepared recording, its impulses trimmed.
 
     Impulses at the ends are located on the nominal fit's residual and, once the explanation
     has taken the smooth misfit away, again on the compound fit's (where a small impulse stands
@@ -398,7 +398,8 @@ def _fits(rec: Recording) -> _Fits:
     (rounding_floors), the explanation's effects are then checked against the rounding
     (rounding_checked), which raises the floors of those it checks alone.
     """
-    d = prepare(rec)
+    rec = prep.rec
+    d = prepare(prep)
     check_enough_rows(rec, d)
     d, nominal = _fitted_nominal(d)
     if not np.isfinite(nominal.bic):
@@ -409,7 +410,7 @@ def _fits(rec: Recording) -> _Fits:
     # one gains significantly (rounding_floors)
     for attempt in range(2):
         if any(trim):
-            d, nominal = _fitted_nominal(prepare(rec, trim))
+            d, nominal = _fitted_nominal(prepare(prep, trim))
         fits, skipped = fit_all(d, nominal)
         if not floors and any(nominal.bic - f.bic > SIGNIFICANT_DELTA_BIC for f in fits):
             floors = rounding_floors(d, nominal, [f.name for f in fits])  # every candidate's: each
@@ -422,7 +423,7 @@ def _fits(rec: Recording) -> _Fits:
             more = _impulses_left(d, chosen, attempt)
         if not any(more):
             break
-        trim = (max(trim[0], more[0]), max(trim[1], more[1]))
+        trim = (trim[0] + more[0], trim[1] + more[1])
     # what even the explanation leaves unexplained is correlated on real recordings: the BICs are
     # recounted with the rows that are independent, and the selection made again on them
     share = effective_share(d, chosen.fit or nominal)
@@ -454,7 +455,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     """
     check_input_gaps(rec)
     rec = retimed(rec)
-    found = _fits(rec)
+    found = _fits(prepared(rec))
     d, nominal, fits, skipped, chosen = found.data, found.nominal, found.singles, found.skipped, found.chosen
     ranked = []
     for f in fits:

@@ -50,6 +50,7 @@ from inertia_gym.discrepancy.report import (
 from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings
 from inertia_gym.scenario import Scenario
 
@@ -203,7 +204,8 @@ def test_torque_free_reads_scale_unidentified(tmp_path):
 
 def test_a_gyro_clipped_on_most_rows_is_refused_in_one_line_without_warnings():
     """Clipped samples are left out; where too few rows remain, diagnose itself (not only the
-    CLI) says so, naming the clipping, and no RuntimeWarning of the fits on a handful of rows
+    CLI) says so in the preparation's words (identify's too), naming the clipping, and no
+    RuntimeWarning of the fits on a handful of rows
     escapes (a racquet toss clipped at 0.7 of its peak rate leaked four kinds of them).
     """
     rec, _ = simulate_recording(Scenario(), 1.0, seed=4)
@@ -211,7 +213,7 @@ def test_a_gyro_clipped_on_most_rows_is_refused_in_one_line_without_warnings():
     clipped = dataclasses.replace(_concealed(rec), w=np.clip(rec.w, -limit, limit))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(RecordingError, match=r"clipped at its full scale in 9[0-9] of 101 samples.*"
+        with pytest.raises(RecordingError, match=r"clipped at its full scale in 9[0-9] of 101 rows.*"
                                                  r"needs at least 20") as caught:
             diagnose(clipped)
     assert "\n" not in str(caught.value)
@@ -543,7 +545,7 @@ def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
     recounted); with its spline profile (2026-11-28) both end at the varying drag and the varying
     momentum, 476.6. The runner-up's search finding the better explanation is tested on a rotor
     throw below and on Basilisk's slosh with a hidden torque (test_basilisk.py)."""
-    found = _fits(racquet_toss("round2", 3))
+    found = _fits(prepared(racquet_toss("round2", 3)))
     d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
     first = search(d, nominal, singles, MAX_EFFECTS)
     runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
@@ -561,7 +563,7 @@ def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
     the ΔBICs along the new chain adding up to the whole gain."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
                                 seed=1000)
-    found = _fits(_concealed(rec))
+    found = _fits(prepared(_concealed(rec)))
     d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
     assert sorted(chosen.fit.names) == ["constant_body_torque", "gyro_bias"]
     assert chosen.fit.names[0] == singles[0].name  # the selection's own listing
@@ -633,7 +635,7 @@ def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monke
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     from bench_diagnose import toss
 
-    found = _fits(toss())
+    found = _fits(prepared(toss()))
     d, chosen = found.data, found.chosen
     real = report_module.covariance
     monkeypatch.setattr(report_module, "covariance",
