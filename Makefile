@@ -10,7 +10,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# A CPU build of torch lies on disk here; an unpinned torch would pull a multi-GB CUDA build.
 	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q -e '.[dev,ray,parquet,xlsx]'
+	$(BIN)/pip install -q -e '.[optimize,rl,dev,ray,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins
 	# (they would downgrade matplotlib and others); where it cannot be
 	# had, its tests skip.

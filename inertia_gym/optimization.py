@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from inertia_gym.agents.base import AGENTS as AGENT_REGISTRY
+from inertia_gym.agents.base import extra_module
 from inertia_gym.envs import ENV_ID
 from inertia_gym.envs.excitation import check_seed, divergence_cost
 from inertia_gym.episode import COSTS, run_episode
@@ -120,10 +121,14 @@ def torch_threads(n: int = 1):
     """Run torch (GP fits, SB3 networks) on `n` intra-op threads, restoring the count after.
 
     The models here are tiny; on a shared machine several torch threads oversubscribe the cores
-    and one GP fit or SAC update can take 50x longer than on one thread.
+    and one GP fit or SAC update can take 50x longer than on one thread. Without torch installed,
+    nothing to set.
     """
-    import torch
-
+    try:
+        import torch
+    except ModuleNotFoundError:  # an agent without torch (random search, without an extra)
+        yield
+        return
     before = torch.get_num_threads()
     torch.set_num_threads(n)
     try:
@@ -165,6 +170,8 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = DEFAU
     _check_common(sc, cost)
     if agent not in AGENTS:
         raise ConfigError(f"agent must be one of {AGENTS}, got {agent!r}")
+    # every agent's xi* is a GP's recommendation: without its extra, say so before the run
+    extra_module("optimize", "optimize's recommended xi (a GP fitted to the costs, for every agent)")
     if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
         raise ConfigError(f"budget must be an integer >= 1, got {budget!r}")
     seed = check_seed(seed)

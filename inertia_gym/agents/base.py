@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import importlib
 
 import gymnasium as gym
 import numpy as np
@@ -39,9 +40,8 @@ class Agent(abc.ABC):
         costs = np.asarray(costs, dtype=float)
         if len(costs) == 1:
             return 0, float(costs[0])
-        from inertia_gym.agents.bo import posterior_best
-
-        return posterior_best(actions, costs, self.seed)
+        return extra_module("optimize", "the recommendation (a GP fitted to the costs)").posterior_best(
+            actions, costs, self.seed)
 
     @abc.abstractmethod
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:
@@ -77,10 +77,21 @@ class AskTellAgent(Agent):
                 env.reset()
 
 
-def _bo(seed, budget, **options):
-    from inertia_gym.agents.bo import BOAgent
+def extra_module(extra: str, needed_by: str):
+    """The module of an extra (inertia_gym.agents.bo for "optimize", .sb3 for "rl"), imported;
+    where a package of the extra is missing, a one-line ConfigError saying what needs it and
+    which extra to install.
+    """
+    try:
+        module = importlib.import_module(f"inertia_gym.agents.{'bo' if extra == 'optimize' else 'sb3'}")
+    except ModuleNotFoundError as missing:
+        raise ConfigError(f"{needed_by} needs {missing.name}, which is not installed: "
+                          f"pip install 'inertia-gym[{extra}]'") from missing
+    return module
 
-    return BOAgent(seed, **options)
+
+def _bo(seed, budget, **options):
+    return extra_module("optimize", "the bo agent").BOAgent(seed, **options)
 
 
 def _random(seed, budget, **options):
@@ -91,9 +102,7 @@ def _random(seed, budget, **options):
 
 def _sb3(algorithm):
     def build(seed, budget, **options):
-        from inertia_gym.agents.sb3 import SB3Agent
-
-        return SB3Agent(algorithm, seed, budget, **options)
+        return extra_module("rl", f"the {algorithm} agent").SB3Agent(algorithm, seed, budget, **options)
     return build
 
 
