@@ -168,6 +168,8 @@ class EffectModel:
     restarts_on_base: ClassVar[tuple[str, ...]] = ()
     optional: ClassVar[dict] = {}
     keeps_invariants: ClassVar[bool] = False
+    #: Each parameter's unit, as reports print it ("" where it has none).
+    units: ClassVar[dict] = {}
 
     # --- parameters -------------------------------------------------------------------------
     def draw(self, rng: np.random.Generator, body: Body) -> dict:
@@ -440,6 +442,7 @@ class GyroBias(_GyroError):
     """Gyro reads w + b (b rad/s per axis), constant or drifting (_GyroError's forms)."""
 
     name, params, size, family = "gyro_bias", ("bias",), 3, "gyro error"
+    units = {"bias": "rad/s", "profile": "rad/s", "profile_t": "s"}
     varying_ambiguities = (("internal_momentum", (
         "a bias that drifts and a momentum that changes slowly both move the rates the gyro "
         "reads by a slowly changing amount; a momentum also turns the body's spin, which on a "
@@ -474,6 +477,7 @@ class GyroScale(_GyroError):
     """
 
     name, params, size, family = "gyro_scale", ("scale",), 3, "gyro error"
+    units = {"scale": "", "profile": "", "profile_t": "s"}
     # A common gyro scale s and a torque scale coincide only while the gyroscopic term w x Jw is
     # negligible beside the torque; on a spinning body they separate, and where they do not,
     # their delta BICs are close and the gap rule reports it.
@@ -504,6 +508,7 @@ class ConstantBodyTorque(EffectModel):
     """A constant torque fixed in the body (N·m)."""
 
     name, params, size, family = "constant_body_torque", ("torque",), 3, "external torque"
+    units = {"torque": "N·m"}
     keeps_invariants = True
 
     @override
@@ -535,6 +540,7 @@ class InternalMomentum(EffectModel):
     """
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
+    units = {"h": "kg·m²/s", "axis": "", "profile": "kg·m²/s", "profile_t": "s"}
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
     #: screened on top of a gyro bias from its single fit's momentum (fitted with the bias
     #: missing), a constant momentum gained nothing and was never refitted; from its own start
@@ -750,6 +756,7 @@ class ViscousDamping(_Drag):
     """
 
     name = "viscous_damping"
+    units = {"c": "N·m·s", "profile": "", "profile_t": "s"}
     ambiguities = (("aero_drag", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
     # fewer knots than the time-varying momentum's: a coefficient that follows the flight, not a
     # free torque history
@@ -901,6 +908,7 @@ class AeroDrag(_Drag):
     """
 
     name = "aero_drag"
+    units = {"c": "N·m·s²", "launch_velocity": "m/s", "normal": "", "gravity_direction": ""}
     ambiguities = (("viscous_damping", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
     flight_ambiguities = (
         ("viscous_damping", "a flight's normal air speed changes the plate's damping over the record, "
@@ -1076,6 +1084,7 @@ class InternalDissipation(EffectModel):
     """
 
     name, params, size, family = "internal_dissipation", ("d",), 1, "internal motion"
+    units = {"d": "N·m·s"}
     keeps_invariants = True
 
     @override
@@ -1096,6 +1105,7 @@ class ActuatorScale(EffectModel):
     """The body receives (1 + s) times the commanded torque."""
 
     name, params, size, family = "actuator_scale", ("scale",), 1, "actuator"
+    units = {"scale": ""}
     needs_torque = True
     ambiguities = (("inertia", "the torque scale is measured against the sidecar's nominal "
                     "inertia: J/s with torque tau fits as well as J with torque s*tau, so a wrong "
@@ -1131,6 +1141,7 @@ class ActuatorMisalignment(EffectModel):
     """The commanded torque is rotated by a rotation vector (rad)."""
 
     name, params, size, family = "actuator_misalignment", ("rotvec",), 3, "actuator"
+    units = {"rotvec": "rad"}
     needs_torque = True
 
     @override
@@ -1152,6 +1163,7 @@ class ActuatorDelay(EffectModel):
     """The commanded torque arrives delay seconds late."""
 
     name, params, size, family = "actuator_delay", ("delay",), 1, "actuator"
+    units = {"delay": "s"}
     needs_torque = True
 
     @override
@@ -1184,6 +1196,7 @@ class MomentumMisalignment(EffectModel):
     """
 
     name, params, size, family = "momentum_misalignment", ("rotvec",), 3, "logged momentum"
+    units = {"rotvec": "rad"}
     needs_momentum = True
     ambiguities = (("inertia", "with one rotor (h keeping its direction) the turn about the rotor's "
                     "own axis is not seen: only where the axis points is"),)
@@ -1206,6 +1219,7 @@ class GravityGradient(EffectModel):
     """Torque 3 n^2 r x J r, r the inertial nadir in the body frame; fitted as n * nadir (3,)."""
 
     name, params, size, family = "gravity_gradient", ("orbit_rate", "nadir_inertial"), 3, "external torque"
+    units = {"orbit_rate": "rad/s", "nadir_inertial": ""}
     keeps_invariants = True
     needs_attitude = True
 
@@ -1258,6 +1272,7 @@ class FlexibleMode(EffectModel):
 
     name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0"),
                                   7, "internal motion")
+    units = {"omega_n": "rad/s", "zeta": "", "coupling": "√kg·m", "eta0": "√kg·m", "eta_dot0": "√kg·m/s"}
     restarts_on_base = ("",)
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises
@@ -1335,6 +1350,7 @@ class InertiaChange(EffectModel):
     """
 
     name, params, size, family = "inertia_change", ("t_change", "delta_inertia"), 7, "mass change"
+    units = {"t_change": "s", "delta_inertia": "kg·m²"}
 
     @override
     def draw(self, rng, body):
@@ -1414,6 +1430,7 @@ class InertiaOffset(EffectModel):
     """
 
     name, params, size, family = "inertia_offset", ("inertia",), 6, "inertia"
+    units = {"inertia": "kg·m²"}
     keeps_invariants = True
     sets_inertia = True
     ambiguities = (("actuator_scale", "the inertia's overall scale trades against the torque "

@@ -987,39 +987,115 @@ def _beyond_words(report: dict) -> list[str]:
             "them off"]
 
 
+def _verdict(report: dict) -> str:
+    """Whether the rigid model explains the record, what is missing, where, and how much."""
+    before, after = report["fit_before"], report["fit_after"]
+    worst_before, worst_after = max(before["rms_over_noise"]), max(after["rms_over_noise"])
+    names = [f"`{e['name']}`" + (f" ({e['form']} form)" if e.get("form") else "")
+             for e in report["explanation"]]
+    if not report["mismatch_detected"]:
+        text = (f"The model explains the record: its residuals are at the gyro's noise (worst axis "
+                f"{worst_before:.3g} times it), and no effect of the catalogue improves the fit "
+                "significantly.")
+    elif not names:
+        text = (f"The model misses something (worst axis {worst_before:.3g} times the noise), and no "
+                "effect of the catalogue accounts for it.")
+    else:
+        text = (f"The model misses physics: {' and '.join(names)} "
+                f"{'explains' if len(names) == 1 else 'explain'} the record, taking the worst axis from "
+                f"{worst_before:.3g} to {worst_after:.3g} times the gyro's noise.")
+    if report["locations"]:
+        text += " The misfit shows " + "; ".join(
+            f"over t = {w['t_start']:.3g}–{w['t_end']:.3g} s on {', '.join(w['axes'])}"
+            for w in report["locations"]) + "."
+    return text
+
+
+def _physics_table(report: dict) -> list[str]:
+    """The explanation's fitted parameters, one row each, with 95 % intervals and units."""
+    if not report["explanation"]:
+        return []
+    rows = ["| effect | parameter | value | 95 % interval | unit |", "|---|---|---|---|---|"]
+    for e in report["explanation"]:
+        units = REGISTRY[e["name"]].units if e["name"] in REGISTRY else {}
+        for key, value in e["params"].items():
+            ci = e["ci95"][key]
+            val, lo, hi = (np.asarray(a, float) for a in (value, ci["lo"], ci["hi"]))
+            held = bool(np.all(lo == hi))  # a value the fit held: knot times, a chart's centre
+            if val.size > LISTED_NUMBERS:
+                shown = f"{val.size} values, {val.min():.4g} to {val.max():.4g}"
+                interval = "" if held else f"± up to {np.max(hi - lo) / 2:.3g}"
+            else:
+                shown = str(_significant(value))
+                interval = "held" if held else f"{_significant(lo)} to {_significant(hi)}"
+            rows.append(f"| {e['name']} | {key} | {shown} | {interval} | {units.get(key, '')} |")
+    return rows
+
+
+def _next_steps(report: dict) -> list[str]:
+    """What a user does next, read from the verdict."""
+    steps = []
+    if report["explanation"]:
+        names = ", ".join(f"`{e['name']}`" for e in report["explanation"])
+        steps.append(f"Add {names} to the simulation with the fitted values above (report.json holds "
+                     "them in full), then diagnose another recording of the body: physics that is "
+                     "there is found again.")
+    if report["ambiguous"] or any(e["confounded_with"] for e in report["explanation"]):
+        steps.append("Effects this record cannot tell apart are named above: a recording with more "
+                     "varied rates (another spin axis, a faster or a longer tumble) separates them.")
+    if report.get("beyond_catalogue") or report.get("unexplained_residual"):
+        steps.append(f"The explanation leaves {max(report['fit_after']['rms_over_noise']):.3g} times the "
+                     "noise on its worst axis: look at the located windows and the residual plot; "
+                     "report.json's `sparse_terms` lists the torque terms a sparse regression finds in "
+                     "what is left.")
+    if not report["scale_identified"]:
+        steps.append("This record does not fix the inertia's scale: a recording with a known torque "
+                     "or a rotor's changing momentum does.")
+    if not steps:
+        steps.append("Nothing is missing that this record can show; a recording with a larger or "
+                     "another excitation tests the model further.")
+    return [f"- {step}" for step in steps]
+
+
 def markdown(report: dict, plots: list[str]) -> str:
-    """A readable summary of one report."""
-    lines = [f"# Diagnosis of {report['recording']}", "",
-             f"- samples: {report['samples']}, duration {report['duration_s']:.2f} s",
-             f"- gyro noise: {_significant(report['gyro_sigma'], 3)} rad/s "
-             f"({report['gyro_sigma_source']})", *_noise_words(report),
-             f"- mismatch detected: **{report['mismatch_detected']}**; best effect: "
-             f"**{report['best_effect'] or 'none significant'}**",
-             f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
-             f"after: {_fmt(report['fit_after']['rms_over_noise'])}", *_beyond_words(report),
-             *_clip_words(report), *_frame_words(report),
-             *_shape_words(report), ""]
-    if report.get("retimed"):
-        lines[-1:-1] = [f"- {retimed_note(report['retimed'])}"]
-    window = report.get("free_flight_window")
-    note = window and window_note(window["t_start"], window["t_end"], window["source"])
-    if note:
-        lines[-1:-1] = [f"- {note}"]
-    lines += ["| effect | delta BIC | significant | parameters |", "|---|---|---|---|"]
-    for e in report["effects"]:
-        params = {k: _significant(v) for k, v in e["params"].items()}
-        delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
-        lines.append(f"| {e['name']} | {delta} | {e['significant']} | {params} |")
-    lines += ["", _explanation_words(report)]
+    """A summary of one report for people: the verdict first, the fitted physics with intervals
+    and units, the inertia, the record, every effect tried and what to do next. The raw values
+    stay in report.json.
+    """
+    lines = [f"# Diagnosis of {report['recording']}", "", "## Verdict", "", _verdict(report),
+             *_beyond_words(report)]
+    lines += ["", "## What is missing", "", _explanation_words(report), "", *_physics_table(report)]
     told = {(e["name"], c["with"]) for e in report["explanation"] for c in e["confounded_with"]}
     for a in report["ambiguous"]:
         if tuple(a["effects"]) not in told:  # the explanation's words already say it
-            lines.append(f"\n- cannot be told apart: {a['effects']}: {a['reason']}")
+            lines.append(f"- cannot be told apart: {', '.join(a['effects'])}: {a['reason']}")
+    lines += ["", "## The inertia", "", *_shape_words(report)]
+    lines += ["", "## The record", "",
+              f"- samples: {report['samples']}, duration {report['duration_s']:.2f} s",
+              f"- gyro noise: {_significant(report['gyro_sigma'], 3)} rad/s "
+              f"({report['gyro_sigma_source']})", *_noise_words(report),
+              f"- fit rms / noise before: {_fmt(report['fit_before']['rms_over_noise'])}, "
+              f"after: {_fmt(report['fit_after']['rms_over_noise'])}",
+              *_clip_words(report), *_frame_words(report)]
+    if report.get("retimed"):
+        lines.append(f"- {retimed_note(report['retimed'])}")
+    window = report.get("free_flight_window")
+    note = window and window_note(window["t_start"], window["t_end"], window["source"])
+    if note:
+        lines.append(f"- {note}")
+    lines += ["", "## Every effect tried", "",
+              "Each effect fitted alone, by how much it improves the BIC (over 10: very strong "
+              "evidence); its fitted values are in report.json.", "",
+              "| effect | delta BIC | significant |", "|---|---|---|"]
+    for e in report["effects"]:
+        delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
+        lines.append(f"| {e['name']} | {delta} | {'yes' if e['significant'] else 'no'} |")
+    if report["skipped_effects"]:
+        lines.append("")
     for name, why in report["skipped_effects"].items():
         lines.append(f"- not tested: {name}: {why}")
-    lines.append(f"\nLocated windows: {report['locations'] or 'none'}")
-    lines.append("\n" + _invariants_words(report["invariants"]))
-    if report["sparse_terms"]:
-        lines.append(f"\nUnexplained residual; sparse-regression terms: {report['sparse_terms']}")
-    lines += [""] + [f"![{p}]({p})" for p in plots]
+    lines += ["", "## Invariants", "", _invariants_words(report["invariants"])]
+    lines += ["", "## What to do next", "", *_next_steps(report)]
+    if plots:
+        lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
     return "\n".join(lines) + "\n"

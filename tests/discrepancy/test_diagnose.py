@@ -279,7 +279,7 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
                      "fit_after": {"rms_over_noise": [1.0] * 3}, "effects": [], "skipped_effects": {},
                      "locations": [], "invariants": {}, "sparse_terms": [],
                      "gyro_frame_mirrored": None, **report}, [])
-    assert page.count("cannot be told apart") == 1 and "'aero_drag']: close BIC" in page
+    assert page.count("cannot be told apart") == 1 and "internal_momentum, aero_drag: close BIC" in page
 
 
 def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
@@ -299,7 +299,38 @@ def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
                      "effects": [{**torque, "significant": True}], "skipped_effects": {}, "locations": [],
                      "invariants": {}, "sparse_terms": [], "gyro_frame_mirrored": None, **report}, [])
     assert "gyro noise: [2.04e-05, 3.33e-05, 2e-05] rad/s" in page
-    assert "'torque': [1.235e-06, -2.5e-07, 0.0]" in page
+    assert ("| constant_body_torque | torque | [1.235e-06, -2.5e-07, 0.0] | [1.1e-06, -3e-07, -1e-08] to "
+            "[1.3e-06, -2e-07, 1e-08] | N·m |") in page
+
+
+def test_the_summary_gives_the_verdict_first_and_no_raw_values():
+    """summary.md is for people: its first section says whether the model explains the record and
+    what is missing; the fitted physics is a table with units; the effects tried are listed
+    without their raw parameter dicts (report.json keeps them); it ends with what to do next."""
+    drag = {"name": "viscous_damping", "form": None, "delta_bic": 900.0,
+            "params": {"c": np.diag([1e-6, 2e-6, 3e-6]).tolist()},
+            "ci95": {"c": {"lo": np.diag([0.9e-6, 1.9e-6, 2.9e-6]).tolist(),
+                           "hi": np.diag([1.1e-6, 2.1e-6, 3.1e-6]).tolist()}},
+            "confounded_with": [{"with": "aero_drag", "reason": "close"}]}
+    page = markdown({"recording": "r", "samples": 100, "duration_s": 1.0, "gyro_sigma": [0.01] * 3,
+                     "gyro_sigma_source": "sidecar", "mismatch_detected": True,
+                     "best_effect": "viscous_damping", "fit_before": {"rms_over_noise": [12.0, 7.0, 9.0]},
+                     "fit_after": {"rms_over_noise": [1.0, 1.0, 1.0]},
+                     "effects": [{**drag, "significant": True}], "skipped_effects": {},
+                     "locations": [{"t_start": 0.5, "t_end": 1.0, "axes": ["x", "z"], "statistic": 50.0}],
+                     "invariants": {}, "sparse_terms": [], "gyro_frame_mirrored": None,
+                     "explanation": [drag], "left_out": {}, "scale_identified": False, "ambiguous": [],
+                     "inertia_nominal_given": True},
+                    ["residuals.png"])
+    sections = [line for line in page.splitlines() if line.startswith("## ")]
+    assert sections[0] == "## Verdict" and sections[-2:] == ["## What to do next", "## Plots"]
+    verdict = page.split("## Verdict")[1].split("##")[0]
+    assert "`viscous_damping` explains the record" in verdict and "from 12 to 1 times" in verdict
+    assert "t = 0.5–1 s on x, z" in verdict
+    assert "| viscous_damping | c | 9 values, 0 to 3e-06 | ± up to 1e-07 | N·m·s |" in page
+    assert "{'" not in page and "'c'" not in page
+    steps = page.split("## What to do next")[1]
+    assert "Add `viscous_damping` to the simulation" in steps and "scale" in steps
 
 
 def test_inertia_comparison_against_its_definition():
