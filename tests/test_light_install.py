@@ -36,7 +36,7 @@ def test_the_core_dependencies_leave_torch_and_the_agents_to_extras():
     assert any("stable-baselines3" in d for d in extras["rl"])
 
 
-def test_identify_diagnose_and_the_env_run_without_the_extras(tmp_path):
+def test_identify_diagnose_the_env_and_random_search_run_without_the_extras(tmp_path):
     done = _run_light("""
 import gymnasium as gym, numpy as np, sys
 from inertia_gym.cli import main
@@ -48,6 +48,8 @@ report, _ = diagnose(read_recordings("ex/thrown-rotor.csv")[0])
 env = gym.make("InertiaGym/Excitation-v0")
 env.reset(seed=0)
 env.step(np.zeros(3))
+from inertia_gym.agents import make_agent
+assert make_agent("random", seed=0, budget=4).ask().shape == (3,)
 print("heavy imported:", [m for m in sys.modules if m.split(".")[0] in ("torch", "botorch", "gpytorch",
                                                                    "stable_baselines3")])
 """, tmp_path)

@@ -319,7 +319,6 @@ def prepare(source: Recording | Prepared, trim: tuple[int, int] = (0, 0), max_tu
     prep = prep.rows(int(trim[0]), prep.rec.t.size - int(trim[1]))
     rec = prep.rec
     t, w = np.asarray(rec.t, float), np.asarray(rec.w, float)
-    n = t.size
     dt = float(np.median(np.diff(t)))
     turn = float(np.median(np.linalg.norm(w, axis=1))) * dt
     if turn > np.pi:

@@ -11,12 +11,22 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.scenario import Scenario
 
 
+def _uninstalled(monkeypatch, *packages):
+    """As if the packages were not installed: None in sys.modules makes their import fail, for
+    the package and every submodule an earlier test imported."""
+    for name in list(sys.modules):
+        if name.split(".")[0] in packages:
+            monkeypatch.setitem(sys.modules, name, None)
+    for package in packages:
+        monkeypatch.setitem(sys.modules, package, None)
+    for module in ("inertia_gym.agents.bo", "inertia_gym.agents.sb3", "inertia_gym.agents.random_search"):
+        monkeypatch.delitem(sys.modules, module, raising=False)
+
+
 @pytest.mark.parametrize(("agent", "package", "extra"),
                          [("bo", "botorch", "optimize"), ("ppo", "stable_baselines3", "rl")])
 def test_an_agent_without_its_extra_names_the_extra_in_one_line(monkeypatch, agent, package, extra):
-    monkeypatch.setitem(sys.modules, package, None)  # None in sys.modules: the import fails
-    monkeypatch.delitem(sys.modules, f"inertia_gym.agents.{'bo' if extra == 'optimize' else 'sb3'}",
-                        raising=False)
+    _uninstalled(monkeypatch, package)
     with pytest.raises(ConfigError) as caught:
         make_agent(agent, seed=0, budget=4)
     message = str(caught.value)
@@ -26,9 +36,7 @@ def test_an_agent_without_its_extra_names_the_extra_in_one_line(monkeypatch, age
 
 
 def test_the_random_agent_needs_no_extra(monkeypatch):
-    for package in ("torch", "botorch", "gpytorch", "stable_baselines3"):
-        monkeypatch.setitem(sys.modules, package, None)
-    monkeypatch.delitem(sys.modules, "inertia_gym.agents.random_search", raising=False)
+    _uninstalled(monkeypatch, "botorch", "gpytorch", "stable_baselines3")
     agent = make_agent("random", seed=0, budget=4)
     assert agent.ask().shape == (3,)
 
@@ -36,8 +44,7 @@ def test_the_random_agent_needs_no_extra(monkeypatch):
 def test_optimize_without_the_optimize_extra_stops_before_its_first_episode(monkeypatch):
     """Every agent's recommended xi is a GP's, so optimize needs the extra even with random search:
     it says so at once, not after the run."""
-    monkeypatch.setitem(sys.modules, "botorch", None)
-    monkeypatch.delitem(sys.modules, "inertia_gym.agents.bo", raising=False)
+    _uninstalled(monkeypatch, "botorch")
     built = []
     monkeypatch.setattr(optimization, "make_env", lambda *a, **k: built.append(a))
     with pytest.raises(ConfigError, match=r"pip install 'inertia-gym\[optimize\]'"):
