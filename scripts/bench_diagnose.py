@@ -33,15 +33,10 @@ from scipy import optimize
 
 from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy.report import diagnose
-from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
+from inertia_gym.discrepancy.synthetic import racquet_flip, simulate_recording
 from inertia_gym.executors import HELPERS_VARIABLE, wait_for_helpers
 from inertia_gym.recordings import Recording, read_recordings
 from inertia_gym.scenario import Scenario
-
-#: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
-#: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
-#: body has them (18.8 + 1.39 < 20.7) and the fits keep to the bodies that exist
-RACQUET = np.diag([20.7e-3, 19.5e-3, 1.39e-3])
 
 
 def long_recording() -> Recording:
@@ -49,21 +44,6 @@ def long_recording() -> Recording:
     rec, _ = simulate_recording(Scenario(omega0=(0.05, 1.0, 0.045)), 600.0, "internal_momentum", seed=4,
                                 sample_dt=0.1)
     return dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k != "effect"})
-
-
-def toss(every: int = 10, sidecar: bool = True) -> Recording:
-    """1 s of a racquet flipping at 15 rad/s with quadratic drag, gyro only (noise 5e-3 rad/s),
-    simulated at 1 kHz and sampled every `every`-th step (100 Hz by default); the noise level
-    in a sidecar (gyro_sigma) or, with sidecar=False, left for diagnose to read from the data.
-    """
-    from inertia_gym.discrepancy.effects import Effect
-
-    drag = Effect("aero_drag", {"c": np.diag([4e-5, 3e-5, 2e-6])})
-    q, w = simulate_truth(np.array([1.0, 0, 0, 0]), np.array([0.3, 15.0, 0.4]), RACQUET,
-                          np.zeros((1000, 3)), 1e-3, drag)
-    idx = np.arange(0, 1001, every)
-    noise = np.random.default_rng(0).normal(0, 0.005, (idx.size, 3))
-    return Recording(idx * 1e-3, w[idx] + noise, None, None, {"gyro_sigma": 0.005} if sidecar else {}, "toss")
 
 
 def timed(fn, repeat: int) -> tuple[float, object]:
@@ -115,7 +95,7 @@ def main() -> None:
     helpers = wait_for_helpers(F.__name__)
     out = {"helpers": helpers}
     print(json.dumps(out), flush=True)
-    for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", toss(), 5.0)):
+    for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", racquet_flip(), 5.0)):
         wall, (report, _) = timed(lambda r=rec: diagnose(r), args.repeat)
         threaded, (threaded_report, _) = timed(lambda r=rec: diagnose.__wrapped__(r), args.repeat)
         alone, (alone_report, _) = without_helpers(lambda r=rec: timed(lambda: diagnose(r), args.repeat))

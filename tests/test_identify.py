@@ -5,11 +5,11 @@ import dataclasses
 import json
 import math
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from records import flat_record, forced_record, satellite_record, score_entries, score_ratios, thin_body
 
 from inertia_gym.cli import main
 from inertia_gym.commands.common import check_physical_inertia
@@ -23,9 +23,6 @@ from inertia_gym.information import theta_from_inertia
 from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings, write_recording
 from inertia_gym.scenario import Scenario
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from thin_bodies import forced_record, thin_body  # noqa: E402
 
 # ../shared/data beside the repository (or beside the folder holding its worktrees)
 DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents
@@ -623,19 +620,17 @@ def test_where_the_model_is_rejected_the_estimate_that_predicts_held_out_data_be
 
 @pytest.mark.parametrize("case", ["flat", "satellite"])
 def test_bodies_made_with_scipy_alone_are_identified_within_their_intervals(case):
-    """scripts/identify_families.py's records (no inertia_gym code in the truth): a near-flat
+    """records.py's families (no inertia_gym code in the truth): a near-flat
     body tossed for 1 s at 100 Hz without torque, and a small satellite with five torque pulses.
     On 4 of 5 seeds or more every scored quantity (the principal ratios; the entries) is within
     3 of its standard deviations and within 0.5 %."""
-    import identify_families as fam
-
     good = 0
     for seed in range(5):
         if case == "flat":
-            rec, inertia = fam.flat_record((0.2, 0.8), 0.02, 15.0, 1e-3, seed)
-            ok, _ = fam.score_ratios(identify(rec), inertia)
+            rec, inertia = flat_record((0.2, 0.8), 0.02, 15.0, 1e-3, seed)
+            ok, _ = score_ratios(identify(rec), inertia)
         else:
-            rec, inertia = fam.satellite_record(seed)
-            ok, _ = fam.score_entries(identify(rec), inertia)
+            rec, inertia = satellite_record(seed)
+            ok, _ = score_entries(identify(rec), inertia)
         good += ok
     assert good >= 4

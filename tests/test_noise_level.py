@@ -3,15 +3,14 @@ report's flag where the fit says that level reads high."""
 
 import dataclasses
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from records import slow_tumble_read_coarsely
 
 from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
 from inertia_gym.discrepancy.report import NOISE_READ_HIGH, diagnose, markdown
-from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.discrepancy.synthetic import racquet_flip, simulate_recording
 from inertia_gym.scenario import Scenario
 from inertia_gym.sensors import (
     NOISE_ORDERS,
@@ -21,10 +20,6 @@ from inertia_gym.sensors import (
     quantisation_step,
     stated_noise_note,
 )
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from bench_diagnose import toss as bench_toss  # noqa: E402
-from coarse_gyro import slow_tumble_read_coarsely as _slow_tumble_read_coarsely  # noqa: E402
 
 
 @pytest.mark.parametrize("k", NOISE_ORDERS)
@@ -84,7 +79,7 @@ def test_the_report_says_where_the_noise_level_read_from_the_data_reads_high(eve
     much between samples for the differences to read its noise (they read it 2.3-3.3x high), and
     the fit leaves well under that level: the report says so. At 100 Hz the level is right, and a
     sidecar's level is never flagged."""
-    report, _ = diagnose(bench_toss(every, sidecar))
+    report, _ = diagnose(racquet_flip(every, sidecar))
     assert report["fit_after"]["valid"]
     assert report["noise"]["read_high"] is expected
     assert ("reads high" in markdown(report, [])) is expected
@@ -98,7 +93,7 @@ def test_a_sidecar_level_the_samples_disagree_with_is_said(factor, expected):
     """The bench's 1-s toss (noise 5e-3 rad/s) with its sidecar's gyro_sigma as given, 3x too
     small or 3x too large: the samples' own level (estimate_white_noise) disagrees with the last
     two, and stated_noise_note says which way; a 2x margin keeps the true level silent."""
-    rec = bench_toss()
+    rec = racquet_flip()
     stated = np.full(3, 5e-3 * factor)
     residual_rms = np.full(3, 5e-3)  # a fit to the noise
     note = stated_noise_note(rec.w, stated, residual_rms)
@@ -116,7 +111,7 @@ def test_diagnose_and_identify_say_a_sidecar_level_3x_too_small():
     and summary, and identify's notes, say so; at the true level both stay silent."""
     from inertia_gym import identify
 
-    rec = bench_toss()
+    rec = racquet_flip()
     low = dataclasses.replace(rec, meta={**rec.meta, "gyro_sigma": 5e-3 / 3})
     report, _ = diagnose(low)
     assert "leave it out" in report["noise"]["sidecar_disagrees"]
@@ -236,7 +231,7 @@ def test_a_gyro_read_coarser_than_its_noise_names_no_effect_on_a_clean_record(se
     claimed, and the report and its summary say why."""
     from inertia_gym.discrepancy.fit import ROUNDING_RUNS
 
-    report, _ = diagnose(_slow_tumble_read_coarsely(seed, None))
+    report, _ = diagnose(slow_tumble_read_coarsely(seed, None))
     noise = report["noise"]
     assert max(noise["rounding_runs"]) >= ROUNDING_RUNS
     assert noise["rounding_floor"] and min(noise["rounding_floor"].values()) >= 0.0
@@ -253,7 +248,7 @@ def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
     of these seeds, by 1.6-3.6 of their half-widths (measured before fit.lattice_spread). With the
     spread of the fit's refits on its prediction read on the lattice added to the covariance,
     they hold it (measured 0.48-0.69 of the half-width), and the summary says so."""
-    rec = _slow_tumble_read_coarsely(seed, None)
+    rec = slow_tumble_read_coarsely(seed, None)
     truth = np.sort(np.linalg.eigvalsh(rec.inertia_nominal))[::-1]
     report, _ = diagnose(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items()
                                                         if k != "inertia_nominal"}))
@@ -268,7 +263,7 @@ def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are
     """The line follows noise.lattice_refits (how many refits on the lattice the intervals
     count), not the runs of equal samples alone: where every refit blew up, nothing was added.
     The bench's toss, written in full, counts none."""
-    report, _ = diagnose(bench_toss(10, True))
+    report, _ = diagnose(racquet_flip(10, True))
     assert report["noise"]["lattice_refits"] == 0
     assert "count the rounding" not in markdown(report, [])
     runs_without_refits = {**report, "noise": {**report["noise"], "rounding_runs": [3.0, 3.0, 3.0]}}
@@ -282,7 +277,7 @@ def test_a_momentum_under_a_coarse_rounding_is_still_named():
     """The same body with a wheel's momentum concealed (seed 2, 4.5-7.4x the rounding error
     before): the momentum is named, alone (the mode beside it, traced from the rounding, is no
     longer claimed), and fits to the rounding's level."""
-    report, _ = diagnose(_slow_tumble_read_coarsely(2, "internal_momentum"))
+    report, _ = diagnose(slow_tumble_read_coarsely(2, "internal_momentum"))
     assert [e["name"] for e in report["explanation"]] == ["internal_momentum"]
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15
 
@@ -309,8 +304,8 @@ def test_a_gyro_read_coarsely_with_noise_of_a_quarter_step_reads_the_level_its_s
     The level is now read by simulating the rounding of the rigid fit's rates
     (fit.lattice_level): within 10 % of the samples' own error, the fit at about 1x it, nothing
     flagged."""
-    rec = _slow_tumble_read_coarsely(0, None, noise=2.5e-3)
-    truth = _slow_tumble_read_coarsely(0, None, noise=1e-12, step=0.0).w  # the same body's rates
+    rec = slow_tumble_read_coarsely(0, None, noise=2.5e-3)
+    truth = slow_tumble_read_coarsely(0, None, noise=1e-12, step=0.0).w  # the same body's rates
     error = np.sqrt(np.mean((rec.w - truth) ** 2, axis=0))
     report, _ = diagnose(rec)
     np.testing.assert_allclose(report["noise"]["sigma"], error, rtol=0.1)
@@ -331,11 +326,11 @@ def test_identify_counts_a_coarse_lattice_in_its_intervals():
     from inertia_gym.sensors import coarse_lattice_note
 
     def identified(seed, step):  # its sidecar's nominal (the true inertia) not given to identify
-        rec = _slow_tumble_read_coarsely(seed, None, step=step)
+        rec = slow_tumble_read_coarsely(seed, None, step=step)
         return identify(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items()
                                                        if k != "inertia_nominal"}))
 
-    truth = np.sort(np.linalg.eigvalsh(_slow_tumble_read_coarsely(0, None).inertia_nominal))[::-1]
+    truth = np.sort(np.linalg.eigvalsh(slow_tumble_read_coarsely(0, None).inertia_nominal))[::-1]
     truth = truth / truth[0]
     for seed in (0, 1):
         res = identified(seed, 0.01)
@@ -345,8 +340,8 @@ def test_identify_counts_a_coarse_lattice_in_its_intervals():
         ratios, cov = np.asarray(summary["principal_ratios"]), np.asarray(summary["principal_ratios_cov"])
         z = (ratios - truth)[1:] / np.sqrt(np.diag(cov)[1:])
         assert np.all(np.abs(z) < 1.96), z
-    assert "repeats its reading" in coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.01).w)
-    assert coarse_lattice_note(_slow_tumble_read_coarsely(0, None, step=0.001).w) is None
+    assert "repeats its reading" in coarse_lattice_note(slow_tumble_read_coarsely(0, None, step=0.01).w)
+    assert coarse_lattice_note(slow_tumble_read_coarsely(0, None, step=0.001).w) is None
     fine = np.asarray(identified(0, 0.001).summary()["principal_ratios"])
     np.testing.assert_allclose(fine, truth, rtol=0.01)
 

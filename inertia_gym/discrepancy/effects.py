@@ -750,8 +750,8 @@ class ViscousDamping(_Drag):
     """Torque -C w (C symmetric, N·m·s). Two forms: constant C, and varying, -s(t) C w, where
     the coefficient changes over the record by a factor s(t) >= 0, piecewise linear through
     knots at profile_t, s = 1 at the first (a thrown plate's rotational damping grows with the
-    air speed across it, which the flight changes: on the intermediate-axis flips of the real
-    racquet tosses the best single effect, scripts/racquet_candidates.py). The varying vector is
+    air speed across it, which the flight changes, as on a racquet's intermediate-axis flip).
+    The varying vector is
     [C (6), profile_t (K, held), profile (K, the first held at 1)].
     """
 

@@ -545,8 +545,8 @@ def mirrored_frame(rec: Recording, d: Data, best: Fit) -> dict | None:
     columns swapped, where it is within UNEXPLAINED_RMS of the noise and its BIC beats the
     explanation's (best) by SIGNIFICANT_DELTA_BIC, as {"rms_over_noise" (3,), "delta_bic",
     "principal_ratios"}; else None. A flat plate's clean tumble with two columns swapped has no
-    right-handed body (its mirror is a rod's limit): the fits named a gyro scale and an inertia
-    change on 17 of the 44 of scripts/thin_bodies.py --mirrored.
+    right-handed body (its mirror is a rod's limit), so without this test its misfit would be
+    read as effects (a gyro scale, an inertia change).
     """
     if rec.q is not None or rec.sees_scale or rec.has_momentum:
         return None

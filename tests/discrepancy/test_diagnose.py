@@ -47,7 +47,7 @@ from inertia_gym.discrepancy.report import (
     inertia_comparison,
     markdown,
 )
-from inertia_gym.discrepancy.synthetic import parse_effect, simulate_recording
+from inertia_gym.discrepancy.synthetic import parse_effect, racquet_flip, simulate_recording
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.prepare import prepared
@@ -660,13 +660,7 @@ def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monke
     bodies that exist (each moment at most the sum of the other two: I2/I1 >= 1/2, as the fits
     are kept). Before, the wide draws were read as they fell: I2/I1 down to 1e-9, and the
     estimate 0.787 outside its own interval [1.5e-9, 0.562] (audit flip 1001)."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    from bench_diagnose import toss
-
-    found = _fits(prepared(toss()))
+    found = _fits(prepared(racquet_flip()))
     d, chosen = found.data, found.chosen
     real = report_module.covariance
     monkeypatch.setattr(report_module, "covariance",

@@ -7,11 +7,10 @@ could not do (a fast toss at 100 Hz, a rotor with its momentum withheld).
 from __future__ import annotations
 
 import dataclasses
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from records import cases, slow_tumble, thin_body, thin_body_record, true_gains
 
 from inertia_gym.discrepancy import fit as F
 from inertia_gym.discrepancy import report as report_module
@@ -23,10 +22,6 @@ from inertia_gym.errors import RecordingError
 from inertia_gym.estimation import solver
 from inertia_gym.recordings import Recording, read_csv_recording, retimed
 from inertia_gym.scenario import Scenario
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-from slow_tumble_pairs import slow_tumble, true_gains  # noqa: E402
-from thin_bodies import cases, thin_body, thin_body_record  # noqa: E402
 
 #: kg·m², a tennis racquet: the phyphox-racquet README's pendulum moments (20.7 ± 3.8, 18.8 ± 5.7,
 #: 1.39 ± 0.08 g·m²) with the middle one raised within its error bar to 19.5, since as given no
@@ -291,7 +286,7 @@ def test_an_impulse_the_first_searchs_explanation_uncovers_is_trimmed_before_the
 
 
 def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
-    """The slow tumble of scripts/slow_tumble_pairs.py with a constant internal momentum of ~4 %
+    """The slow tumble of records.slow_tumble with a constant internal momentum of ~4 %
     of the body's own; and the momentum (3,) kg·m²/s. Found by a fuzz: its diagnosis named a
     constant torque, a varying momentum and a flexible mode."""
     rec, truth = slow_tumble("internal_momentum", 2, 202)
@@ -299,7 +294,7 @@ def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
 
 
 def test_the_pairs_harness_measures_what_each_true_effect_shows():
-    """scripts/slow_tumble_pairs.true_gains: a mode at rest in a torque-free tumble, beside a
+    """records.true_gains: a mode at rest in a torque-free tumble, beside a
     constant torque, is never excited: the truth gains less with it than its 7 parameters cost;
     the torque gains what the truth without it (fitted from the true parameters) lacks, about
     what the torque alone gains over the nominal fit."""

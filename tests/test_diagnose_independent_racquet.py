@@ -1,15 +1,30 @@
-"""diagnose on racquet tosses of an independent simulator (scripts/racquet_strip_sim.py: its own
-integrator, element-theory air drag of no form in the catalogue)."""
+"""diagnose on racquet tosses of an independent simulator (racquet_strip_sim.py beside the tests:
+its own integrator, element-theory air drag of no form in the catalogue)."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from racquet_strip_sim import inertia_tensor, simulate_toss, write_toss
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from racquet_strip_audit import DRAG_FAMILY, audited  # noqa: E402
-from racquet_strip_sim import inertia_tensor, simulate_toss, write_toss  # noqa: E402
+from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.recordings import read_recordings
+
+DRAG_FAMILY = ("viscous_damping", "aero_drag")
+
+
+def audited(path: Path, truth: dict) -> dict:
+    """diagnose's reading of the toss at path: its explanation, whether the fit is valid, the
+    worst-axis rms over the noise before and after, the error of its principal ratios against
+    the simulator's truth, whether the ratios' intervals hold the fit's own ratios."""
+    report, _ = diagnose(read_recordings(path)[0])
+    before, after = report["fit_before"], report["fit_after"]
+    ratios, ci = np.array(after["principal_ratios"]), after["principal_ratios_ci95"]
+    inside = ci is not None and bool(np.all((np.array(ci)[:, 0] <= ratios) & (ratios <= np.array(ci)[:, 1])))
+    return {"explanation": [e["name"] for e in report["explanation"]], "valid": bool(after["valid"]),
+            "before": max(before["rms_over_noise"]), "after": max(after["rms_over_noise"]),
+            "ratio_error": float(np.abs(ratios[1:] - np.array(truth["ratios"])[1:]).max()),
+            "holds_own": inside}
 
 
 def test_the_simulated_racquet_is_the_measured_one_and_keeps_its_momentum_without_air():
@@ -28,7 +43,7 @@ def test_diagnose_reads_an_independent_racquets_air_as_drag_and_a_clean_toss_as_
                                                                                         with_air):
     """Two flips with the air (20.5 rad/s, flipping 4 times; 9.1 rad/s, once) are led by the drag
     family, their worst-axis rms falling 3x or more, and a flip without air names nothing and fits
-    to the noise (the audit: drag led 28 of 30 flips, 0 of 8 controls named anything); every
+    to the noise; every
     ratio interval holds the fit's own ratios."""
     recording, truth = simulate_toss(seed, kind, with_air)
     row = audited(write_toss(tmp_path, f"{kind}_{seed}", recording), truth)

@@ -6,22 +6,18 @@ by element (strip) theory, which is not of any form in diagnose's catalogue: pre
 -rho/2 Cd A (v.n)|v.n| n on each area element of the head (a porous string bed inside a solid
 frame band) and of the phone, both plates normal to body z, and cross-flow drag on 40 segments
 of the handle, each element's air speed v = v_cm + w x r (the flight's speed included, so the
-drag couples the axes and follows the flight). An independent audit wrote it (2026-12-02) to
-check diagnose on racquet tosses not in the development set; see README, "An independent audit
-of racquet tosses".
+drag couples the axes and follows the flight). The tests use it to check diagnose on racquet
+tosses that the project's own simulator did not make, with an air drag of no form in the
+catalogue.
 
 Body frame: x along the handle (butt at x = 0, the head beyond), y across the head, z normal to
 it; every moment about the combined centre of mass. The phone's gyro axes are the principal
 axes (largest moment first, right-handed) turned 2-8 deg about a random axis; white noise
 SIGMA rad/s per axis at 100 Hz, stamps in exact 0.01-s steps from a non-zero start.
-
-Usage (writes recordings diagnose reads: CSV t,wx,wy,wz and a sidecar giving gyro_sigma, and
-truth.json beside them): PYTHONPATH=. python scripts/racquet_strip_sim.py --out DIR
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -202,11 +198,6 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-#: The audit's tosses: (folder, kind, air, seeds); a constant bias on seeds ending in 3 or 8
-PLAN = (("flips", "flip", True, range(1000, 1030)), ("handle", "handle", True, range(2000, 2005)),
-        ("largest", "largest", True, range(3000, 3005)), ("clean", "flip", False, range(4000, 4008)))
-
-
 def write_toss(folder: Path, name: str, recording: dict, sidecar: bool = True) -> Path:
     """The toss as a CSV (t,wx,wy,wz) with, where sidecar, a JSON sidecar giving gyro_sigma."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -216,23 +207,3 @@ def write_toss(folder: Path, name: str, recording: dict, sidecar: bool = True) -
     if sidecar:
         (folder / f"{name}.json").write_text(json.dumps({"gyro_sigma": SIGMA}))
     return path
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", required=True, help="folder for the recordings (one subfolder per kind)")
-    args = ap.parse_args()
-    truths = []
-    for folder, kind, with_air, seeds in PLAN:
-        for seed in seeds:
-            recording, truth = simulate_toss(seed, kind, with_air, bias=with_air and seed % 5 == 3)
-            truth["path"] = str(write_toss(Path(args.out) / folder, f"{kind}_{seed}", recording))
-            truths.append(truth)
-            print(f"{folder:8s} {seed} {truth['rate']:5.1f} rad/s, drag/|Jw| "
-                  f"{truth['drag_over_momentum_median']:.3f}/s, |H| lost {truth['momentum_lost']:.1%}",
-                  flush=True)
-    (Path(args.out) / "truth.json").write_text(json.dumps(truths, indent=1))
-
-
-if __name__ == "__main__":
-    main()
