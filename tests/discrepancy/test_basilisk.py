@@ -1,4 +1,4 @@
-"""The Basilisk harness (scripts/basilisk_harness.py, inertia_gym/discrepancy/basilisk.py).
+"""The Basilisk harness (tests/basilisk_sim.py, tests/basilisk_cases.py; scripts/basilisk_harness.py runs it).
 
 Two kinds of checks. The recording generator's physics, against Basilisk's own bookkeeping:
 the total angular momentum it reports equals R (J w + h) built from the recording's columns and
@@ -14,19 +14,16 @@ import dataclasses
 import importlib
 import json
 import sys
-from pathlib import Path
 
+import basilisk_cases as harness
 import numpy as np
 import pytest
+from basilisk_sim import TRUTH_KEY, SpacecraftCase, equilibrium_inertia, simulate
 
-from inertia_gym.discrepancy.basilisk import TRUTH_KEY, SpacecraftCase, equilibrium_inertia, simulate
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.dynamics import quat_to_rotation
 from inertia_gym.errors import ConfigError
 from inertia_gym.recordings import Recording, read_recordings, retimed
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import basilisk_harness as harness  # noqa: E402
 
 
 def _basilisk_importable() -> bool:
@@ -248,7 +245,7 @@ def test_identify_on_basilisk_is_accurate_and_its_intervals_cover_at_both_ends_o
     at 2 Hz, each with bursts and attitude, bursts gyro-only, logged wheels and a free tumble
     (ratios), 2 seeds, a nominal 20-70 % off: every inertia within 0.1 %, and the 95 % intervals
     cover the 96 parameters as 95 % intervals should (measured 90/96, rms z 0.97)."""
-    import identify_basilisk as study
+    import basilisk_identify as study
 
     rows = [study.run_case(kind, body, seed) for kind in ("bursts", "bursts_gyro_only", "wheels", "free")
             for body in ("device", "stage") for seed in range(2)]
