@@ -230,7 +230,7 @@ def test_unknown_method_is_refused():
         identify(rec, method="magic")
 
 
-@pytest.mark.parametrize("method", ["ekf", "ukf"])
+@pytest.mark.parametrize("method", ["ekf", pytest.param("ukf", marks=pytest.mark.science)])
 def test_the_paper_filter_runs_over_a_recording_and_the_batch_fit_beats_it(paper_recording, method):
     truth = Scenario().inertia_true_array
     filt = identify(paper_recording, method)
@@ -297,7 +297,8 @@ def test_a_scale_far_from_the_nominal_gets_a_note_on_units(paper_recording):
     assert not any("times the nominal's" in n for n in identify(paper_recording).notes)
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [pytest.param(1, marks=pytest.mark.science),
+                                  pytest.param(2, marks=pytest.mark.science), 3])
 def test_a_gyro_bias_without_attitude_is_fitted_where_it_explains_the_misfit(seed):
     """Gyro only, torque bursts, a bias of (0.02, -0.01, 0.015) rad/s under 0.03 rad/s noise:
     fitted and said (the inertia within 3.5 sigma per parameter, residuals at the noise); the

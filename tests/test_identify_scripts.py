@@ -29,7 +29,7 @@ def test_bench_identify_reports_both_walls_and_errors():
     assert joint["throws"] == 11 and joint["wall_s_joint"] > 0 and joint["rel_error_joint"] < 0.01
 
 
-@pytest.mark.slow
+@pytest.mark.science
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_rotor_throw_table(tmp_path):
     out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data", str(ROTOR),

@@ -28,7 +28,7 @@ def spinning_up(seed: int) -> Recording:
     return Recording(t[idx], noisy, None, None, {"gyro_sigma": SIGMA}, f"spin-up-{seed}")
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_an_exponential_spin_up_is_the_varying_momentum_alone(seed):
     report, _ = diagnose(spinning_up(seed))
     assert [(e["name"], e["form"]) for e in report["explanation"]] == [("internal_momentum", "varying")]
