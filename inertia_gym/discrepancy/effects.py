@@ -908,7 +908,8 @@ class AeroDrag(_Drag):
     """
 
     name = "aero_drag"
-    units = {"c": "N·m·s²", "launch_velocity": "m/s", "normal": "", "gravity_direction": ""}
+    units = {"c": "N·m·s²", "normal": "", "static": "kg", "arm": "kg", "arm_sided": "kg",
+             "flow_damping": "kg·m", "launch_velocity": "m/s", "gravity_direction": ""}
     ambiguities = (("viscous_damping", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
     flight_ambiguities = (
         ("viscous_damping", "a flight's normal air speed changes the plate's damping over the record, "

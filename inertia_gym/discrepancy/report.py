@@ -823,9 +823,12 @@ def _explanation_words(report: dict) -> str:
                  "momentum as logged: a torque c times the commanded one (an actuator scale) or a "
                  "momentum c times the logged one makes the true inertia c times the fitted one, and "
                  "with no nominal inertia in the sidecar the data cannot tell the two apart.")
-    if report["left_out"]:
+    # only what the data supported alone: an effect no fit favours is in the table of every effect
+    significant = {e["name"] for e in report.get("effects", []) if e["significant"]}
+    left_out = {name: why for name, why in report["left_out"].items() if name in significant}
+    if left_out:
         text += "\n\nLeft out of the explanation: " + "; ".join(
-            f"{name} ({why})" for name, why in report["left_out"].items()) + "."
+            f"{name} ({why})" for name, why in left_out.items()) + "."
     return text
 
 

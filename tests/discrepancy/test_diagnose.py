@@ -671,3 +671,17 @@ def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monke
     assert ci[1, 0] >= 0.5 - 1e-9 and ci[2, 1] <= ci[1, 1] + 1e-12
     if widen > 1.0:
         assert np.ptp(ci[1]) > 0.1  # wide it stays: the draws are kept to bodies, not narrowed to the fit
+
+
+def test_left_out_of_the_explanation_names_only_what_the_data_supported_alone():
+    """An effect that no fit favours (its delta BIC under the margin) is in the table of every
+    effect; only those significant alone are said to be left out, with why."""
+    report = {"explanation": [], "scale_identified": True, "ambiguous": [],
+              "effects": [{"name": "gyro_bias", "significant": True},
+                          {"name": "gyro_scale", "significant": False}],
+              "left_out": {"gyro_bias": "adds <= 10 once viscous_damping is in",
+                           "gyro_scale": "alone it improves the BIC by -13.5"}}
+    text = _explanation_words(report)
+    assert "Left out of the explanation: gyro_bias (adds <= 10 once viscous_damping is in)." in text
+    assert "gyro_scale" not in text
+    assert "Left out" not in _explanation_words(report | {"left_out": {"gyro_scale": "no"}})
