@@ -13,6 +13,7 @@ from inertia_gym.commands.common import (
     write_summary,
 )
 from inertia_gym.discrepancy.report import diagnose, markdown, write_plots
+from inertia_gym.html_page import render
 
 
 def add_parser(subparsers) -> None:
@@ -38,12 +39,16 @@ def _summarize(folder, done, refused) -> None:
 
 
 def _diagnose_one(rec, sub, no_plots: bool) -> dict:
-    """Diagnose one recording into the folder sub (report.json, summary.md, plots); its report."""
+    """Diagnose one recording into the folder sub (report.json, summary.md, summary.html with the
+    plots inlined, plots); its report.
+    """
     report, arrays = diagnose(rec)
     check_physical_inertia(report["fit_after"]["inertia"], rec.name)
     plots = [] if no_plots else write_plots(sub, report, arrays)
     write_json(sub / "report.json", report)
-    (sub / "summary.md").write_text(markdown(report, plots))
+    page = markdown(report, plots)
+    (sub / "summary.md").write_text(page)
+    (sub / "summary.html").write_text(render(page, sub, f"Diagnosis of {rec.name}"))
     print(f"{rec.name}: mismatch={report['mismatch_detected']} best={report['best_effect']} "
           f"-> {sub / 'report.json'}")
     return report

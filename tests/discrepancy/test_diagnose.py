@@ -173,6 +173,9 @@ def test_simulate_then_diagnose_cli(tmp_path, capsys):
     assert report["inertia_vs_nominal"]["delta_bic"] is not None
     assert "Explanation:" in (tmp_path / "d" / "summary.md").read_text()
     assert (tmp_path / "d" / "residuals.png").stat().st_size > 0
+    page = (tmp_path / "d" / "summary.html").read_text()  # the summary with its plots inlined
+    plots = (tmp_path / "d" / "summary.md").read_text().count("![")
+    assert "<h2>Verdict</h2>" in page and page.count('src="data:image/png;base64,') == plots >= 3
     assert main(["simulate", "--out", str(rec)]) == 2  # never overwrites
     assert "refusing to overwrite" in capsys.readouterr().err
 
