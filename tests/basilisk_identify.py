@@ -1,4 +1,4 @@
-"""`identify` on Basilisk recordings (scripts/identify_basilisk.py runs it; the tests use it):
+"""`identify` on Basilisk recordings (scripts/basilisk_harness.py identify runs it; the tests use it):
 the cases, one case's scores and their summary. See the script for what is scored.
 """
 

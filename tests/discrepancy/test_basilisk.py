@@ -212,7 +212,7 @@ def test_telemetry_read_in_steps_of_20x_the_noise_keeps_controls_clean_and_names
     """Basilisk's rates rounded to a lattice of 20x the gyro's noise (the sidecar keeps its
     gyro_sigma): the samples repeat in runs, the rounding error follows the rate, and the
     control stays clean while a hidden wheel and a gyro scale are still named (all 65 cases:
-    scripts/basilisk_harness.py --gyro-step 20, README)."""
+    scripts/basilisk_harness.py diagnose --gyro-step 20)."""
     row = harness.run_case(_case(name), tmp_path, gyro_step=20.0)
     assert row["correct"], f"{name}: concealed {row['components']}, diagnose named {row['named']}"
     (rec,) = read_recordings(tmp_path / f"{name}.csv")
@@ -240,7 +240,7 @@ def test_diagnose_never_reads_the_concealed_truth(subset_rows):
 @requires_bsk
 @pytest.mark.slow
 def test_identify_on_basilisk_is_accurate_and_its_intervals_cover_at_both_ends_of_scale():
-    """`identify` on Basilisk recordings of a rigid body (scripts/identify_basilisk.py): a
+    """`identify` on Basilisk recordings of a rigid body (scripts/basilisk_harness.py identify): a
     1e-4 kg·m² device at 2 rad/s sampled at 100 Hz and a 1e4 kg·m² stage at 0.02 rad/s sampled
     at 2 Hz, each with bursts and attitude, bursts gyro-only, logged wheels and a free tumble
     (ratios), 2 seeds, a nominal 20-70 % off: every inertia within 0.1 %, and the 95 % intervals
