@@ -2,7 +2,7 @@
 simulator: thin, nearly flat bodies tumbling freely or pushed by logged torques, near-flat tosses
 and a small satellite with torque pulses (scipy's DOP853, no inertia_gym code in the truth), with
 the scores identify is held to on them; a slow, long tumble with effects concealed in it, and
-that tumble read by a coarse gyro. scripts/identify_families.py runs the families at length.
+that tumble read by a coarse gyro. scripts/identify_tables.py families runs the families at length.
 """
 
 from __future__ import annotations

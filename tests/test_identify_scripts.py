@@ -1,4 +1,4 @@
-"""scripts/bench_identify.py and scripts/identify_rotor_throws.py run end to end (short runs)."""
+"""scripts/bench_identify.py and scripts/identify_tables.py rotor run end to end (short runs)."""
 
 import json
 import math
@@ -32,7 +32,7 @@ def test_bench_identify_reports_both_walls_and_errors():
 @pytest.mark.science
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_rotor_throw_table(tmp_path):
-    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data", str(ROTOR),
+    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_tables.py"), "rotor", "--data", str(ROTOR),
                           "--out", str(tmp_path)], capture_output=True, text=True, check=True, timeout=600)
     assert "| configuration | estimator |" in out.stdout
     report = json.loads((tmp_path / "rotor_throws.json").read_text())
@@ -50,6 +50,6 @@ def test_rotor_throw_table(tmp_path):
 
 
 def test_rotor_throw_table_without_data_exits_cleanly(tmp_path):
-    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_rotor_throws.py"), "--data",
+    out = subprocess.run([sys.executable, str(SCRIPTS / "identify_tables.py"), "rotor", "--data",
                           str(tmp_path / "absent")], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip().count("\n") == 0
