@@ -9,9 +9,10 @@ import importlib
 import os
 import sys
 import traceback
+import warnings
 from pathlib import Path
 
-from inertia_gym.errors import InertiaGymError
+from inertia_gym.errors import InertiaGymError, InputWarning
 
 COMMANDS = ("validate", "optimize", "benchmark", "simulate", "diagnose", "identify", "example")
 
@@ -37,6 +38,16 @@ def main(argv: list[str] | None = None) -> int:
     internal failure (one line on stderr; the traceback with INERTIA_GYM_DEBUG=1).
     """
     args = build_parser().parse_args(argv)
+    shown = warnings.showwarning
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        """A warning about the user's input as one line naming the command; others as Python shows them."""
+        if issubclass(category, InputWarning):
+            print(f"inertia-gym {args.command}: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = one_line
     try:
         return int(args.func(args) or 0)
     except InertiaGymError as exc:
@@ -52,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
               f"(at {Path(where.filename).name}:{where.lineno}; rerun with {DEBUG_VARIABLE}=1 "
               "for the traceback, and please report it)", file=sys.stderr)
         return 1
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == "__main__":

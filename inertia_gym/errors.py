@@ -15,3 +15,11 @@ class RecordingError(InertiaGymError, ValueError):
 
 class EstimatorDivergedError(InertiaGymError, RuntimeError):
     """The estimator left its domain of validity (non-finite state, exploding innovations)."""
+
+
+class InputWarning(UserWarning):
+    """Something in the user's input that the run goes on without (the CLI prints it in one line)."""
+
+
+class SidecarKeyWarning(InputWarning):
+    """A sidecar key that looks like a mistyped key the tool reads; the run goes on without it."""

@@ -34,14 +34,16 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import difflib
 import json
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.errors import ConfigError, RecordingError
+from inertia_gym.errors import ConfigError, RecordingError, SidecarKeyWarning
 from inertia_gym.sensors import attitude_error, estimate_white_noise
 
 GYRO = ("wx", "wy", "wz")
@@ -635,8 +637,32 @@ def _columns(path, header, data, names, required, label=None):
     return np.stack([data[:, header.index(n)] for n in names], axis=1)
 
 
+#: The sidecar keys the tool reads, and those its own simulators write (the truth of a synthetic
+#: record). Any other key is the user's provenance and passes untouched.
+SIDECAR_KEYS = ("inertia_nominal", "gyro_sigma", "quat_sigma", "gyro_scale_sigma", "gyro_full_scale_rad_s",
+                "effect", "effects", "rotor", "seed", "basilisk_truth")
+#: An unknown key this similar to a known one (difflib's ratio 2M/T: one or two characters mistyped,
+#: dropped or swapped in a key of ten or more) is taken for a typo of it; the provenance keys of
+#: real sidecars (gyro_sigma_static, gyro_quantum_rad_s, sample_dt, ...) score under 0.75.
+TYPO_SIMILARITY = 0.8
+
+
+def _warn_typos(meta: dict, side: Path) -> None:
+    """One SidecarKeyWarning per key of meta that is not a known key but resembles one."""
+    for key in meta:
+        if key in SIDECAR_KEYS:
+            continue
+        near = difflib.get_close_matches(str(key), SIDECAR_KEYS, n=1, cutoff=TYPO_SIMILARITY)
+        if near:
+            warnings.warn(f"{side}: sidecar key {key!r} is not one the tool reads; did you mean "
+                          f"{near[0]!r}? The run goes on without it.", SidecarKeyWarning, stacklevel=3)
+
+
 def read_sidecar(csv_path: Path) -> dict:
-    """The JSON sidecar next to a recording (REC.json for REC.csv), or {} if absent."""
+    """The JSON sidecar next to a recording (REC.json for REC.csv), or {} if absent. A key that
+    looks like a mistyped known key gets a SidecarKeyWarning naming the key it resembles; other
+    unknown keys are provenance, kept as they are.
+    """
     side = Path(csv_path).with_suffix(".json")
     if not side.exists():
         return {}
@@ -646,6 +672,7 @@ def read_sidecar(csv_path: Path) -> dict:
         raise _fail(side, f"invalid JSON sidecar: {exc}") from exc
     if not isinstance(meta, dict):
         raise _fail(side, "the sidecar must be a JSON object")
+    _warn_typos(meta, side)
     if "inertia_nominal" in meta:
         j = np.asarray(meta["inertia_nominal"], dtype=float) if _is_numeric(meta["inertia_nominal"]) else None
         if j is None or j.shape != (3, 3) or not np.all(np.isfinite(j)) or not np.allclose(j, j.T) \

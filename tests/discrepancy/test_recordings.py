@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inertia_gym.dynamics import propagate
-from inertia_gym.errors import ConfigError, RecordingError
+from inertia_gym.errors import ConfigError, RecordingError, SidecarKeyWarning
 from inertia_gym.recordings import (
     FLIGHT_MIN_ROWS,
     WINDOW_FOUND,
@@ -167,8 +167,42 @@ def test_unknown_sidecar_keys_are_kept(tmp_path):
     provenance = {"git_commit": "abc123", "operator": "bench 2", "rig": {"wheels": [1, 2, 3]}}
     (tmp_path / "rec.json").write_text(json.dumps({"gyro_sigma": 0.01, **provenance}))
     (rec,) = read_recordings(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # provenance is not a typo: no warning
+        (rec,) = read_recordings(path)
     assert rec.meta == {"gyro_sigma": 0.01, **provenance}
     assert read_sidecar(path) == rec.meta
+
+
+def test_a_mistyped_sidecar_key_warns_once_naming_the_key_it_resembles(tmp_path):
+    """inertia_nomimal and gyro_sigam read as typos of the keys the tool reads, one warning each;
+    the run goes on without them, and provenance keys close to none (gyro_sigma_static) pass."""
+    path = _write(tmp_path, GOOD)
+    (tmp_path / "rec.json").write_text(json.dumps({"inertia_nomimal": np.eye(3).tolist(), "gyro_sigam": 0.01,
+                                                   "gyro_sigma_static": 1e-3, "source": "bench"}))
+    with pytest.warns(SidecarKeyWarning) as caught:
+        (rec,) = read_recordings(path)
+    said = sorted(str(w.message) for w in caught)
+    assert len(said) == 2
+    assert "'gyro_sigam'" in said[0] and "did you mean 'gyro_sigma'?" in said[0]
+    assert "'inertia_nomimal'" in said[1] and "did you mean 'inertia_nominal'?" in said[1]
+    assert rec.inertia_nominal is None and "gyro_sigma" not in rec.meta
+
+
+def test_the_cli_says_a_sidecar_typo_in_one_line_and_goes_on(tmp_path, capsys):
+    from inertia_gym import examples
+    from inertia_gym.cli import main
+
+    path = examples.write("thrown-rotor", tmp_path)
+    side = path.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta["gyro_sigam"] = meta.pop("gyro_sigma")
+    side.write_text(json.dumps(meta))
+    assert main(["identify", str(path), "--out", str(tmp_path / "id")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert lines == [f"inertia-gym identify: warning: {side}: sidecar key 'gyro_sigam' is not one the "
+                     "tool reads; did you mean 'gyro_sigma'? The run goes on without it."]
+    assert (tmp_path / "id" / "identify.json").is_file()
 
 
 @pytest.fixture
