@@ -210,6 +210,15 @@ def quat_to_rotation(q):
     return r
 
 
+def skew(v) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x, with [v]x u = v x u."""
+    v = np.asarray(v, float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
 def euler_to_quat(roll_pitch_yaw_deg) -> np.ndarray:
     """Quaternion (scalar first) of ZYX Euler angles in degrees: q = qz(yaw) qy(pitch) qx(roll)."""
     r, p, y = np.radians(np.asarray(roll_pitch_yaw_deg, dtype=float)) / 2

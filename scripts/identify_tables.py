@@ -49,7 +49,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.signal import savgol_filter  # noqa: E402
 
-from inertia_gym.estimation.equation_error import omega_matrix, skew  # noqa: E402
+from inertia_gym.dynamics import skew  # noqa: E402
+from inertia_gym.estimation.equation_error import omega_matrix  # noqa: E402
 from inertia_gym.identification import identify  # noqa: E402
 from inertia_gym.information import inertia_from_theta  # noqa: E402
 from inertia_gym.joint_identification import identify_joint  # noqa: E402

@@ -220,3 +220,13 @@ def test_model_segments_are_independent_but_a_flexible_mode_carries_over(rng):
             assert np.array_equal(whole[1, rows], alone[1, :-1])
         else:  # the mode excited in the segments before moves this one's rates
             assert np.abs(whole[1, rows, 4:] - alone[1, :(None if s == 2 else -1), 4:]).max() > 1e-6
+
+
+def test_skew_is_the_cross_product_matrix(rng):
+    """skew(v) @ u = v x u for single vectors and stacks of them."""
+    from inertia_gym.dynamics import skew
+
+    v, u = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", skew(v), u), np.cross(v, u), atol=1e-14)
+    np.testing.assert_allclose(skew(v[0]) @ u[0], np.cross(v[0], u[0]), atol=1e-14)
+    np.testing.assert_allclose(skew(v[0]), -skew(v[0]).T, atol=0)

@@ -29,6 +29,7 @@ import numpy as np
 from scipy import interpolate, signal
 from typing_extensions import override
 
+from inertia_gym.dynamics import skew
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import (
     PHI_BOUND,
@@ -67,15 +68,6 @@ MODE_MASS_LIMIT = 0.9
 #: A function t (k,) s -> (k, 3): the running integral of a torque (N·m·s) from the recording's
 #: start; the applied torque over an interval is its increment over the interval's length.
 Cumulative = Callable[[np.ndarray], np.ndarray]
-
-
-def skew(v) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    v = np.asarray(v, float)
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 def rotvec_matrix(rotvec) -> np.ndarray:

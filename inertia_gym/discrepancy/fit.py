@@ -31,7 +31,7 @@ import functools
 import numpy as np
 from scipy import signal, stats
 
-from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6, skew
+from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, EffectModel, flex_floor_hz, matrix6
 from inertia_gym.discrepancy.model import (
     Grid,
     Motion,
@@ -41,6 +41,7 @@ from inertia_gym.discrepancy.model import (
     integrated_attitude,
     simulate,
 )
+from inertia_gym.dynamics import skew
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation import solver
 from inertia_gym.estimation.equation_error import (

@@ -24,6 +24,7 @@ import dataclasses
 
 import numpy as np
 
+from inertia_gym.dynamics import skew
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -149,14 +150,6 @@ def _system(t, w, tau, h, trace, usable, samples_per_window, sigma) -> dict:
     forced = bool(np.any(c_win > 0.0)) and c_win.max() > 1e-9 * np.linalg.norm(a) * max(abs(trace), 1e-300)
     return {"a": a, "c": c, "forced": forced, "noise_aa": noise_aa, "noise_ac": noise_ac, "idx": idx,
             "wq": wq, "dq": dq, "w": w, "h": h, "var": var, "dt": np.gradient(t)}
-
-
-def skew(v) -> np.ndarray:
-    """(n, 3, 3) [v]x of v (n, 3): [v]x u = v x u."""
-    out = np.zeros((v.shape[0], 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return out
 
 
 def _normal(system: dict) -> tuple[np.ndarray, np.ndarray]:
