@@ -192,13 +192,6 @@ def rate_impulses(w: np.ndarray, sigma: np.ndarray) -> tuple[int, int]:
     return (rows[0] + 1 if rows[0] else 0), (rows[1] + 1 if rows[1] < n - 2 else n)
 
 
-def clipped_rows(rec: Recording) -> np.ndarray:
-    """(n,) bool: the rows whose gyro reading is no measurement, an axis clipped at the gyro's
-    full scale (saturated_samples): they say only that the rate was beyond it.
-    """
-    return saturated_samples(rec).any(axis=1)
-
-
 def clip_hint(rec: Recording) -> str:
     """'' or a clause naming the axes held at their extreme at a record's end (clips_at_the_ends),
     to end a sentence about a misfit.
@@ -212,7 +205,9 @@ class Prepared:
     """A recording made ready for fitting.
 
     rec: the recording on its regular clock (recordings.retimed), without the rows of an
-    impulse at either end; usable (n,) bool: its rows that are measurements (not clipped);
+    impulse at either end; saturated (n, 3) bool: its samples the gyro clipped
+    (saturated_samples, found once on the whole retimed recording); usable (n,) bool: its rows
+    that are measurements (no axis clipped);
     sigma (3,) rad/s: the stated gyro noise (the sidecar's gyro_sigma with the rounding of a
     quantised gyro added), None where the sidecar states none; level (3,) rad/s: the level the
     residuals are judged against (the stated one, else read from the samples' high-order
@@ -222,7 +217,7 @@ class Prepared:
     """
 
     rec: Recording
-    usable: np.ndarray
+    saturated: np.ndarray
     sigma: np.ndarray | None
     level: np.ndarray
     step: np.ndarray
@@ -232,8 +227,13 @@ class Prepared:
 
     def rows(self, start: int, stop: int) -> "Prepared":
         """The prepared record's rows start:stop, with the same noise level."""
-        return dataclasses.replace(self, rec=self.rec.rows(start, stop), usable=self.usable[start:stop],
+        return dataclasses.replace(self, rec=self.rec.rows(start, stop), saturated=self.saturated[start:stop],
                                    kept=(self.kept[0] + start, self.kept[0] + stop))
+
+    @property
+    def usable(self) -> np.ndarray:
+        """(n,) bool: the rows that are measurements, no axis clipped."""
+        return ~self.saturated.any(axis=1)
 
     @property
     def sigma_source(self) -> str:
@@ -241,15 +241,17 @@ class Prepared:
         return "sidecar gyro_sigma" if self.sigma is not None else "estimated from the residuals"
 
 
-def check_recording(rec: Recording) -> None:
+def check_recording(rec: Recording) -> np.ndarray:
     """Refuse (RecordingError) a recording no inertia can be fitted to: unsplit gaps in its
     inputs, fewer than MIN_SAMPLES (unclipped) samples, a body that does not turn, a momentum
-    that is not finite.
+    that is not finite. Returns the samples the gyro clipped (saturated_samples, (n, 3) bool),
+    which the check reads.
     """
     check_input_gaps(rec)
     if rec.t.size < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: only {rec.t.size} samples; a fit needs at least {MIN_SAMPLES}")
-    unclipped = int(np.count_nonzero(~clipped_rows(rec)))
+    saturated = saturated_samples(rec)
+    unclipped = int(np.count_nonzero(~saturated.any(axis=1)))
     if unclipped < MIN_SAMPLES:
         raise RecordingError(f"{rec.name}: the gyro clipped at its full scale in {rec.t.size - unclipped} "
                              f"of {rec.t.size} rows; a fit needs at least {MIN_SAMPLES} unclipped rows "
@@ -264,6 +266,7 @@ def check_recording(rec: Recording) -> None:
                              "inertia can be identified")
     if rec.h is not None and not np.all(np.isfinite(rec.h)):
         raise RecordingError(f"{rec.name}: column h_*: NaN or infinite internal momentum")
+    return saturated
 
 
 def prepared(rec: Recording) -> Prepared:
@@ -272,8 +275,8 @@ def prepared(rec: Recording) -> Prepared:
     out, its noise level set.
     """
     rec = retimed(rec)
-    check_recording(rec)
-    clipped = clipped_rows(rec)
+    saturated = check_recording(rec)
+    clipped = saturated.any(axis=1)
     step = quantisation_step(rec.w[~clipped])
     stated = None
     if "gyro_sigma" in rec.meta:
@@ -288,11 +291,11 @@ def prepared(rec: Recording) -> Prepared:
         notes.append(f"{impulse_rows(rec, start, stop)} look like an impulse (a release, catch or "
                      "knock: the rates jump there far more than anywhere else): left out")
         rec = rec.rows(start, stop)
-        clipped = clipped[start:stop]
+        saturated, clipped = saturated[start:stop], clipped[start:stop]
     else:
         start, stop = 0, n
     if clipped.any():
-        sat = saturated_samples(rec)
+        sat = saturated
         top = ", ".join(f"{'xyz'[i]} {np.abs(rec.w[sat[:, i], i]).min():.4g}" for i in range(3)
                         if sat[:, i].any())
         notes.append(f"the gyro clipped at its full scale ({top} rad/s) in {int(clipped.sum())} of "
@@ -311,7 +314,7 @@ def prepared(rec: Recording) -> Prepared:
     if stated is not None:
         said = quantisation_note(float(rec.meta["gyro_sigma"]), step)
         notes += [said] if said else []
-    return Prepared(rec, ~clipped, stated, level, step, (start, stop), tuple(notes), n)
+    return Prepared(rec, saturated, stated, level, step, (start, stop), tuple(notes), n)
 
 
 def impulse_rows(rec: Recording, start: int, stop: int) -> str:

@@ -61,7 +61,7 @@ from inertia_gym.estimation.inertia_param import (
 from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.executors import fan_out, helpers_ready
 from inertia_gym.information import inertia_from_theta
-from inertia_gym.prepare import Prepared, end_impulses, prepared, saturated_samples
+from inertia_gym.prepare import Prepared, end_impulses, prepared
 from inertia_gym.recordings import Recording
 from inertia_gym.sensors import (
     estimate_white_noise,
@@ -339,7 +339,7 @@ def prepare(source: Recording | Prepared, trim: tuple[int, int] = (0, 0), max_tu
              "trimmed": [int(left_out[0]), int(left_out[1])], "segments": int(seg.size - 1),
              "quantisation_step": quantum}
     if not prep.usable.all():
-        clipped = saturated_samples(rec)
+        clipped = prep.saturated
         notes["saturation_rad_s"] = [float(np.abs(w[clipped[:, i], i]).min()) if clipped[:, i].any()
                                      else None for i in range(3)]
     if block == 1 and prep.sigma is not None:

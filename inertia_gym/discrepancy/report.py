@@ -699,14 +699,21 @@ def _significant(values, digits: int = 4):
 LISTED_NUMBERS = 6
 
 
-def _param_words(name: str, value, ci: dict) -> str:
-    """One fitted parameter in words: its value and 95 % interval ci ({"lo", "hi"}); a value the
-    fit held (lo = hi: knot times, a chart's centre) without an interval, and one of more than
-    LISTED_NUMBERS numbers by its count, range and widest interval.
+def _fitted(value, ci: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool]:
+    """One fitted parameter's value, 95 % bounds ci ({"lo", "hi"}) as arrays, whether the fit held
+    it (lo = hi: knot times, a chart's centre: no interval) and whether it is read by its count
+    and range (more than LISTED_NUMBERS numbers) rather than listed.
     """
     value, lo, hi = (np.asarray(a, float) for a in (value, ci["lo"], ci["hi"]))
-    held = bool(np.all(lo == hi))
-    if value.size > LISTED_NUMBERS:
+    return value, lo, hi, bool(np.all(lo == hi)), value.size > LISTED_NUMBERS
+
+
+def _param_words(name: str, value, ci: dict) -> str:
+    """One fitted parameter in words: its value and 95 % interval (_fitted: a held value without
+    one, a long one by its count, range and widest interval).
+    """
+    value, lo, hi, held, counted = _fitted(value, ci)
+    if counted:
         text = f"{name}: {value.size} values from {value.min():.4g} to {value.max():.4g}"
         return text + ("" if held else f" (95 % half-widths up to {np.max(hi - lo) / 2:.4g})")
     text = f"{name} = {_significant(value)}"
@@ -1022,10 +1029,8 @@ def _physics_table(report: dict) -> list[str]:
     for e in report["explanation"]:
         units = REGISTRY[e["name"]].units if e["name"] in REGISTRY else {}
         for key, value in e["params"].items():
-            ci = e["ci95"][key]
-            val, lo, hi = (np.asarray(a, float) for a in (value, ci["lo"], ci["hi"]))
-            held = bool(np.all(lo == hi))  # a value the fit held: knot times, a chart's centre
-            if val.size > LISTED_NUMBERS:
+            val, lo, hi, held, counted = _fitted(value, e["ci95"][key])
+            if counted:
                 shown = f"{val.size} values, {val.min():.4g} to {val.max():.4g}"
                 interval = "" if held else f"± up to {np.max(hi - lo) / 2:.3g}"
             else:
