@@ -16,7 +16,7 @@ import numpy as np
 from inertia_gym.errors import ConfigError
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def psi_entries(wx, wy, wz, ax, ay, az):
     """The 18 entries of Psi(w, w_dot), shape (3, 6) row-major, as a tuple; w rad/s, w_dot
     (ax, ay, az) rad/s².

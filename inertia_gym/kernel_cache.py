@@ -5,8 +5,8 @@ change to a function it calls from another file. The simulation loop (simulation
 the EKF step (estimation/ekf.py) and the integrator (dynamics.py) into itself, so after an edit
 to either the cached loop would go on running the old code. Here the cache goes to a folder
 named by a hash of every source file of the package that defines kernels: any edit to one of
-them starts from an empty cache (one compile, nearly all of it the simulation loop: about
-3 minutes on a 2-core machine, in a thread of its own, simulation.compile_loop) and
+them starts from an empty cache (one compile, most of it the simulation loop: about a
+minute on a 2-core machine, in a thread of its own, simulation.compile_loop) and
 nothing stale is ever run.
 
 :func:`use_source_keyed_cache` must run before the first kernel module is imported;

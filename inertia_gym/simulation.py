@@ -219,7 +219,7 @@ Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurement
 
 #: Runs advanced in lock-step by one task of the compiled loop: the lanes of its vector
 #: instructions (8 float64 fill one 512-bit register). The loop is compiled for this many
-#: lanes and for one (a lone run); each lane count is about a minute of compiling.
+#: lanes and for one (a lone run); each lane count is about half a minute of compiling.
 LANES = 8
 #: Runs per task when a batch of more than HALF_LANES and at most LANES runs is split over
 #: threads (fewer runs go one per task, on one lane each).
@@ -233,7 +233,7 @@ _Y, _X, _J_TRUE, _J_TRUE_INV, _J_HAT, _J_HAT_INV, _TAU, _MOVING, _PREDICTING, _C
     _ROWS = np.cumsum([0, 7, N_STATE, 9, 9, 9, 9, 3, 1, 1, ekf.N_COEF, 7 * N_STATE]).tolist()
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def _set_lane9(rows, lane, values):
     """rows[:, lane] = values, a 9-tuple."""
     for i in range(9):
@@ -458,8 +458,8 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
 
 @nb.njit(cache=True, parallel=True)
 def _segment_tasks(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, per_task):
-    """Advance every run of the batch, per_task runs per task, tasks in parallel: on one lane
-    each when per_task is 1, else on LANES lanes (per_task <= LANES).
+    """Advance every run of the batch on LANES lanes, per_task runs per task (per_task <=
+    LANES), tasks in parallel.
 
     cfg_array : (1,) array of the filter configuration record (a record is handed to the
     parallel loop inside an array: numba cannot pass a bare record into a parfor).
@@ -469,71 +469,101 @@ def _segment_tasks(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, st
     for task in nb.prange((batch + per_task - 1) // per_task):
         first = np.int64(task * per_task)
         stop = min(first + per_task, batch)
-        if per_task == 1:
-            _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                           first, stop, 1)
-        else:
-            _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                           first, stop, LANES)
-
-
-@nb.njit(cache=True)
-def _segment_single(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
-    """A batch of at most LANES runs: one task, without the threading layer's launch cost."""
-    first = np.int64(0)
-    stop = first + truth.y.shape[0]
-    if stop == 1:
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                       first, stop, 1)
-    else:
         _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
                        first, stop, LANES)
 
 
-#: Set once the loop's kernels are compiled (or loaded) in this process: compile_loop()'s flag.
-_loop_ready = threading.Event()
+@nb.njit(cache=True, parallel=True)
+def _segment_tasks_one_lane(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """:func:`_segment_tasks` with one run per task, on one lane (a few runs over the cores)."""
+    for task in nb.prange(truth.y.shape[0]):
+        first = np.int64(task)
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       first, first + 1, 1)
+
+
+@nb.njit(cache=True)
+def _segment_one(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A lone run, on one lane, without the threading layer's launch cost."""
+    first = np.int64(0)
+    _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                   first, first + 1, 1)
+
+
+@nb.njit(cache=True)
+def _segment_lanes(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A batch of at most LANES runs as one task on LANES lanes (one thread)."""
+    first = np.int64(0)
+    _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                   first, first + truth.y.shape[0], LANES)
+
+
+def _kernel_for(batch: int, threads: int) -> tuple:
+    """(kernel, its extra arguments) that advances a batch of `batch` runs with `threads`
+    threads: more than LANES runs go LANES per task; a few runs over several threads one per
+    task (or HALF_LANES per task on LANES lanes); otherwise one task.
+    """
+    if batch > LANES:
+        return _segment_tasks, (LANES,)
+    if batch > 1 and threads > 1:  # the cores share a batch one task would hold
+        return (_segment_tasks_one_lane, ()) if batch <= HALF_LANES else (_segment_tasks, (HALF_LANES,))
+    return (_segment_one, ()) if batch == 1 else (_segment_lanes, ())
+
+
+#: The loop's kernels, each compiled (or loaded from numba's on-disk cache) on its first use.
+KERNELS = ("_segment_one", "_segment_lanes", "_segment_tasks_one_lane", "_segment_tasks")
+#: Names of the kernels that have run in this process (under _loop_lock on first use).
+_ready: set[str] = set()
 _loop_lock = threading.Lock()
-#: Batches that reach each of the loop's two kernels: one run (_segment_single) and more than
-#: LANES (_segment_tasks, which holds the one-lane and the LANES-lane task alike).
-_KERNEL_BATCHES = (1, LANES + 1)
 
 
-def compile_loop() -> None:
-    """Compile (or load from numba's on-disk cache) the simulation loop's kernels in a thread of
-    their own, and return when they are ready; later calls return at once. :func:`run_segment`
-    calls it first, so whoever advances runs gets the compile from a fresh stack.
+def _call_kernel(kernel, args) -> None:
+    """kernel(*args); its first call in this process runs in a thread of its own.
 
     Why a thread: numba compiles recursively, and CPython 3.11 frees a frame-stack chunk each
     time the stack pops back over the chunk's start. Started deep in a caller's stack (the
     CLI's optimize: agent, env, episode, run_segment), the compile crossed such a border so
-    often that it spent 170 s of system time and 20 M page faults on it: a cold short optimize
-    took 401 s against 238 s with the compile in this thread. A new thread's stack
-    starts empty, whoever calls.
+    often that it spent 170 s of system time and 20 M page faults on it. A new thread's stack
+    starts empty, whoever calls. Each kernel compiles only when a batch first needs it, so a
+    command pays for the kernels it uses.
     """
-    if _loop_ready.is_set():
+    name = kernel.__name__
+    if name in _ready:
+        kernel(*args)
         return
     with _loop_lock:
-        if _loop_ready.is_set():
+        if name in _ready:
+            kernel(*args)
             return
         failure: list[BaseException] = []
 
-        def advance_tiny_batches():
+        def first_call():
             try:
-                sc = Scenario()
-                for batch in _KERNEL_BATCHES:
-                    rngs = [np.random.default_rng(r) for r in range(batch)]
-                    _advance_segment(sc, initial_state(sc, rngs), 1, np.zeros((batch, 0, 2)),
-                                     [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], rngs, record_steps=False,
-                                     disturbance=None)
+                kernel(*args)
             except BaseException as exc:  # re-raised in the caller's thread
                 failure.append(exc)
 
-        thread = threading.Thread(target=advance_tiny_batches, name="inertia-gym-compile")
+        thread = threading.Thread(target=first_call, name=f"inertia-gym-compile-{name}")
         thread.start()
         thread.join()
         if failure:
             raise failure[0]
-        _loop_ready.set()
+        _ready.add(name)
+
+
+def compile_loop() -> None:
+    """Compile (or load) every kernel of the simulation loop now, each on a tiny batch, rather
+    than on first use; later calls return at once. For a process that will run batches of
+    every size (a test session's warm-up, a service).
+    """
+    sc = Scenario()
+    for name in KERNELS:
+        if name in _ready:
+            continue
+        batch = 1 if name == "_segment_one" else 2
+        rngs = [np.random.default_rng(r) for r in range(batch)]
+        run_segment(sc, initial_state(sc, rngs), 1, np.zeros((batch, 0, 2)), [0.0, 0.0, 1.0],
+                    [1.0, 0.0, 0.0], rngs, record_steps=False, kernel=name)
 
 
 def run_segment(
@@ -547,6 +577,7 @@ def run_segment(
     *,
     record_steps: bool = True,
     disturbance=None,
+    kernel: str | None = None,
 ) -> tuple[SimState, Trace]:
     """Advance B runs by one segment.
 
@@ -557,17 +588,11 @@ def run_segment(
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
     disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth,
     or None.
-    Runs that had diverged are left untouched. The loop's kernels are compiled on the first
-    call (:func:`compile_loop`).
+    kernel : the name of one of :data:`KERNELS` to run the batch with (any of them gives the
+    same result); by default the one suited to the batch's size and the threads.
+    Runs that had diverged are left untouched. The kernel is compiled on its first use in the
+    process.
     """
-    compile_loop()
-    return _advance_segment(sc, state, n_steps, bursts, xi, v, rngs, record_steps=record_steps,
-                            disturbance=disturbance)
-
-
-def _advance_segment(sc: Scenario, state: SimState, n_steps, bursts, xi, v, rngs, *,
-                     record_steps: bool, disturbance) -> tuple[SimState, Trace]:
-    """:func:`run_segment` without its compile_loop() call (which calls this)."""
     batch = state.batch
     n_steps = np.broadcast_to(np.asarray(n_steps, dtype=np.int64), (batch,)).copy()
     if np.any(n_steps < 0) or not np.any(n_steps > 0):
@@ -620,12 +645,17 @@ def _advance_segment(sc: Scenario, state: SimState, n_steps, bursts, xi, v, rngs
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
         np.array([cfg]), n_updates, sigma_fresh, status,
     )
-    if batch > LANES:
-        _segment_tasks(*args, LANES)
-    elif batch > 1 and nb.get_num_threads() > 1:  # the cores share a batch one task would hold
-        _segment_tasks(*args, 1 if batch <= HALF_LANES else HALF_LANES)
+    if kernel is None:
+        chosen, extra = _kernel_for(batch, nb.get_num_threads())
+    elif kernel in KERNELS:
+        chosen = globals()[kernel]
+        extra = (LANES,) if kernel == "_segment_tasks" else ()
+        most = {"_segment_one": 1, "_segment_lanes": LANES}.get(kernel, batch)
+        if batch > most:
+            raise ConfigError(f"{kernel} holds at most {most} runs, got {batch}")
     else:
-        _segment_single(*args)
+        raise ConfigError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+    _call_kernel(chosen, (*args, *extra))
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
         step=state.step + n_steps, diverged=status != STATUS_OK, phi_top=phi_top, sigma=sigma,

@@ -32,8 +32,7 @@ from inertia_gym import episode, simulation
 from inertia_gym.envs import ENV_ID
 
 #: Where a step's CPU time is split: (module, function name, part).
-PARTS = ((simulation, "_segment_tasks", "compiled_loop"),
-         (simulation, "_segment_single", "compiled_loop"),
+PARTS = ((simulation, "_call_kernel", "compiled_loop"),
          (episode, "information_costs", "information_metric"))
 
 

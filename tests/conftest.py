@@ -1,4 +1,6 @@
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,32 @@ from inertia_gym.scenario import Scenario
 # the suite's xdist workers already fill the cores: diagnose's fits run without helper processes
 # (tests/test_executors.py switches them on where it tests them)
 os.environ["INERTIA_GYM_HELPERS"] = "0"
+
+#: The kernels nearly every worker needs, compiled once before the workers start, in parallel
+#: processes: the simulation loop, and the kernels of `identify` and `diagnose` (reached through
+#: the shipped examples). Each worker then loads them from numba's on-disk cache instead of
+#: compiling the same code beside the other worker.
+WARM_UP = (
+    "from inertia_gym.simulation import compile_loop; compile_loop()",
+    "from inertia_gym import examples, identify, read_recordings as read; "
+    "from inertia_gym.discrepancy.report import diagnose; "
+    "identify(read(examples.path('thrown-rotor'))[0]); diagnose(read(examples.path('phone-toss'))[0])",
+)
+
+
+def pytest_sessionstart(session):
+    """Warm numba's cache (:data:`WARM_UP`) when the run fans out over xdist workers; a worker
+    (which has ``workerinput``) and a one-process run compile as they go. A warm-up that fails
+    changes nothing: the tests that need the kernel compile it and report any error themselves."""
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    env = dict(os.environ, MPLBACKEND="Agg")
+    procs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for code in WARM_UP]
+    for proc in procs:
+        proc.wait()
+
 
 def pytest_collection_modifyitems(config, items):
     """The slow tests first (a stable sort: each group keeps its order). xdist hands the tests

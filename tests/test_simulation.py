@@ -74,14 +74,20 @@ def test_with_rows_replaces_only_those_runs_and_copies():
     np.testing.assert_array_equal(state.with_rows(mask, state.select(mask)).x, state.x)
 
 
-def test_compile_loop_readies_every_kernel_that_runs_of_any_batch_reach():
-    """After compile_loop() no run_segment compiles the loop again, whatever the batch: the
-    compile happens in compile_loop's own thread, from a fresh stack (CPython 3.11 thrashes its
-    frame-stack chunks when numba compiles deep in a caller's stack: README)."""
+def test_each_batch_size_runs_the_kernel_made_for_it_and_compiles_nothing_after_compile_loop():
+    """A batch runs on the kernel suited to its size and the threads; after compile_loop() no
+    batch compiles anything more."""
     from inertia_gym import simulation
 
+    assert simulation._kernel_for(1, 2)[0] is simulation._segment_one
+    assert simulation._kernel_for(3, 1)[0] is simulation._segment_lanes
+    assert simulation._kernel_for(simulation.HALF_LANES, 2)[0] is simulation._segment_tasks_one_lane
+    assert simulation._kernel_for(simulation.HALF_LANES + 1, 2) == (simulation._segment_tasks,
+                                                                    (simulation.HALF_LANES,))
+    assert simulation._kernel_for(simulation.LANES + 1, 1) == (simulation._segment_tasks,
+                                                               (simulation.LANES,))
     simulation.compile_loop()
-    kernels = (simulation._segment_single, simulation._segment_tasks)
+    kernels = [getattr(simulation, name) for name in simulation.KERNELS]
     compiled = [list(k.signatures) for k in kernels]
     assert all(len(signatures) == 1 for signatures in compiled)
     sc = Scenario()
@@ -92,31 +98,33 @@ def test_compile_loop_readies_every_kernel_that_runs_of_any_batch_reach():
     assert [list(k.signatures) for k in kernels] == compiled
 
 
-def test_a_failure_while_compiling_the_loop_reaches_the_caller(monkeypatch):
-    """An error inside compile_loop's thread is raised in the caller's, and the loop is not
+def test_a_kernel_too_small_for_the_batch_or_unknown_is_refused():
+    sc = Scenario()
+    rngs = [np.random.default_rng(s) for s in range(2)]
+    for kernel, words in (("_segment_one", "holds at most 1 runs"), ("nope", "must be one of")):
+        with pytest.raises(ConfigError, match=words):
+            run_segment(sc, initial_state(sc, rngs), 5, np.zeros((2, 0, 2)), [0.1, 1.0, 1.0],
+                        np.eye(3)[0], rngs, kernel=kernel)
+
+
+def test_a_failure_while_compiling_a_kernel_reaches_the_caller():
+    """An error inside the first call's thread is raised in the caller's, and the kernel is not
     marked ready (the next call tries again)."""
     from inertia_gym import simulation
 
-    def broken(*args, **kwargs):
+    def _broken_kernel(*args):
         raise ConfigError("no compiler here")
 
-    was_ready = simulation._loop_ready.is_set()
-    simulation._loop_ready.clear()
-    monkeypatch.setattr(simulation, "_advance_segment", broken)
-    try:
-        with pytest.raises(ConfigError, match="no compiler here"):
-            simulation.compile_loop()
-        assert not simulation._loop_ready.is_set()
-    finally:
-        if was_ready:
-            simulation._loop_ready.set()
+    with pytest.raises(ConfigError, match="no compiler here"):
+        simulation._call_kernel(_broken_kernel, ())
+    assert "_broken_kernel" not in simulation._ready
 
 
 def test_the_loop_is_compiled_once_whatever_arrays_the_caller_passes():
     """A burst direction and xi shared by the runs (broadcast, read-only views), per-run
     arrays, non-contiguous slices, Fortran-ordered arrays and a read-only disturbance all reach
     the compiled loop as the same argument types: each other type would compile the loop
-    (minutes) once more."""
+    once more."""
     from inertia_gym import simulation
     from inertia_gym.dynamics import NO_DISTURBANCE
 
@@ -124,7 +132,7 @@ def test_the_loop_is_compiled_once_whatever_arrays_the_caller_passes():
     batch = 2
     rngs = [np.random.default_rng(s) for s in range(batch)]
     state = initial_state(sc, rngs)
-    kernels = (simulation._segment_single, simulation._segment_tasks)
+    kernels = [getattr(simulation, name) for name in simulation.KERNELS]
     run_segment(sc, state, 20, np.zeros((batch, 1, 2)), np.tile([0.1, 1.0, 1.0], (batch, 1)),
                 np.eye(3)[:batch], rngs)
     compiled = [list(k.signatures) for k in kernels]
@@ -141,20 +149,22 @@ def test_the_loop_is_compiled_once_whatever_arrays_the_caller_passes():
 
 
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
-@pytest.mark.parametrize("tasks", ["LANES", "HALF_LANES", "one run"])
+@pytest.mark.parametrize("tasks", ["LANES", "HALF_LANES", "one run", "one task"])
 def test_a_batch_runs_each_run_exactly_as_alone(estimator, tasks):
     """The compiled loop advances runs in lock-step, LANES per task (when a batch of at most
     LANES runs is split over threads: HALF_LANES per task, or one run per task on one lane when
-    it has at most HALF_LANES runs): every run of a batch (more runs than one task holds,
-    unequal lengths, one of zero steps, one diverged) gives bit for bit what it gives alone."""
+    it has at most HALF_LANES runs; on one thread, one task of LANES lanes): every run of a
+    batch (more runs than one task holds, unequal lengths, one of zero steps, one diverged)
+    gives bit for bit what it gives alone."""
     import numba
 
     from inertia_gym.simulation import HALF_LANES, LANES
 
-    if tasks != "LANES" and numba.get_num_threads() < 2:
+    if tasks in ("HALF_LANES", "one run") and numba.get_num_threads() < 2:
         pytest.skip("a batch of at most LANES runs is split only over two or more threads")
     sc = Scenario(estimator=estimator)
-    batch = {"LANES": LANES + 3, "HALF_LANES": HALF_LANES + 3, "one run": HALF_LANES}[tasks]
+    batch = {"LANES": LANES + 3, "HALF_LANES": HALF_LANES + 3, "one run": HALF_LANES,
+             "one task": LANES - 1}[tasks]
     rngs = [np.random.default_rng(s) for s in range(batch)]
     state = initial_state(sc, rngs)
     diverged = batch - 1
@@ -166,7 +176,8 @@ def test_a_batch_runs_each_run_exactly_as_alone(estimator, tasks):
     xi = np.c_[np.linspace(0.0, 0.4, batch), np.linspace(1.0, 4.0, batch), np.ones(batch)]
     v = np.eye(3)[np.arange(batch) % 3]
     end, trace = run_segment(sc, state, n_steps, bursts, xi, v,
-                             [np.random.default_rng(100 + s) for s in range(batch)])
+                             [np.random.default_rng(100 + s) for s in range(batch)],
+                             kernel="_segment_lanes" if tasks == "one task" else None)
     for r in range(batch):
         if n_steps[r] == 0:
             continue

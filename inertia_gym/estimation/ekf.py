@@ -33,7 +33,7 @@ N_STATE = 13
 N_COEF = 34
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def _times_inverse(j_inv, c0, c1, c2):
     """J^-1 c for c = (c0, c1, c2), j_inv row-major (9,); a 3-tuple."""
     return (j_inv[0] * c0 + j_inv[1] * c1 + j_inv[2] * c2,
@@ -41,7 +41,7 @@ def _times_inverse(j_inv, c0, c1, c2):
             j_inv[6] * c0 + j_inv[7] * c1 + j_inv[8] * c2)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def transition_coefficients_into(x, j, j_inv, tau, dist, coef, lane):
     """The blocks of the Jacobian A of (q_dot, w_dot) at lane `lane` into coef[:, lane].
 
@@ -90,7 +90,7 @@ def transition_coefficients_into(x, j, j_inv, tau, dist, coef, lane):
     coef[31, lane], coef[32, lane], coef[33, lane] = -t3[2], -t4[2], -t5[2]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def _transition_column(phi_top, col, lane, dt, coef, on, rate_rows, theta_column):
     """Column `col` of lane `lane` of phi_top <- c + dt A c (unless on[lane] == 0).
 
@@ -127,7 +127,7 @@ def _transition_column(phi_top, col, lane, dt, coef, on, rate_rows, theta_column
         phi_top[6 * N_STATE + col, lane] = c6 if keep else c6 + dt * d6
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def accumulate_transition_lanes(x, j, j_inv, tau, dist, dt, phi_top, coef, on):
     """phi_top <- (I + dt A) phi_top for every lane l with on[l] != 0 (the others unchanged).
 
@@ -511,7 +511,7 @@ def ekf_predict_step(x, tau, dt, inertia, inertia_inv, phi_top, dist):
     rk4_step_into(x, dt, inertia, inertia_inv, tau, dist, x)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, forceinline=True)
 def ekf_predict_lanes(x, j, j_inv, tau, dist, dt, phi_top, coef, on):
     """:func:`ekf_predict_step` for every lane l with on[l] != 0 (the others unchanged).
 
