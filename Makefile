@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test check-science docs lint bench clean
+.PHONY: run test check-science docs lint bench results clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -32,10 +32,15 @@ docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
-	$(BIN)/ruff check inertia_gym scripts tests
+	$(BIN)/ruff check inertia_gym scripts tests docs
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench_speed.py
+
+# Every study of docs/results.md rerun and its tables rewritten (over an hour on 2 cores;
+# docs/results.py --list names the studies, --only KEY runs one).
+results: $(STAMP)
+	$(BIN)/python docs/results.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache site

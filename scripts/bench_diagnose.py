@@ -138,6 +138,7 @@ def main() -> None:
     else:
         print(f"no racquet recordings under {args.racquet}: real tosses not timed")
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with open(args.json, "w") as f:
             json.dump(out, f, indent=2)
 

@@ -21,6 +21,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -188,6 +189,7 @@ def main() -> None:
     print(f"diagnosis wall per recording: median {np.median([r['wall_s'] for r in rows]):.1f} s, "
           f"max {max(r['wall_s'] for r in rows):.1f} s")
     if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         with open(args.out, "w") as fh:
             json.dump({"figures": f, "wall_s": wall, "rows": rows, "args": vars(args)}, fh, indent=1)
 
