@@ -146,6 +146,17 @@ class Recording:
         """
         return self.has_torque or (self.h is not None and bool(np.any(self.h != 0.0)))
 
+    def carries(self, parts) -> bool | None:
+        """Whether the body carries one of `parts` (names of BODY_PARTS): True where the
+        sidecar's ``body`` says it has one (or, for a rotor, a non-zero momentum h is logged),
+        False where it says it has none of them, None where it does not say.
+        """
+        body = self.meta.get("body") or {}
+        if any(body.get(p) for p in parts) or ("rotor" in parts and self.h is not None
+                                                and bool(np.any(self.h != 0.0))):
+            return True
+        return False if parts and all(body.get(p) is False for p in parts) else None
+
     @property
     def inertia_nominal(self) -> np.ndarray | None:
         """(3, 3) kg·m² from the sidecar, or None."""
@@ -640,7 +651,11 @@ def _columns(path, header, data, names, required, label=None):
 #: The sidecar keys the tool reads, and those its own simulators write (the truth of a synthetic
 #: record). Any other key is the user's provenance and passes untouched.
 SIDECAR_KEYS = ("inertia_nominal", "gyro_sigma", "quat_sigma", "gyro_scale_sigma", "gyro_full_scale_rad_s",
-                "effect", "effects", "rotor", "seed", "basilisk_truth")
+                "gyro_bias_max", "body", "effect", "effects", "rotor", "seed", "basilisk_truth")
+#: The parts a sidecar's ``body`` object may say the body has (true) or lacks (false): a rotor or
+#: wheel, flexible appendages, liquid propellant. diagnose names an effect that needs one of
+#: them as that physics only where the body may carry it.
+BODY_PARTS = ("rotor", "appendages", "propellant")
 #: An unknown key this similar to a known one (difflib's ratio 2M/T: one or two characters mistyped,
 #: dropped or swapped in a key of ten or more) is taken for a typo of it; the provenance keys of
 #: real sidecars (gyro_sigma_static, gyro_quantum_rad_s, sample_dt, ...) score under 0.75.
@@ -679,9 +694,14 @@ def read_sidecar(csv_path: Path) -> dict:
                 or np.linalg.eigvalsh(j).min() <= 0:
             raise _fail(side, "inertia_nominal must be a symmetric positive-definite 3x3 matrix",
                         column="inertia_nominal")
-    for key in ("gyro_sigma", "quat_sigma"):
+    for key in ("gyro_sigma", "quat_sigma", "gyro_bias_max"):
         if key in meta and not (isinstance(meta[key], (int, float)) and meta[key] > 0):
             raise _fail(side, f"{key} must be a positive number, got {meta[key]!r}", column=key)
+    body = meta.get("body")
+    if body is not None and not (isinstance(body, dict) and set(body) <= set(BODY_PARTS)
+                                 and all(isinstance(v, bool) for v in body.values())):
+        raise _fail(side, f"body must be an object whose keys are among {list(BODY_PARTS)}, each true "
+                          f"(the body has it) or false (it has none), got {body!r}", column="body")
     scale = meta.get("gyro_scale_sigma")
     if scale is not None and not (isinstance(scale, (int, float)) and 0 <= scale < 1):
         raise _fail(side, f"gyro_scale_sigma (the gyro scale factor's relative 1-sigma uncertainty) must "

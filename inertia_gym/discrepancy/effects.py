@@ -162,6 +162,19 @@ class EffectModel:
     keeps_invariants: ClassVar[bool] = False
     #: Each parameter's unit, as reports print it ("" where it has none).
     units: ClassVar[dict] = {}
+    #: The parts (recordings.BODY_PARTS) of which the body must carry one for the effect to be
+    #: the named physics (empty: any body), the words for those parts, and what the fitted terms
+    #: are where the body carries none of them, per form ("" the default).
+    hardware: ClassVar[tuple[str, ...]] = ()
+    hardware_words: ClassVar[str] = ""
+    as_fitted: ClassVar[dict] = {}
+
+    def implausible(self, params: dict, meta: dict, d) -> str | None:
+        """Why the fitted `params` are beyond what such a body or sensor plausibly has (the
+        range, in words), given the sidecar `meta` and the record's data d (its noise level);
+        None where they are plausible or the effect has no such range.
+        """
+        return None
 
     # --- parameters -------------------------------------------------------------------------
     def draw(self, rng: np.random.Generator, body: Body) -> dict:
@@ -429,6 +442,15 @@ class _GyroError(EffectModel):
         return self.read(w, error)
 
 
+#: A fitted gyro bias is taken for the gyro's own up to the larger of these, unless the sidecar
+#: states its gyro's bound (gyro_bias_max): GYRO_BIAS_PLAUSIBLE rad/s (about 5.7 deg/s), beyond the
+#: zero-rate offsets consumer MEMS gyros specify (within ±1 to ±5 deg/s), and GYRO_BIAS_OVER_NOISE
+#: times the record's noise, since a noisier, lower-grade gyro has a larger offset (MEMS data
+#: sheets put the offset within a few tens of times the per-sample noise at 100 Hz).
+GYRO_BIAS_PLAUSIBLE = 0.1
+GYRO_BIAS_OVER_NOISE = 50.0
+
+
 @register
 class GyroBias(_GyroError):
     """Gyro reads w + b (b rad/s per axis), constant or drifting (_GyroError's forms)."""
@@ -442,6 +464,24 @@ class GyroBias(_GyroError):
                            ("gyro_scale", (
         "a scale factor that drifts multiplies the rates by a slowly changing amount; where the "
         "rates the body turns at change little over the record, that is a bias that drifts")),)
+
+    as_fitted = {"": "a constant offset of the rates the gyro reads",
+                 "varying": "a slowly changing offset of the rates the gyro reads"}
+
+    @override
+    def implausible(self, params, meta, d):
+        limit = float(meta["gyro_bias_max"]) if "gyro_bias_max" in meta else \
+            max(GYRO_BIAS_PLAUSIBLE, GYRO_BIAS_OVER_NOISE * float(np.max(d.sigma)) * np.sqrt(d.block))
+        # (d.sigma is the noise of a block's mean: times sqrt(block), a sample's)
+        bias = np.asarray(params["bias"], float)
+        if "profile" in params:  # the bias at each knot of a drifting one
+            bias = bias + np.asarray(params["profile"], float)
+        peak = float(np.max(np.abs(bias)))
+        if peak <= limit:
+            return None
+        return (f"a gyro bias of {peak:.3g} rad/s is beyond the {limit:g} rad/s a gyro's zero-rate "
+                "offset plausibly reaches" + ("" if "gyro_bias_max" in meta else
+                                               " (gyro_bias_max in the sidecar states your gyro's)"))
 
     @override
     def draw(self, rng, body):
@@ -533,6 +573,10 @@ class InternalMomentum(EffectModel):
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
     units = {"h": "kg·m²/s", "axis": "", "profile": "kg·m²/s", "profile_t": "s"}
+    hardware, hardware_words = ("rotor",), "rotor or wheel"
+    as_fitted = {"": "an unmodelled torque that turns with the body's rates (ω × h), fitted as a "
+                     "constant stored momentum",
+                 "varying": "an unmodelled torque that varies in time, fitted as a free momentum profile"}
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
     #: screened on top of a gyro bias from its single fit's momentum (fitted with the bias
     #: missing), a constant momentum gained nothing and was never refitted; from its own start
@@ -1266,6 +1310,8 @@ class FlexibleMode(EffectModel):
     name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0"),
                                   7, "internal motion")
     units = {"omega_n": "rad/s", "zeta": "", "coupling": "√kg·m", "eta0": "√kg·m", "eta_dot0": "√kg·m/s"}
+    hardware, hardware_words = ("appendages", "propellant"), "flexible appendage or liquid"
+    as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode"}
     restarts_on_base = ("",)
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises

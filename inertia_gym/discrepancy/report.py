@@ -25,6 +25,7 @@ from inertia_gym.discrepancy.fit import (
     effective_share,
     finish,
     fit_all,
+    fit_model,
     fit_nominal,
     impulses,
     information,
@@ -287,19 +288,33 @@ def trace_sigma(fit: Fit, d: Data) -> float:
 
 
 def scale_identified(d: Data, best: Fit, offset: Fit | None) -> tuple[bool, float | None]:
-    """(whether the data fix the inertia's scale, the relative sigma of the fitted trace or None).
+    """(whether the record fixes the inertia's scale, the relative sigma of the fitted trace or
+    None): identify's rule.
 
-    Seen at all only with a torque or a known momentum that is not zero (d.excited); then fixed
-    where the fitted inertia's trace (best's, or inertia_offset's where the sidecar's nominal is
-    held in the other models) has a relative sigma of at most SCALE_SIGMA_IDENTIFIED, the bound
-    identify applies. None where no valid fit holds a fitted inertia (the nominal held and no
-    inertia_offset fit): the scale then counts as seen wherever d.excited.
+    The scale is fixed wherever a commanded torque or a known momentum that is not zero acts
+    (d.excited, Recording.sees_scale); how well is the sigma, read from the fit that holds the
+    explanation's effects with the inertia free (:func:`_inertia_free_fit`), so that a nominal
+    in the sidecar changes neither answer. None where no such fit is finite.
     """
-    fit = best if d.inertia0 is None else offset
-    if not d.excited or fit is None or not np.isfinite(fit.bic):
-        return d.excited, None
-    sigma = trace_sigma(fit, d)
-    return sigma <= SCALE_SIGMA_IDENTIFIED, sigma
+    if not d.excited:
+        return False, None
+    fit = _inertia_free_fit(d, best, offset)
+    if fit is None or not np.isfinite(fit.bic):
+        return True, None
+    return True, trace_sigma(fit, d)
+
+
+def _inertia_free_fit(d: Data, best: Fit, offset: Fit | None) -> Fit | None:
+    """The fit in which the data set the inertia: best itself where its inertia is fitted (no
+    nominal, or an effect that sets the inertia), the nominal's inertia_offset fit where best is
+    the nominal model, else best's effects fitted again with inertia_offset added.
+    """
+    if d.inertia0 is None or any(m.sets_inertia for m in best.layout.models):
+        return best
+    if not best.names:
+        return offset
+    form = REGISTRY["inertia_offset"].forms(d)[0]
+    return fit_model(best.names + ("inertia_offset",), best.forms + (form,), d, best)
 
 
 def normal_draws(log2_count: int, dim: int) -> np.ndarray:
@@ -479,6 +494,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
             ambiguous.append({"effects": [top["name"], other], "reason": reason})
     offset = next((f for f in fits if f.name == "inertia_offset"), None)  # J fitted vs the nominal
     scale_seen, scale_sigma = scale_identified(d, best, offset)
+    # the inertia is compared with the nominal in absolute terms only where the scale is firm
+    scale_firm = scale_seen and scale_sigma is not None and scale_sigma <= SCALE_SIGMA_IDENTIFIED
     t_row = d.t_row
     # a rounding error stays near one value while the rate dwells within a step: over a window its
     # mean square reaches q^2 / 4, not the q^2 / 12 of the level (sensors.stated_gyro_level)
@@ -492,17 +509,18 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     inv = invariants(d, best)
     if best is not nominal and (unexplained or not all(REGISTRY[n].keeps_invariants for n in best.names)):
         inv = _read_with_both(inv, invariants(d, nominal))  # its inertia alone is not sure
+    explanation = _explanation(chosen, d, scale_firm, skipped, rec)
     report = {
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
         "locations": locations, "effects": ranked, "best_effect": sig[0]["name"] if sig else None,
-        "explanation": _explanation(chosen, d, scale_seen, skipped), "left_out": chosen.dropped,
+        "explanation": explanation, "left_out": chosen.dropped,
         "ambiguous": ambiguous, "skipped_effects": skipped,
         "fit_before": before,
         "fit_inertia_fitted": before if offset is None else _fit_summary(offset, d), "fit_after": after,
         "inertia_vs_nominal": None if offset is None else {
             "delta_bic": float(nominal.bic - offset.bic) if np.isfinite(offset.bic) else None,
-            **inertia_comparison(d.inertia0, offset.inertia, scale_seen)},
+            **inertia_comparison(d.inertia0, offset.inertia, scale_firm)},
         "gyro_sigma": d.sigma.tolist(), "gyro_sigma_source": d.sigma_source,
         "noise": {"rows": "block means" if d.block > 1 else "samples", "samples_per_row": d.block,
                   "sigma": d.sigma.tolist(), "source": d.sigma_source,
@@ -529,7 +547,8 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
-        "beyond_catalogue": not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE,
+        "beyond_catalogue": (not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE
+                             or bool(explanation and explanation[-1]["implausible"])),
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
         "gyro_frame_mirrored": frame,
     }
@@ -570,10 +589,25 @@ def _live_ambiguities(name: str, form: str, skipped: dict) -> list[tuple[str, st
     return [(other, why) for other, why in REGISTRY[name].confounded(form) if other not in skipped]
 
 
-def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict) -> list[dict]:
+#: An explanation entry's ``reading``: the named physics (the body may carry what it needs, or it
+#: needs nothing), the named physics if the body carries the part (the sidecar does not say), or
+#: only what the fitted terms do (the sidecar says the body has none of the parts).
+READINGS = ("physics", "if_carried", "unmodelled")
+
+
+def reading(name: str, rec: Recording) -> str:
+    """How the report words effect `name` on `rec`'s body (:data:`READINGS`)."""
+    parts = REGISTRY[name].hardware
+    carried = rec.carries(parts) if parts else True
+    return {True: "physics", None: "if_carried", False: "unmodelled"}[carried]
+
+
+def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict, rec: Recording) -> list[dict]:
     """The selected effects in order: name, params, 95 % intervals, the delta BIC each added
-    (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen),
-    the ambiguities the recording leaves open (_live_ambiguities; skipped: the effects it cannot test).
+    (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen:
+    the record fixes the scale firmly),
+    the ambiguities the recording leaves open (_live_ambiguities; skipped: the effects it cannot
+    test), and how it reads on rec's body (:func:`reading`).
     """
     if chosen.fit is None:
         return []
@@ -587,7 +621,8 @@ def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict) -> list[dict]
                  "family": model.family, "params": jsonable(named[name]),
                  "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
                           for k, v in ci[name].items()},
-                 "delta_bic": added,
+                 "delta_bic": added, "reading": reading(name, rec),
+                 "implausible": model.implausible(named[name], rec.meta, d),
                  "confounded_with": [{"with": other, "reason": why}
                                      for other, why in _live_ambiguities(name, form, skipped)]}
         if name == "inertia_offset":
@@ -602,8 +637,8 @@ def inertia_comparison(nominal, fitted, scale_seen: bool) -> dict:
     (the nominal's in ascending order, each fitted axis matched to the nominal axis nearest in
     direction), and the angle (deg) between matched principal axes.
 
-    scale_seen False (no torque): the fitted inertia is first scaled to the nominal's trace, so
-    the percentages compare shapes only.
+    scale_seen False (no torque, or one that fixes the scale only loosely): the fitted inertia is
+    first scaled to the nominal's trace, so the percentages compare shapes only.
     """
     nominal, fitted = np.asarray(nominal, float), np.asarray(fitted, float)
     if not scale_seen:
@@ -780,7 +815,7 @@ def _explanation_words(report: dict) -> str:
         parts = []
         for e in expl:
             params = ", ".join(_param_words(k, v, e["ci95"][k]) for k, v in e["params"].items())
-            parts.append(f"{e['name']} (adds delta BIC {e['delta_bic']:.1f}; {params})")
+            parts.append(f"{_label(e)} (adds delta BIC {e['delta_bic']:.1f}; {params})")
         text = ("**Explanation:** the nominal model leaves out " + "; then ".join(parts)
                 + ". Brackets are 95 % intervals.")
         for e in expl:
@@ -805,16 +840,14 @@ def _explanation_words(report: dict) -> str:
                  f"(`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
-    if not report["scale_identified"] and report.get("scale_seen_by_inputs"):
-        text += ("\n\nThe commanded torque or the known internal momentum moves the body too little to "
-                 "fix the inertia's scale (relative sigma of the fitted trace "
+    if _scale_loose(report):
+        text += ("\n\nThe commanded torque or the known internal momentum fixes the inertia's scale only "
+                 "loosely (relative sigma of the fitted trace "
                  + (f"{report['scale_sigma']:.2g}" if report["scale_sigma"] is not None else "unbounded")
-                 + f", over {SCALE_SIGMA_IDENTIFIED:g}): trust the principal-moment ratios, not the absolute "
-                 "values; every fitted torque (N·m), momentum (kg·m²/s) and damping coefficient scales "
-                 "with the unknown true trace"
-                 + (", and the inertia is compared with the nominal at the nominal's trace."
-                    if report.get("inertia_nominal_given") else "."))
-    elif not report["scale_identified"]:
+                 + f", over {SCALE_SIGMA_IDENTIFIED:g}): the principal-moment ratios are firmer than the "
+                 "absolute values, and every fitted torque (N·m), momentum (kg·m²/s) and damping "
+                 "coefficient carries the trace's uncertainty.")
+    if not report["scale_identified"]:
         text += ("\n\nNo commanded torque or known internal momentum: the data fix the inertia only up "
                  "to a common factor, "
                  + ("so the fitted torques, momenta and damping are in units of the sidecar's "
@@ -825,7 +858,7 @@ def _explanation_words(report: dict) -> str:
                     "momentum (kg·m²/s) and damping coefficient scales with the unknown true "
                     "trace; multiply them by (true trace) / "
                     f"{report['inertia_trace_assumed']:g}."))
-    elif not report.get("inertia_nominal_given"):
+    elif not report.get("inertia_nominal_given"):  # fixed, up to an actuator's scale
         text += ("\n\nThe inertia's scale is fixed by the commanded torque and the known internal "
                  "momentum as logged: a torque c times the commanded one (an actuator scale) or a "
                  "momentum c times the logged one makes the true inertia c times the fitted one, and "
@@ -986,6 +1019,11 @@ def _beyond_words(report: dict) -> list[str]:
         return ["- **beyond the catalogue**: the best fit is not a valid fit: the recording holds "
                 "physics the catalogue cannot model"]
     worst = max(after["rms_over_noise"])
+    last = report["explanation"][-1] if report["explanation"] else {}
+    if last.get("implausible") and worst <= BEYOND_CATALOGUE:
+        return [f"- **beyond the catalogue**: the explanation's last term, `{last['name']}`, is not "
+                f"physics this body or sensor plausibly has ({last['implausible']}): what it fits is "
+                "physics the catalogue lacks, or a distortion of the record, not that effect"]
     words = (f"- **beyond the catalogue**: the best fit still leaves {_fmt(after['rms_over_noise'])} "
              f"times the noise (over {BEYOND_CATALOGUE:g}): the recording holds physics the catalogue "
              "lacks")
@@ -997,12 +1035,31 @@ def _beyond_words(report: dict) -> list[str]:
             "them off"]
 
 
+def _label(e: dict) -> str:
+    """An explanation entry's name as its reading allows (:data:`READINGS`): the named physics,
+    the physics if the body carries the part it needs, or what the fitted terms do.
+    """
+    model = REGISTRY.get(e["name"])
+    form = [f"{e['form']} form"] if e.get("form") else []
+    said = e.get("reading", "physics")
+    if model is not None and e.get("implausible"):
+        what = model.as_fitted.get(e.get("form") or "", model.as_fitted.get("", "a term"))
+        return f"{what} (fitted as `{e['name']}`{', ' + form[0] if form else ''}; {e['implausible']})"
+    if model is None or said == "physics":
+        return f"`{e['name']}`" + (f" ({form[0]})" if form else "")
+    what = model.as_fitted.get(e.get("form") or "", model.as_fitted[""])
+    if said == "if_carried":
+        return (f"`{e['name']}` ({'; '.join(form + [f'if the body carries a {model.hardware_words}'])}; "
+                f"else {what})")
+    return f"{what} (`{e['name']}`{', ' + form[0] if form else ''}; the sidecar says the body carries no " \
+           f"{model.hardware_words})"
+
+
 def _verdict(report: dict) -> str:
     """Whether the rigid model explains the record, what is missing, where, and how much."""
     before, after = report["fit_before"], report["fit_after"]
     worst_before, worst_after = max(before["rms_over_noise"]), max(after["rms_over_noise"])
-    names = [f"`{e['name']}`" + (f" ({e['form']} form)" if e.get("form") else "")
-             for e in report["explanation"]]
+    names = [_label(e) for e in report["explanation"]]
     if not report["mismatch_detected"]:
         text = (f"The model explains the record: its residuals are at the gyro's noise (worst axis "
                 f"{worst_before:.3g} times it), and no effect of the catalogue improves the fit "
@@ -1051,7 +1108,13 @@ def _next_steps(report: dict) -> list[str]:
     if report["ambiguous"] or any(e["confounded_with"] for e in report["explanation"]):
         steps.append("Effects this record cannot tell apart are named above: a recording with more "
                      "varied rates (another spin axis, a faster or a longer tumble) separates them.")
-    if report.get("beyond_catalogue") or report.get("unexplained_residual"):
+    implausible = [e for e in report["explanation"] if e.get("implausible")]
+    if implausible:
+        steps.append("Beyond the plausible range: " + "; ".join(f"`{e['name']}` ({e['implausible']})"
+                                                              for e in implausible)
+                     + ". Look for what else moves the rates so: the sensor's mounting, clock or "
+                     "saturation, or a part of the body the catalogue does not hold.")
+    if (report.get("beyond_catalogue") and not implausible) or report.get("unexplained_residual"):
         steps.append(f"The explanation leaves {max(report['fit_after']['rms_over_noise']):.3g} times the "
                      "noise on its worst axis: look at the located windows and the residual plot; "
                      "report.json's `sparse_terms` lists the torque terms a sparse regression finds in "
@@ -1059,10 +1122,23 @@ def _next_steps(report: dict) -> list[str]:
     if not report["scale_identified"]:
         steps.append("This record does not fix the inertia's scale: a recording with a known torque "
                      "or a rotor's changing momentum does.")
+    elif _scale_loose(report):
+        steps.append("The scale is fixed only loosely: a stronger or longer torque, or a larger change "
+                     "of the known momentum, fixes it better.")
     if not steps:
         steps.append("Nothing is missing that this record can show; a recording with a larger or "
                      "another excitation tests the model further.")
     return [f"- {step}" for step in steps]
+
+
+def _scale_loose(report: dict) -> bool:
+    """The record fixes the scale, but its trace's relative sigma is unbounded or over
+    SCALE_SIGMA_IDENTIFIED.
+    """
+    if "scale_sigma" not in report:  # a report that does not carry the sigma says nothing of it
+        return False
+    sigma = report["scale_sigma"]
+    return bool(report["scale_identified"]) and (sigma is None or sigma > SCALE_SIGMA_IDENTIFIED)
 
 
 def markdown(report: dict, plots: list[str]) -> str:

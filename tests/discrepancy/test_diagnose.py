@@ -42,6 +42,7 @@ from inertia_gym.discrepancy.report import (
     _beyond_words,
     _explanation_words,
     _fits,
+    _next_steps,
     _shape_words,
     diagnose,
     inertia_comparison,
@@ -242,15 +243,16 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
               "inertia_nominal_given": False, "inertia_trace_assumed": 1.0}
     text = _explanation_words(report)
     assert "trace was set to 1 kg·m²" in text and "(true trace) / 1" in text
-    report["scale_identified"] = True
+    report |= {"scale_identified": True, "scale_sigma": 0.001}
     assert "trace" not in _explanation_words(report)
     assert "as logged" in _explanation_words(report)
     assert "as logged" not in _explanation_words(report | {"inertia_nominal_given": True})
-    # a torque or a momentum logged, but too small to fix the scale (scale_sigma over 0.05)
-    weak = report | {"scale_identified": False, "scale_seen_by_inputs": True, "scale_sigma": 0.31}
+    # a torque or a momentum logged that fixes the scale only loosely (scale_sigma over 0.05)
+    weak = report | {"scale_sigma": 0.31}
     text = _explanation_words(weak)
-    assert "too little to fix the inertia's scale" in text and "0.31" in text and "set to" not in text
+    assert "fixes the inertia's scale only loosely" in text and "0.31" in text and "set to" not in text
     assert "unbounded" in _explanation_words(weak | {"scale_sigma": None})
+    assert any("fixes it better" in step for step in _next_steps(weak | {"ambiguous": []}))
 
 
 def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
@@ -688,3 +690,60 @@ def test_left_out_of_the_explanation_names_only_what_the_data_supported_alone():
     assert "Left out of the explanation: gyro_bias (adds <= 10 once viscous_damping is in)." in text
     assert "gyro_scale" not in text
     assert "Left out" not in _explanation_words(report | {"left_out": {"gyro_scale": "no"}})
+
+
+def test_the_scale_statement_is_the_same_with_the_nominal_given_or_not():
+    """A satellite under torque bursts with a hidden constant torque: whether the scale is fixed,
+    and its sigma, come from the explanation's effects fitted with the inertia free, so a
+    nominal in the sidecar changes neither (the nominal's own model, which lacks the torque,
+    would widen the sigma by its misfit)."""
+    rec, _ = simulate_recording(Scenario.load("cubesat-6u"), 150.0, "constant_body_torque", seed=1,
+                                sample_dt=0.1)
+    with_nominal = _concealed(rec)
+    without = {k: v for k, v in with_nominal.meta.items() if k != "inertia_nominal"}
+    reports = [diagnose(r)[0] for r in (with_nominal, dataclasses.replace(rec, meta=without))]
+    assert [r["explanation"][0]["name"] for r in reports] == ["constant_body_torque"] * 2
+    assert reports[0]["scale_identified"] is reports[1]["scale_identified"] is True
+    sigmas = [r["scale_sigma"] for r in reports]
+    assert max(sigmas) < 2 * min(sigmas) and max(sigmas) < 0.05, sigmas
+
+
+@pytest.mark.parametrize(("body", "reading", "words"), [
+    (None, "if_carried", "`internal_momentum` (constant form; if the body carries a rotor or wheel; else "
+                         "an unmodelled torque"),
+    ({"rotor": False}, "unmodelled", "an unmodelled torque that turns with the body's rates"),
+    ({"rotor": True}, "physics", "`internal_momentum` (constant form) explains the record"),
+])
+def test_an_effect_that_needs_a_part_is_named_as_the_sidecar_allows(body, reading, words):
+    """A stored momentum is a rotor's only where the body may carry one: named where the sidecar
+    says it does, worded conditionally where it says nothing, and read as the torque it fits
+    where the sidecar says the body has no rotor."""
+    rec, _ = simulate_recording(Scenario(), 60.0, "internal_momentum", seed=0, sample_dt=0.1, torque=False)
+    meta = _concealed(rec).meta | ({} if body is None else {"body": body})
+    report, _ = diagnose(dataclasses.replace(rec, meta=meta))
+    assert [(e["name"], e["reading"]) for e in report["explanation"]] == [("internal_momentum", reading)]
+    assert words in markdown(report, [])
+    if reading != "physics":
+        assert "rotor or wheel" in markdown(report, [])
+
+
+@pytest.mark.parametrize("bias_max", [None, 1.0])
+def test_a_gyro_bias_beyond_any_gyro_s_is_reported_as_what_it_fits_and_beyond_the_catalogue(bias_max):
+    """A 0.3-rad/s offset of the rates read by a gyro of 1e-3 rad/s noise fits like a gyro bias,
+    but no such gyro's zero-rate offset reaches it: the summary reports the offset, says the
+    range, and reads the record as beyond the catalogue; a sidecar that states a gyro of that
+    bias (gyro_bias_max) gets the bias."""
+    rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 60.0, "gyro_bias",
+                                overrides={"bias": [0.3, -0.1, 0.05]}, seed=0, sample_dt=0.1, torque=False)
+    meta = _concealed(rec).meta | ({} if bias_max is None else {"gyro_bias_max": bias_max})
+    report, _ = diagnose(dataclasses.replace(rec, meta=meta))
+    (entry,) = report["explanation"]
+    assert entry["name"] == "gyro_bias"
+    text = markdown(report, [])
+    if bias_max is None:
+        assert "beyond the 0.1 rad/s" in entry["implausible"] and report["beyond_catalogue"]
+        assert "a constant offset of the rates the gyro reads (fitted as `gyro_bias`" in text
+        assert "is not physics this body or sensor plausibly has" in text
+    else:
+        assert entry["implausible"] is None and not report["beyond_catalogue"]
+        assert "`gyro_bias` explains the record" in text

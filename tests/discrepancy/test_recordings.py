@@ -189,6 +189,33 @@ def test_a_mistyped_sidecar_key_warns_once_naming_the_key_it_resembles(tmp_path)
     assert rec.inertia_nominal is None and "gyro_sigma" not in rec.meta
 
 
+def test_a_gyro_bias_bound_that_is_not_positive_is_refused(tmp_path):
+    path = _write(tmp_path, GOOD)
+    (tmp_path / "rec.json").write_text(json.dumps({"gyro_bias_max": -0.1}))
+    with pytest.raises(RecordingError, match="gyro_bias_max must be a positive number"):
+        read_recordings(path)
+
+
+@pytest.mark.parametrize("body", [{"rotor": "no"}, {"wings": True}, ["rotor"]])
+def test_a_body_that_is_not_parts_said_true_or_false_is_refused(tmp_path, body):
+    path = _write(tmp_path, GOOD)
+    (tmp_path / "rec.json").write_text(json.dumps({"body": body}))
+    with pytest.raises(RecordingError, match="body must be an object whose keys are among"):
+        read_recordings(path)
+
+
+def test_what_the_body_carries_is_said_by_the_sidecar_or_by_a_logged_momentum(tmp_path):
+    path = _write(tmp_path, GOOD)
+    (tmp_path / "rec.json").write_text(json.dumps({"body": {"rotor": False, "appendages": True}}))
+    (rec,) = read_recordings(path)
+    assert rec.carries(("rotor",)) is False
+    assert rec.carries(("appendages", "propellant")) is True
+    assert rec.carries(("propellant",)) is None  # not said
+    assert dataclasses.replace(rec, meta={}).carries(("rotor",)) is None
+    spinning = dataclasses.replace(rec, meta={}, h=np.full((rec.t.size, 3), 0.01))
+    assert spinning.carries(("rotor",)) is True
+
+
 def test_the_cli_says_a_sidecar_typo_in_one_line_and_goes_on(tmp_path, capsys):
     from inertia_gym import examples
     from inertia_gym.cli import main
