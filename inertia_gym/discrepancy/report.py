@@ -548,7 +548,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
         "beyond_catalogue": (not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE
-                             or bool(explanation and explanation[-1]["implausible"])),
+                             or any(e["implausible"] for e in explanation)),
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
         "gyro_frame_mirrored": frame,
     }
@@ -1019,11 +1019,12 @@ def _beyond_words(report: dict) -> list[str]:
         return ["- **beyond the catalogue**: the best fit is not a valid fit: the recording holds "
                 "physics the catalogue cannot model"]
     worst = max(after["rms_over_noise"])
-    last = report["explanation"][-1] if report["explanation"] else {}
-    if last.get("implausible") and worst <= BEYOND_CATALOGUE:
-        return [f"- **beyond the catalogue**: the explanation's last term, `{last['name']}`, is not "
-                f"physics this body or sensor plausibly has ({last['implausible']}): what it fits is "
-                "physics the catalogue lacks, or a distortion of the record, not that effect"]
+    odd = [e for e in report["explanation"] if e.get("implausible")]
+    if odd and worst <= BEYOND_CATALOGUE:
+        return ["- **beyond the catalogue**: " + "; ".join(
+            f"`{e['name']}` is not physics this body or sensor plausibly has ({e['implausible']})"
+            for e in odd) + ": what it fits is physics the catalogue lacks, or a distortion of the "
+            "record, not that effect"]
     words = (f"- **beyond the catalogue**: the best fit still leaves {_fmt(after['rms_over_noise'])} "
              f"times the noise (over {BEYOND_CATALOGUE:g}): the recording holds physics the catalogue "
              "lacks")
