@@ -479,7 +479,7 @@ class GyroBias(_GyroError):
         peak = float(np.max(np.abs(bias)))
         if peak <= limit:
             return None
-        return (f"a gyro bias of {peak:.3g} rad/s is beyond the {limit:g} rad/s a gyro's zero-rate "
+        return (f"a gyro bias of {peak:.3g} rad/s is beyond the {limit:.3g} rad/s a gyro's zero-rate "
                 "offset plausibly reaches" + ("" if "gyro_bias_max" in meta else
                                                " (gyro_bias_max in the sidecar states your gyro's)"))
 

@@ -1101,8 +1101,9 @@ def _physics_table(report: dict) -> list[str]:
 def _next_steps(report: dict) -> list[str]:
     """What a user does next, read from the verdict."""
     steps = []
-    if report["explanation"]:
-        names = ", ".join(f"`{e['name']}`" for e in report["explanation"])
+    plausible = [e for e in report["explanation"] if not e.get("implausible")]
+    if plausible:
+        names = ", ".join(f"`{e['name']}`" for e in plausible)
         steps.append(f"Add {names} to the simulation with the fitted values above (report.json holds "
                      "them in full), then diagnose another recording of the body: physics that is "
                      "there is found again.")

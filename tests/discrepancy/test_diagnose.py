@@ -744,6 +744,7 @@ def test_a_gyro_bias_beyond_any_gyro_s_is_reported_as_what_it_fits_and_beyond_th
         assert "beyond the 0.1 rad/s" in entry["implausible"] and report["beyond_catalogue"]
         assert "a constant offset of the rates the gyro reads (fitted as `gyro_bias`" in text
         assert "is not physics this body or sensor plausibly has" in text
+        assert not any(step.startswith("- Add") for step in _next_steps(report))  # not into a simulation
     else:
         assert entry["implausible"] is None and not report["beyond_catalogue"]
         assert "`gyro_bias` explains the record" in text
