@@ -9,7 +9,8 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-from scipy import signal, stats
+from scipy import interpolate, signal, stats
+from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
@@ -43,6 +44,7 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
+from inertia_gym.discrepancy.model import integrated_attitude
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.inertia_param import nearest_realizable
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
@@ -602,6 +604,74 @@ def reading(name: str, rec: Recording) -> str:
     return {True: "physics", None: "if_carried", False: "unmodelled"}[carried]
 
 
+def attitude_rules_out(name: str, params: dict, d: Data) -> str | None:
+    """Why d's recorded attitude rules out the fitted gyro error `name` (params), or None.
+
+    A term that changes what the gyro reads (EffectModel.gyro) is taken out of the rates (to
+    first order: w - (gyro(w) - w)); a real gyro error makes the attitude integrated from the
+    rates as read drift from the recorded one, so the attitude integrated from the corrected
+    rates over each segment, from its recorded start, comes closer to the recorded attitude. It
+    is ruled out where it moves away by a Gaussian likelihood ratio over SIGNIFICANT_DELTA_BIC,
+    the evidence the selection asks of an effect: 3 n ln(rss_corrected / rss_as_read), n the
+    attitude samples after each segment's first. None without attitude, or for a term that does
+    not change the reading.
+    """
+    model = REGISTRY[name]
+    if d.q is None:
+        return None
+    read = np.asarray(model.gyro(params, d.w, d.t), float)
+    if np.allclose(read, d.w, rtol=0.0, atol=0.0):
+        return None
+    corrected = d.w - (read - d.w)
+    measured = Rotation.from_quat(np.asarray(d.q, float)[:, [1, 2, 3, 0]])  # scalar first in the file
+    rss, n = np.zeros(2), 0
+    for a, b in zip(d.seg[:-1], d.seg[1:]):
+        if b - a < 2:
+            continue
+        relative = measured[a].inv() * measured[a:b]  # the body at each sample in its axes at a
+        for i, rates in enumerate((d.w[a:b], corrected[a:b])):
+            turned = Rotation.from_matrix(_attitude_between_samples(d.t[a:b], rates))
+            rss[i] += float(np.sum((relative.inv() * turned).as_rotvec()[1:] ** 2))
+        n += b - a - 1
+    if n == 0 or not rss[0] > 0:
+        return None
+    ratio = 3 * n * np.log(rss[1] / rss[0])
+    if ratio <= SIGNIFICANT_DELTA_BIC:
+        return None
+    return (f"the recorded attitude rules it out: with it taken out of the rates, the attitude "
+            f"integrated from them moves away from the recorded one (likelihood ratio {ratio:.3g}, "
+            f"over {SIGNIFICANT_DELTA_BIC:g})")
+
+
+#: rad: the largest turn of one integration step of :func:`_attitude_between_samples`; its
+#: midpoint rule then errs by far less than any attitude sensor's noise.
+ATTITUDE_STEP_RAD = 0.01
+
+
+def _attitude_between_samples(t, rates) -> np.ndarray:
+    """(n, 3, 3) the body's axes at each sample time t (n,) s in its axes at t[0], integrated
+    from the rates (n, 3) rad/s through a cubic spline of them, in steps that turn the body by at
+    most ATTITUDE_STEP_RAD: the rates between samples curve, and a step of a whole sample
+    interval at the rates' mean would put its own drift in the attitude.
+    """
+    turn = np.max(np.linalg.norm(rates, axis=1)) * np.max(np.diff(t))
+    sub = max(1, int(np.ceil(turn / ATTITUDE_STEP_RAD)))
+    fine = np.concatenate([np.linspace(t0, t1, sub, endpoint=False) for t0, t1 in zip(t[:-1], t[1:])]
+                          + [t[-1:]])
+    spline = interpolate.CubicSpline(t, rates, axis=0) if t.size > 3 else None
+    at = spline(fine) if spline is not None else np.stack(
+        [np.interp(fine, t, rates[:, i]) for i in range(3)], 1)
+    return integrated_attitude(fine, at)[::sub]
+
+
+def _implausible(name: str, params: dict, d: Data, rec: Recording) -> str | None:
+    """Why effect `name`'s fitted params are not physics this body or sensor plausibly has:
+    beyond its plausible range (EffectModel.implausible), or ruled out by the recorded attitude
+    (:func:`attitude_rules_out`); None where neither.
+    """
+    return REGISTRY[name].implausible(params, rec.meta, d) or attitude_rules_out(name, params, d)
+
+
 def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict, rec: Recording) -> list[dict]:
     """The selected effects in order: name, params, 95 % intervals, the delta BIC each added
     (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen:
@@ -622,7 +692,7 @@ def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict, rec: Recordin
                  "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
                           for k, v in ci[name].items()},
                  "delta_bic": added, "reading": reading(name, rec),
-                 "implausible": model.implausible(named[name], rec.meta, d),
+                 "implausible": _implausible(name, named[name], d, rec),
                  "confounded_with": [{"with": other, "reason": why}
                                      for other, why in _live_ambiguities(name, form, skipped)]}
         if name == "inertia_offset":

@@ -748,3 +748,21 @@ def test_a_gyro_bias_beyond_any_gyro_s_is_reported_as_what_it_fits_and_beyond_th
     else:
         assert entry["implausible"] is None and not report["beyond_catalogue"]
         assert "`gyro_bias` explains the record" in text
+
+
+def test_the_recorded_attitude_supports_a_true_gyro_bias_and_rules_out_its_opposite():
+    """With the bias taken out of the rates, the attitude integrated from them follows the
+    recorded one; with the opposite taken out, it drifts away; without attitude, or for a term
+    that does not change what the gyro reads, there is nothing to judge."""
+    from inertia_gym.discrepancy.fit import prepare
+    from inertia_gym.discrepancy.report import attitude_rules_out
+
+    bias = np.array([0.01, -0.005, 0.004])
+    rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 40.0, "gyro_bias", overrides={"bias": bias.tolist()},
+                                seed=0, sample_dt=0.05, torque=False)
+    d = prepare(_concealed(rec))
+    assert attitude_rules_out("gyro_bias", {"bias": bias}, d) is None
+    assert "the recorded attitude rules it out" in attitude_rules_out("gyro_bias", {"bias": -bias}, d)
+    assert attitude_rules_out("constant_body_torque", {"torque": np.ones(3)}, d) is None
+    no_attitude = prepare(dataclasses.replace(_concealed(rec), q=None))
+    assert attitude_rules_out("gyro_bias", {"bias": -bias}, no_attitude) is None
