@@ -7,10 +7,12 @@ recordings, with the per-toss rows under "tosses"). --without-segments reads eac
 phyphox writes it, without its authors' meta/segments.csv (its "Raw Data.csv" copied to a
 temporary folder, deleted after): the tosses are then the free flights found from the gyro.
 
-rotor: each rotor throw twice. With its h_x, h_y, h_z columns withheld, the rotor's spin-up and
+rotor: each rotor throw three times. With its h_x, h_y, h_z columns withheld, the rotor's spin-up and
 brake are physics the rigid model leaves out: diagnose should name `internal_momentum` (its
 varying form) with the rotor's axis (truth.json `flywheel_axis`) and cut the residual. With the
-columns given, the rotor is in the model and no `internal_momentum` should be claimed. Prints
+columns given, the rotor is in the model and no `internal_momentum` should be claimed. Withheld
+again with the sidecar's body saying {"rotor": false}, a momentum it fits is read as an
+unmodelled torque, not a rotor (its explanation entries' `reading`). Prints
 one row per throw and the totals; writes OUT/summary.json and each report.
 
 Usage: PYTHONPATH=. python scripts/diagnose_real.py racquet [--data DIR] [--out DIR] [--without-segments]
@@ -129,6 +131,7 @@ def rotor(args) -> None:
         t1 = time.perf_counter()
         given, _ = diagnose(rec)
         t2 = time.perf_counter()
+        denied, _ = diagnose(dataclasses.replace(rec, h=None, meta=rec.meta | {"body": {"rotor": False}}))
         (out / csv.stem).mkdir(parents=True, exist_ok=True)
         write_json(out / csv.stem / "withheld.json", withheld)
         write_json(out / csv.stem / "given.json", given)
@@ -144,6 +147,9 @@ def rotor(args) -> None:
                "rms_before": float(before), "rms_after": float(after), "rms_fall": float(before / after),
                "explanation_given": [e["name"] for e in given["explanation"]],
                "claimed_with_h_given": momentum_claim(given) is not None,
+               "reading_withheld": claim["reading"] if claim is not None else None,
+               "reading_rotor_denied": [e["reading"] for e in denied["explanation"]
+                                        if e["name"] == "internal_momentum"],
                "wall_s": [round(t1 - t0, 2), round(t2 - t1, 2)]}
         rows.append(row)
         angle = row["axis_error_deg"]
@@ -160,14 +166,19 @@ def rotor(args) -> None:
     totals = {"throws": n, "internal_momentum_named": named, "leading": sum(r["leading"] for r in rows),
               "axis_within_20_deg": within, "median_axis_error_deg": float(np.median(axes)) if axes else None,
               "median_rms_fall": float(np.median(falls)) if falls else None,
-              "rms_fall_at_least_3": sum(f >= 3 for f in falls), "claimed_with_h_given": false_claims}
+              "rms_fall_at_least_3": sum(f >= 3 for f in falls), "claimed_with_h_given": false_claims,
+              "worded_conditionally": sum(r["reading_withheld"] == "if_carried" for r in rows),
+              "rotor_denied_read_as_torque": sum(bool(r["reading_rotor_denied"]) and all(
+                  x == "unmodelled" for x in r["reading_rotor_denied"]) for r in rows)}
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", {"throws": rows, "totals": totals})
     print(f"\ninternal_momentum named on {named}/{n} throws with h withheld "
           f"(leading on {totals['leading']}); "
           f"axis within 20 deg on {within}/{n} (median {totals['median_axis_error_deg']}); rms fell "
           f">= 3x on {totals['rms_fall_at_least_3']}/{n} (median x{totals['median_rms_fall']}); "
-          f"claimed with h given on {false_claims}/{n}")
+          f"claimed with h given on {false_claims}/{n}; worded 'if the body carries a rotor' on "
+          f"{totals['worded_conditionally']}/{n}; with the sidecar's body saying no rotor, read as an "
+          f"unmodelled torque on {totals['rotor_denied_read_as_torque']}/{n}")
 
 
 def main() -> None:
