@@ -758,8 +758,8 @@ def test_the_recorded_attitude_supports_a_true_gyro_bias_and_rules_out_its_oppos
     from inertia_gym.discrepancy.report import attitude_rules_out
 
     bias = np.array([0.01, -0.005, 0.004])
-    rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 40.0, "gyro_bias", overrides={"bias": bias.tolist()},
-                                seed=0, sample_dt=0.05, torque=False)
+    rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 40.0, "gyro_bias",
+                                overrides={"bias": bias.tolist()}, seed=0, sample_dt=0.05, torque=False)
     d = prepare(_concealed(rec))
     assert attitude_rules_out("gyro_bias", {"bias": bias}, d) is None
     assert "the recorded attitude rules it out" in attitude_rules_out("gyro_bias", {"bias": -bias}, d)
