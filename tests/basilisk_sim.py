@@ -35,6 +35,13 @@ from inertia_gym.recordings import Recording
 TRUTH_KEY = "basilisk_truth"
 
 
+def spring_damper(inertia: float, frequency_hz: float, damping_ratio: float) -> tuple[float, float]:
+    """Spring and damper of a mass (or rotational inertia) that oscillates at frequency_hz (Hz)
+    with damping_ratio: k = m wn^2, c = 2 zeta m wn."""
+    wn = 2.0 * np.pi * frequency_hz
+    return inertia * wn ** 2, 2.0 * damping_ratio * inertia * wn
+
+
 @dataclasses.dataclass(frozen=True)
 class Slosh:
     """A propellant slosh particle: mass (kg) at position (3,) m from the hub's centre of mass,
@@ -52,8 +59,7 @@ class Slosh:
 
     def stiffness_damping(self) -> tuple[float, float]:
         """Spring k (N/m) and damper c (N·s/m) from the frequency and damping ratio."""
-        wn = 2.0 * np.pi * self.frequency_hz
-        return self.mass * wn ** 2, 2.0 * self.damping_ratio * self.mass * wn
+        return spring_damper(self.mass, self.frequency_hz, self.damping_ratio)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,9 +82,8 @@ class Panel:
 
     def stiffness_damping(self) -> tuple[float, float]:
         """Torsion spring k (N·m/rad) and damper c (N·m·s/rad) about the hinge axis."""
-        wn = 2.0 * np.pi * self.frequency_hz
-        i_hinge = self.inertia[1] + self.mass * self.arm ** 2
-        return i_hinge * wn ** 2, 2.0 * self.damping_ratio * i_hinge * wn
+        return spring_damper(self.inertia[1] + self.mass * self.arm ** 2, self.frequency_hz,
+                             self.damping_ratio)
 
 
 @dataclasses.dataclass(frozen=True)
