@@ -620,7 +620,7 @@ def attitude_rules_out(name: str, params: dict, d: Data) -> str | None:
     if d.q is None:
         return None
     read = np.asarray(model.gyro(params, d.w, d.t), float)
-    if np.allclose(read, d.w, rtol=0.0, atol=0.0):
+    if np.array_equal(read, d.w):
         return None
     corrected = d.w - (read - d.w)
     measured = Rotation.from_quat(np.asarray(d.q, float)[:, [1, 2, 3, 0]])  # scalar first in the file
@@ -656,8 +656,7 @@ def _attitude_between_samples(t, rates) -> np.ndarray:
     """
     turn = np.max(np.linalg.norm(rates, axis=1)) * np.max(np.diff(t))
     sub = max(1, int(np.ceil(turn / ATTITUDE_STEP_RAD)))
-    fine = np.concatenate([np.linspace(t0, t1, sub, endpoint=False) for t0, t1 in zip(t[:-1], t[1:])]
-                          + [t[-1:]])
+    fine = np.r_[(t[:-1, None] + np.diff(t)[:, None] * (np.arange(sub) / sub)).ravel(), t[-1]]
     spline = interpolate.CubicSpline(t, rates, axis=0) if t.size > 3 else None
     at = spline(fine) if spline is not None else np.stack(
         [np.interp(fine, t, rates[:, i]) for i in range(3)], 1)
