@@ -257,6 +257,8 @@ def check_recording(rec: Recording) -> np.ndarray:
                              f"of {rec.t.size} rows; a fit needs at least {MIN_SAMPLES} unclipped rows "
                              "(a gyro range above the body's rates, or a slower spin)")
     noise = float(np.median(estimate_white_noise(rec.w))) if rec.t.size > 10 else 0.0
+    # the gyro's stated noise counts too: rates the data read as smooth may lie far below it
+    noise = max(noise, float(rec.meta.get("gyro_sigma") or 0.0))
     rate = np.linalg.norm(rec.w, axis=1)
     peak = float(np.max(rate))
     turned = float(np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(rec.t)))

@@ -163,3 +163,17 @@ def test_rows_of_a_prepared_record_keep_its_noise_level_and_count_kept_rows_from
     np.testing.assert_array_equal(part.rec.w, prep.rec.w[10:50])
     np.testing.assert_array_equal(part.level, prep.level)
     assert part.kept == (prep.kept[0] + 10, prep.kept[0] + 50)
+
+
+def test_rates_far_under_the_gyro_s_stated_noise_are_a_body_that_does_not_rotate():
+    """Smooth rates under a fifth of the stated gyro noise, turning the body by a fraction of a
+    radian: the data alone read them as clean motion, but the gyro cannot have resolved them, so
+    the record is refused in one line."""
+    from inertia_gym.errors import RecordingError
+    from inertia_gym.prepare import check_recording
+
+    t = np.linspace(0.0, 10.0, 501)
+    w = 2e-2 * np.stack([np.sin(t), np.cos(t), 0.5 * np.sin(0.3 * t + 1.0)], axis=1)
+    with pytest.raises(RecordingError, match="does not rotate"):
+        check_recording(Recording(t, w, meta={"gyro_sigma": 0.03}))
+    check_recording(Recording(t, 1e2 * w, meta={"gyro_sigma": 0.03}))  # 2 rad/s: it turns
