@@ -12,17 +12,17 @@ level), then the estimation core. Two estimates are always made:
   every gyro (and attitude) sample by maximum likelihood, efficient where the model holds, its
   covariance the Fisher bound, the coloured-noise sandwich or the model-error covariance.
 
-Which is reported: the output error, the maximum-likelihood estimate of the stated model, where
-it passes the lack-of-fit test (its whitened residual sum of squares within the chi-square's
-99.9 % range at the noise level): it is then efficient. Where the data reject the model, neither
-estimate is efficient and each is biased in its own way (an unmodelled torque correlated with
-the rates moves the windowed regression directly; one that drifts bends the whole trajectory),
-so they are compared out of sample: each is fitted on one half of the record, its inertia
-predicts the other half (the profile likelihood, the initial state refitted), and the one with
-the smaller held-out residual over both folds is reported (held_out_costs). Both covariances
-count the model error as a white disturbance torque of the intensity the residuals' excess
-implies. Their agreement is tested (the difference against the sum of their covariances, a
-chi-square on 6 degrees of freedom, or 5 at a fixed trace) and the notes say where they disagree.
+Which is reported (uncertainty.choose): the output error where the data accept the rigid
+model (the lack-of-fit test: its whitened residuals within the chi-square's 99.9 % range at
+the noise level) and its covariance expects the smaller relative error; else the equation
+error. Where the model holds, the maximum-likelihood fit is efficient and both hold. A torque
+the model leaves out (drag, a flexing part, a mis-measured input) bends the whole fitted
+trajectory and moves the output error further than it moves the windows it acts in; it shows
+in the residuals' size, or in their colour, which widens the output error's covariance by the
+model error's share. The equation error's covariance counts the model error as a white
+disturbance torque of the intensity its residuals' excess implies. The notes say why the
+equation error is reported and where the two estimates disagree beyond the sum of their
+intervals.
 
 The scale is a quantity: with a known torque or a known internal momentum h that is not zero
 the inertia is absolute, its intervals carrying the scale's uncertainty; only without either is
@@ -50,14 +50,16 @@ from inertia_gym.estimation.uncertainty import (
     TEST_LEVEL,
     TRACE_WEIGHTS,
     Agreement,
+    Choice,
     InertiaEstimate,
     NoiseModel,
     agreement,
+    choose,
     inertia_estimate,
     relative_frobenius_bound,
     with_gyro_scale,
 )
-from inertia_gym.prepare import MIN_SAMPLES, Prepared, clip_hint, prepared
+from inertia_gym.prepare import Prepared, clip_hint, prepared
 from inertia_gym.recordings import Recording
 from inertia_gym.sensors import coarse_lattice_note, stated_noise_note
 
@@ -282,11 +284,14 @@ def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
                                  "with it the residuals are at the noise")
 
 
-def _equation_error_estimate(prep: Prepared, trace_ref) -> EquationError:
-    """The equation-error estimate of a prepared record."""
+def _equation_error_estimate(prep: Prepared, trace_ref, bias=None) -> EquationError:
+    """The equation-error estimate of a prepared record, from its rates less a gyro bias (3,)
+    rad/s where one is given.
+    """
     rec = prep.rec
     trace = trace_ref if trace_ref is not None else 1.0
-    return equation_error(rec.t - rec.t[0], rec.w, rec.tau, rec.h, trace, prep.usable, sigma=prep.level)
+    w = rec.w if bias is None else rec.w - bias
+    return equation_error(rec.t - rec.t[0], w, rec.tau, rec.h, trace, prep.usable, sigma=prep.level)
 
 
 def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None,
@@ -347,7 +352,9 @@ class _Estimates:
 
 
 def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
-    """The equation error, then the output error started from it (output_error_fit, _with_bias)."""
+    """The equation error, then the output error started from it (output_error_fit, _with_bias);
+    where the output error fits a gyro bias, the equation error again from the rates less it.
+    """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
     prob = problem_from(prep, prep.sigma, bool(fit_bias), fit_drag)
@@ -355,31 +362,10 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref)
     said = None
     if fit_bias is None and prep.rec.q is None:
         prob, oe, said = _with_bias(prep, prob, oe, trace_ref)
+    if prob.fit_bias:  # a sensor offset enters the windows' regressors: both estimates without it
+        ee = _equation_error_estimate(prep, trace_ref, oe.fit.p[-3:])
+        reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
     return _Estimates(ee, reference, prob, oe, said)
-
-
-def held_out_costs(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> np.ndarray | None:
-    """(2,) the output error's and the equation error's held-out cost: the record cut into two
-    halves, both estimators fitted on one half (_estimates) and each inertia's profile cost on
-    the other (output_error.profile_cost: its whitened residual sum, the initial state, bias and
-    drag refitted), summed over both folds. None where a half has fewer usable rows than a fit
-    takes or a half's fit fails.
-    """
-    n = prep.rec.t.size
-    halves = ((0, n // 2), (n // 2, n))
-    if min(int(np.count_nonzero(prep.usable[a:b])) for a, b in halves) < MIN_SAMPLES:
-        return None
-    costs = np.zeros(2)
-    for train, test in (halves, halves[::-1]):
-        try:
-            part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
-        except (EstimatorDivergedError, ConfigError, RecordingError):
-            return None
-        held = problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
-        q0 = None if prep.rec.q is None else prep.rec.q[test[0]]
-        for k, est in enumerate((part.oe.estimate, part.reference)):
-            costs[k] += output_error.profile_cost(held, phi_from_inertia(nearest_realizable(est.inertia)), q0)
-    return costs
 
 
 def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref, notes: list,
@@ -398,33 +384,34 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
                      "sensitivity to the inertia grows too fast for one: a tumble near the separatrix, "
                      "or physics the model leaves out)")
     agree = agreement(est, reference)
-    estimator = "output error"
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
-    nominal = prep.rec.inertia_nominal
-    # refused: a misfit whose reported inertia is off the nominal (columns in other units than
-    # stated); where both estimates are off, the held-out comparison cannot change that
-    costs = None
-    if not explained and not all(_off(_nominal_factor(e, nominal)) for e in (est, reference)):
-        costs = held_out_costs(prep, fit_bias, fit_drag, trace_ref)
-        if costs is not None and costs[1] < costs[0]:
-            est, estimator = reference, "equation error"
-    if not explained:
-        compared = ("" if costs is None else
-                    f"; fitted on one half, each predicts the other with a residual sum of {costs[0]:.4g} "
-                    f"(output error) and {costs[1]:.4g} (equation error) noise variances")
-        notes.append(f"the rigid model leaves physics out (the output-error fit's residuals fail the "
-                     f"lack-of-fit test): reported is the {estimator}{compared}; the intervals count the "
-                     "model error as a white disturbance torque (run `inertia-gym diagnose` to find what "
-                     "is missing)")
+    # with a drag fitted, the equation error (no drag term) is not an estimate of the same model
+    choice = None if fit_drag else choose(est, reference, explained)
+    estimator = "output error"
+    if choice is not None and not choice.efficient:
+        est, estimator = reference, "equation error"
+        notes.append(_why_equation_error(choice))
     if agree.disagree:
         notes.append(f"the output-error and equation-error estimates disagree beyond their intervals "
                      f"(chi-square {agree.statistic:.3g} on {agree.dof} degrees of freedom): the rigid "
                      "model misses something that moves them differently")
+    nominal = prep.rec.inertia_nominal
     bias = oe.fit.p[-3:].copy() if prob.fit_bias else None
     result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
                      bias, oe.fit.converged, not explained and _off(_nominal_factor(est, nominal)), notes,
                      started)
     return dataclasses.replace(result, reference_q=both.ee.torque_q)
+
+
+def _why_equation_error(choice: Choice) -> str:
+    """The note saying why the equation error is reported (choose's reasons)."""
+    if not choice.model_fits:
+        return ("the rigid model leaves physics out (the output-error fit's residuals fail the lack-of-fit "
+                "test): reported is the equation error, whose intervals count the model error as a white "
+                "disturbance torque (run `inertia-gym diagnose` to find what is missing)")
+    return (f"reported is the equation error: its intervals expect a relative error of "
+            f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % (residuals "
+            "coloured by a model error widen the output error's)")
 
 
 def _nominal_factor(est: InertiaEstimate, nominal) -> float:

@@ -9,8 +9,9 @@ and, together, by the same two estimates over all of them:
   (multiple shooting, a segment per recording: output_error.solve_shooting), from the mean of
   the single fits.
 
-The same rule reports one of them: the output error where it passes the lack-of-fit test, else
-the equation error. The recordings' own estimates are tested against each other: the chi-square
+Identify's rule reports one of them (uncertainty.choose): the joint output error where the
+data accept its model and its covariance expects the smaller error, else the pooled equation
+error. The recordings' own estimates are tested against each other: the chi-square
 of their deviations from their precision-weighted mean, on 6 (R - 1) degrees of freedom (5 (R -
 1) at a fixed trace); a small p-value says they are not one body's, or their intervals are too
 narrow.
@@ -28,9 +29,10 @@ from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingErr
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.equation_error import pooled, system_of
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia
-from inertia_gym.estimation.uncertainty import TEST_LEVEL, InertiaEstimate, inertia_estimate
+from inertia_gym.estimation.uncertainty import TEST_LEVEL, InertiaEstimate, choose, inertia_estimate
 from inertia_gym.identification import (
     Identification,
+    _why_equation_error,
     estimate_keys,
     identify_prepared,
     problem_from,
@@ -151,13 +153,13 @@ def identify_joint(recordings: list[Recording], singles: list[Identification] | 
     except (EstimatorDivergedError, ConfigError, np.linalg.LinAlgError) as err:
         oe, rms, passes = None, float("nan"), False
         notes.append(f"the joint output-error fit failed ({err}): the equation error is reported")
-    if oe is not None and passes:
+    choice = choose(oe, reference, passes) if oe is not None else None
+    if choice is not None and choice.efficient:
         est, estimator = oe, "output error"
     else:
         est, estimator = reference, "equation error"
-        if oe is not None:
-            notes.append("the joint output-error fit fails the lack-of-fit test: the rigid model leaves "
-                         "physics out, and the pooled equation error is reported")
+        if choice is not None:
+            notes.append(_why_equation_error(choice))
     chi2, dof, p = _agreement([s.estimate for s in singles])
     if p < 1.0 - TEST_LEVEL:
         notes.append(f"the recordings' own estimates disagree beyond their intervals (chi-square {chi2:.3g} "

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from records import flat_record, forced_record, satellite_record, score_entries, score_ratios, thin_body
 
 from inertia_gym.cli import main
@@ -18,7 +19,7 @@ from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation.filters import realizable_estimate
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
 from inertia_gym.estimation.integrator import trajectory
-from inertia_gym.identification import held_out_costs, identify
+from inertia_gym.identification import identify
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings, write_recording
@@ -602,21 +603,43 @@ def test_both_estimates_are_reported_and_the_output_error_where_the_model_holds(
     assert np.all(result.reference.sigma > result.estimate.sigma)
 
 
-def test_where_the_model_is_rejected_the_estimate_that_predicts_held_out_data_better_is_reported():
-    """A white disturbance torque the record does not log: the output error's residuals fail the
-    lack-of-fit test; each estimator fitted on one half predicts the other (held_out_costs), the
-    one with the smaller held-out residual is reported, the notes give both costs, and both
-    estimates' intervals hold the truth."""
-    truth = theta_from_inertia(np.array(SMALL_BODY["inertia_true"]))
-    rec = _disturbed_throw(0, 5e-9)
-    res = identify(rec)
-    costs = held_out_costs(prepared(rec), None, False, None)
-    assert np.all(np.isfinite(costs)) and abs(costs[0] / costs[1] - 1) > 1e-3
-    assert res.estimator == ("equation error" if costs[1] < costs[0] else "output error")
-    said = next(n for n in res.notes if "the rigid model leaves physics out" in n)
-    assert f"{costs[0]:.4g} (output error) and {costs[1]:.4g} (equation error)" in said
-    for est in (res.estimate, res.reference):
-        assert np.all(np.abs(est.theta - truth) <= 3.5 * est.sigma)
+def _dragged_throw(seed):
+    """A 0.5-s, 2-kHz rotor throw of a body of random shape and orientation spinning at 20 rad/s
+    about a random axis, with an air drag (random magnitude) that identify does not know of."""
+    rng = np.random.default_rng(100 + seed)
+    moments = np.sort(rng.uniform(0.2, 1.0, 3))
+    moments[2] = min(moments[2], 0.97 * (moments[0] + moments[1]))
+    turn = rng.normal(size=3)
+    turn *= rng.uniform(0.0, 0.5) / np.linalg.norm(turn)
+    rot = Rotation.from_rotvec(turn).as_matrix()
+    inertia = 5e-4 * rot @ np.diag(moments) @ rot.T / moments.mean()
+    w0 = rng.normal(size=3)
+    sc = Scenario(inertia_true=inertia.tolist(), inertia_guess=inertia.tolist(),
+                  omega0=(20.0 * w0 / np.linalg.norm(w0)).tolist(), dt=5e-4, gyro_sigma=0.01)
+    rec, _ = simulate_recording(sc, 0.5, "aero_drag", seed=seed, torque=False, rotor_h_max=2e-3)
+    meta = {k: v for k, v in rec.meta.items() if k != "inertia_nominal"}
+    return dataclasses.replace(rec, q=None, meta=meta), inertia
+
+
+def test_an_unmodelled_drag_that_bends_the_output_error_leaves_the_reported_estimate_close():
+    """A drag that identify does not model bends the fitted trajectory: over these seeds the
+    output error lands about five times further from the truth than the equation error (medians
+    1.2 % and 0.2 % over 8 seeds), often with residuals the lack-of-fit test accepts. Their
+    colour widens the output error's covariance past the equation error's: the equation error
+    is reported on at least 4 of 6 seeds with its reason in the notes, and the reported
+    estimate's median error is under 0.5 %."""
+    reported, reference = [], []
+    for seed in range(6):
+        rec, inertia = _dragged_throw(seed)
+        res = identify(rec)
+        if res.estimator == "equation error":
+            assert any("reported is the equation error" in n or "lack-of-fit" in n for n in res.notes)
+        reported.append((_rel(res.estimate.inertia, inertia), res.estimator))
+        reference.append(_rel(res.reference.inertia, inertia))
+    assert sum(e == "equation error" for _, e in reported) >= 4
+    errs = np.array([e for e, _ in reported])
+    assert np.all(errs <= np.maximum(1.5 * np.array(reference), 0.005))
+    assert np.median(errs) < 0.005
 
 
 @pytest.mark.parametrize("case", ["flat", "satellite"])

@@ -120,6 +120,10 @@ def statistics(prob: output_error.Problem, fit: output_error.Fit, trace_ref: flo
     """
     free = prob.free()
     ev = fit.evaluation
+    if not ev.ok or (fit.segments == 1 and ev.jac is None) or (fit.segments > 1 and fit.global_cov is None):
+        # a trajectory that leaves the finite numbers has no Jacobian, hence no error bars
+        raise EstimatorDivergedError("the fitted trajectory does not stay finite over the record: the "
+                                     "rigid-body model does not follow it from this start")
     m = prob.meas_idx.size
     channels = ev.r.reshape(-1, m, 3).transpose(1, 0, 2).reshape(m, -1) if fit.segments == 1 else \
         ev.e_w / prob.sigma_w

@@ -328,6 +328,32 @@ class Agreement:
         return self.p_value < 1.0 - TEST_LEVEL
 
 
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """Which of two estimates of one inertia to report: efficient (report the efficient one),
+    model_fits (the data accept the efficient estimate's model: the lack-of-fit test), expected
+    (the relative Frobenius errors their covariances expect: the efficient one's, the robust
+    one's).
+    """
+
+    efficient: bool
+    model_fits: bool
+    expected: tuple[float, float]
+
+
+def choose(efficient: InertiaEstimate, robust: InertiaEstimate, model_fits: bool) -> Choice:
+    """The efficient estimate (a maximum-likelihood fit) where the data accept its model
+    (model_fits, the lack-of-fit test) and its covariance expects the smaller error; else the
+    robust one. Where the model holds, the fit is efficient and both hold; a model error shows
+    in the residuals' size (the fit of a rejected model has no claim to efficiency) or in their
+    colour, which widens the fit's covariance by the model error's share past the robust
+    estimate's, whose windows keep a model error local.
+    """
+    expected = (relative_frobenius_bound(efficient.theta, efficient.theta_cov),
+                relative_frobenius_bound(robust.theta, robust.theta_cov))
+    return Choice(bool(model_fits and expected[0] < expected[1]), bool(model_fits), expected)
+
+
 def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:
     """Agreement of two estimates of one inertia (see Agreement); at a fixed trace the trace's
     direction is left out.

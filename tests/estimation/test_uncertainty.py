@@ -1,5 +1,6 @@
 """Uncertainty (estimation/uncertainty.py): the normalised covariance, the model error's
-covariance where its transition cannot be inverted, and the scale's standard deviation."""
+covariance where its transition cannot be inverted, the scale's standard deviation, and the
+choice between an efficient and a robust estimate."""
 
 import dataclasses
 
@@ -9,7 +10,13 @@ from rigid_records import J_TRUE, Q0, W0, noisy_problem
 
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.inertia_param import phi_from_inertia
-from inertia_gym.estimation.uncertainty import InertiaEstimate, inertia_estimate, model_error_covariance
+from inertia_gym.estimation.uncertainty import (
+    InertiaEstimate,
+    choose,
+    inertia_estimate,
+    model_error_covariance,
+    relative_frobenius_bound,
+)
 from inertia_gym.information import theta_from_inertia
 
 
@@ -45,3 +52,23 @@ def test_the_scales_sigma_is_the_delta_methods_of_the_trace():
     cov = np.diag([4.0, 1.0, 1.0, 9.0, 1.0, 16.0])
     est = InertiaEstimate(theta, cov, True)
     assert est.scale_sigma() == pytest.approx(np.sqrt(4.0 + 9.0 + 16.0) / np.trace(J_TRUE))
+
+
+def _estimate(theta, cov):
+    return InertiaEstimate(np.asarray(theta, float), np.asarray(cov, float), True)
+
+
+@pytest.mark.parametrize("fits, narrower, expect_efficient", [
+    (True, True, True),      # the data accept the model and it is the more precise
+    (False, True, False),    # the data reject the efficient estimate's model
+    (True, False, False),    # no more precise than the robust one
+])
+def test_choose_keeps_the_efficient_estimate_only_where_its_model_fits_and_it_is_more_precise(
+        fits, narrower, expect_efficient):
+    theta = np.array([1.0, 0.0, 0.0, 0.8, 0.0, 0.5])
+    efficient = _estimate(theta, (1e-6 if narrower else 9e-6) * np.eye(6))
+    robust = _estimate(theta + 1e-3, 4e-6 * np.eye(6))
+    choice = choose(efficient, robust, fits)
+    assert choice.efficient is expect_efficient
+    assert choice.model_fits is fits
+    assert choice.expected[0] == pytest.approx(relative_frobenius_bound(efficient.theta, efficient.theta_cov))
