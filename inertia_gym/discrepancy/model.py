@@ -2,7 +2,7 @@
 
 One path turns a nominal inertia and a list of (effect model, parameters) into the integrator's
 inputs: the truth simulator (synthetic.py) and the model that diagnose fits (fit.py) both call
-it, so the physics of every effect is written once, in its class (effects.py).
+it, so the physics of every effect is written once, in its class (effects/, a module per effect).
 
 A commanded torque is carried as its running integral (N·m·s, a piecewise-linear function of
 time for a torque held from each row on): actuator effects transform that function (scale,

@@ -29,7 +29,7 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effects=(), momen
 
     q0 (4,), omega0 (3,) rad/s, inertia (3, 3), torque_cmd (n, 3) N·m held over each step;
     effects: an Effect, a sequence of them (a compound truth) or None. Each effect's class sets
-    its terms (effects.py): the commanded torque is transformed (actuator effects), the
+    its terms (effects/): the commanded torque is transformed (actuator effects), the
     disturbance hook of dynamics.state_rate carries the body torques, a flexible mode and
     internal dissipation are added around it, an inertia change happens with the momentum kept
     (J1 w1 = J2 w2). This is the model diagnose fits (discrepancy.model), integrated by the one

@@ -3,6 +3,9 @@ against an independent integration of each effect's stated equations."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -13,6 +16,7 @@ from inertia_gym.discrepancy.effects import (
     REGISTRY,
     Body,
     Effect,
+    EffectModel,
     inertia6,
     matrix6,
     random_params,
@@ -33,6 +37,18 @@ def test_registry_is_the_catalogue():
     assert "inertia_offset" in REGISTRY and len(REGISTRY) == 15
     for name, model in REGISTRY.items():
         assert model.name == name and EFFECTS[name] == model.params and model.family
+
+
+def test_each_effect_is_one_class_in_one_module_named_for_it():
+    """The catalogue's rule: an effect is one class in one file, inertia_gym/discrepancy/effects/<name>.py."""
+    modules = [type(model).__module__ for model in REGISTRY.values()]
+    for (name, model), module in zip(REGISTRY.items(), modules):
+        assert module == f"inertia_gym.discrepancy.effects.{name}"
+        assert Path(sys.modules[module].__file__).name == f"{name}.py"
+        defined = [v for v in vars(sys.modules[module]).values()
+                   if isinstance(v, type) and issubclass(v, EffectModel) and v.__module__ == module]
+        assert defined == [type(model)]
+    assert len(set(modules)) == len(modules)
 
 
 @pytest.mark.parametrize("name", sorted(REGISTRY))
