@@ -410,8 +410,8 @@ def _why_equation_error(choice: Choice) -> str:
                 "test): reported is the equation error, whose intervals count the model error as a white "
                 "disturbance torque (run `inertia-gym diagnose` to find what is missing)")
     return (f"reported is the equation error: its intervals expect a relative error of "
-            f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % (residuals "
-            "coloured by a model error widen the output error's)")
+            f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % "
+            "(residuals coloured by a model error widen the output error's)")
 
 
 def _nominal_factor(est: InertiaEstimate, nominal) -> float:

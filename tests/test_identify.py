@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from records import flat_record, forced_record, satellite_record, score_entries, score_ratios, thin_body
+from scipy.spatial.transform import Rotation
 
 from inertia_gym.cli import main
 from inertia_gym.commands.common import check_physical_inertia
@@ -21,7 +21,6 @@ from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_iner
 from inertia_gym.estimation.integrator import trajectory
 from inertia_gym.identification import identify
 from inertia_gym.information import theta_from_inertia
-from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings, write_recording
 from inertia_gym.scenario import Scenario
 

@@ -19,10 +19,9 @@ class InternalMomentum(EffectModel):
     through knots at profile_t, m = 0 at the first, held at its end values beyond them). The
     varying vector is [h (3), axis0 (3, held), a, b, profile_t (K, held), profile (K, the first
     held at 0)]: the axis is normalise(axis0 + a e1 + b e2) with e1, e2 perpendicular to axis0,
-    so it turns smoothly from its start. Until 2026-11-28 m was piecewise linear: a smooth
-    spin-up drawn as straight lines leaves an error periodic at the knots' spacing, which a
-    flexible mode at that frequency then took up (an independent simulator's thrown device,
-    3 of 3 seeds).
+    so it turns smoothly from its start. The profile is a spline, not straight lines between the
+    knots: a smooth spin-up drawn as straight lines leaves an error periodic at the knots'
+    spacing, which a flexible mode at that frequency would then take up.
     """
 
     name, params, size, family = "internal_momentum", ("h",), 3, "internal momentum"
