@@ -12,17 +12,15 @@ level), then the estimation core. Two estimates are always made:
   every gyro (and attitude) sample by maximum likelihood, efficient where the model holds, its
   covariance the Fisher bound, the coloured-noise sandwich or the model-error covariance.
 
-Which is reported (uncertainty.choose): the output error where the data accept the rigid
-model (the lack-of-fit test: its whitened residuals within the chi-square's 99.9 % range at
-the noise level) and its covariance expects the smaller relative error; else the equation
-error. Where the model holds, the maximum-likelihood fit is efficient and both hold. A torque
-the model leaves out (drag, a flexing part, a mis-measured input) bends the whole fitted
-trajectory and moves the output error further than it moves the windows it acts in; it shows
-in the residuals' size, or in their colour, which widens the output error's covariance by the
-model error's share. The equation error's covariance counts the model error as a white
-disturbance torque of the intensity its residuals' excess implies. The notes say why the
-equation error is reported and where the two estimates disagree beyond the sum of their
-intervals.
+Which is reported (uncertainty.choose): where the data accept the rigid model (the lack-of-fit
+test), the one whose covariance expects the smaller error (a torque the model leaves out and
+the residuals hide still colours them, which widens the output error's); where they reject it,
+neither is efficient and each is biased in its own way, so each is fitted on one half of the
+record and predicts the other (held_out): the output error is reported only where it predicts
+significantly better (a Diebold-Mariano test that counts the rows' correlation), else the
+equation error, whose error from a model error stays in the windows it acts in. Both
+covariances count the model error as a white disturbance torque of the intensity the
+residuals' excess implies; the notes say where the two estimates disagree.
 
 The scale is a quantity: with a known torque or a known internal momentum h that is not zero
 the inertia is absolute, its intervals carrying the scale's uncertainty; only without either is
@@ -50,16 +48,17 @@ from inertia_gym.estimation.uncertainty import (
     TEST_LEVEL,
     TRACE_WEIGHTS,
     Agreement,
-    Choice,
+    Forecast,
     InertiaEstimate,
     NoiseModel,
     agreement,
     choose,
+    forecast_comparison,
     inertia_estimate,
     relative_frobenius_bound,
     with_gyro_scale,
 )
-from inertia_gym.prepare import Prepared, clip_hint, prepared
+from inertia_gym.prepare import MIN_SAMPLES, Prepared, clip_hint, prepared
 from inertia_gym.recordings import Recording
 from inertia_gym.sensors import coarse_lattice_note, stated_noise_note
 
@@ -101,9 +100,9 @@ class Identification:
 
     def summary(self) -> dict:
         """The JSON keys of identify.json (all finite numbers)."""
-        return {"name": self.name, "method": self.method, **estimate_keys(self.estimate),
+        return {"name": self.name, "method": self.method, **self.estimate.summary(),
                 "estimator": self.estimator,
-                "equation_error": {**estimate_keys(self.reference), "disturbance_q": float(self.reference_q),
+                "equation_error": {**self.reference.summary(), "disturbance_q": float(self.reference_q),
                                    **({} if self.agreement is None else {
                                        "agreement_chi2": float(self.agreement.statistic),
                                        "agreement_dof": self.agreement.dof,
@@ -115,25 +114,6 @@ class Identification:
                 "converged": bool(self.converged), "n_samples": int(self.t.size),
                 "duration_s": float(self.t[-1] - self.t[0]), "notes": list(self.notes),
                 "wall_s": float(self.wall_s)}
-
-
-def estimate_keys(est: InertiaEstimate) -> dict:
-    """An estimate's keys of identify.json: the inertia, its entries, covariance and intervals,
-    principal moments, axes and ratios with theirs, whether its scale is identified and the
-    relative standard deviation of its trace.
-    """
-    principal = est.principal()
-    vals, half, axes, cone = principal.moments, principal.half, principal.axes, principal.cone_deg
-    ratios, ratio_cov = est.principal_ratios()
-    ratio_half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
-    return {"inertia": est.inertia.tolist(), "theta": est.theta.tolist(), "theta_cov": est.theta_cov.tolist(),
-            "ci95": est.ci95().tolist(), "principal_moments": vals.tolist(),
-            "principal_moments_ci95": np.stack([vals - half, vals + half], axis=1).tolist(),
-            "principal_moments_cov": est.moment_covariance().tolist(), "principal_axes": axes.T.tolist(),
-            "principal_axes_ci95_deg": cone.tolist(), "principal_ratios": ratios.tolist(),
-            "principal_ratios_ci95": np.stack([ratios - ratio_half, ratios + ratio_half], axis=1).tolist(),
-            "principal_ratios_cov": ratio_cov.tolist(), "scale_identified": bool(est.scale_identified),
-            "scale_rel_sigma": float(est.scale_sigma()) if est.scale_identified else None}
 
 
 def problem_from(prep: Prepared, sigma_w=None, fit_bias: bool = False,
@@ -368,6 +348,31 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref)
     return _Estimates(ee, reference, prob, oe, said)
 
 
+def held_out(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> Forecast | None:
+    """The output error's and the equation error's predictions of held-out data: the record cut
+    into two halves, both estimators fitted on one half (_estimates) and each inertia's profile
+    losses on the other (output_error.profile_losses: each row's whitened squared residual, the
+    initial state, bias and drag refitted), both folds compared (forecast_comparison, the
+    output error first). None where a half has fewer usable rows than a fit takes or a half's
+    fit fails.
+    """
+    n = prep.rec.t.size
+    halves = ((0, n // 2), (n // 2, n))
+    if min(int(np.count_nonzero(prep.usable[a:b])) for a, b in halves) < MIN_SAMPLES:
+        return None
+    losses = []
+    for train, test in (halves, halves[::-1]):
+        try:
+            part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
+        except (EstimatorDivergedError, ConfigError, RecordingError):
+            return None
+        held = problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
+        q0 = None if prep.rec.q is None else prep.rec.q[test[0]]
+        phis = [phi_from_inertia(nearest_realizable(e.inertia)) for e in (part.oe.estimate, part.reference)]
+        losses.append(tuple(output_error.profile_losses(held, phi, q0) for phi in phis))
+    return forecast_comparison(losses)
+
+
 def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref, notes: list,
                  started: float) -> Identification:
     """identify_prepared's 'ml': both estimates, the one reported chosen as the module says."""
@@ -385,12 +390,32 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
                      "or physics the model leaves out)")
     agree = agreement(est, reference)
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
-    # with a drag fitted, the equation error (no drag term) is not an estimate of the same model
-    choice = None if fit_drag else choose(est, reference, explained)
+    nominal = prep.rec.inertia_nominal
+    # with a drag fitted, the equation error (no drag term) is not an estimate of the same model;
+    # refused: a misfit whose reported inertia is off the nominal (columns in other units than
+    # stated), where no comparison can change that
+    choice, forecast = None, None
+    if not fit_drag:
+        if not explained and not all(_off(_nominal_factor(e, nominal)) for e in (est, reference)):
+            forecast = held_out(prep, fit_bias, fit_drag, trace_ref)
+        choice = choose(est, reference, explained, forecast)
     estimator = "output error"
     if choice is not None and not choice.efficient:
         est, estimator = reference, "equation error"
-        notes.append(_why_equation_error(choice))
+    if choice is not None and explained and not choice.efficient:
+        notes.append(f"reported is the equation error: its intervals expect a relative error of "
+                     f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % "
+                     "(residuals coloured by a model error widen the output error's)")
+    if not explained:
+        compared = ("" if forecast is None else
+                    f"; fitted on one half, each predicts the other with a residual sum of "
+                    f"{forecast.costs[0]:.4g} (output error) and {forecast.costs[1]:.4g} (equation error) "
+                    f"noise variances (the output error better by z = {forecast.statistic:.3g}, the rows' "
+                    "correlation counted; it is reported only where significantly better)")
+        notes.append(f"the rigid model leaves physics out (the output-error fit's residuals fail the "
+                     f"lack-of-fit test): reported is the {estimator}{compared}; the intervals count the "
+                     "model error as a white disturbance torque (run `inertia-gym diagnose` to find what "
+                     "is missing)")
     if agree.disagree:
         notes.append(f"the output-error and equation-error estimates disagree beyond their intervals "
                      f"(chi-square {agree.statistic:.3g} on {agree.dof} degrees of freedom): the rigid "
@@ -401,17 +426,6 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
                      bias, oe.fit.converged, not explained and _off(_nominal_factor(est, nominal)), notes,
                      started)
     return dataclasses.replace(result, reference_q=both.ee.torque_q)
-
-
-def _why_equation_error(choice: Choice) -> str:
-    """The note saying why the equation error is reported (choose's reasons)."""
-    if not choice.model_fits:
-        return ("the rigid model leaves physics out (the output-error fit's residuals fail the lack-of-fit "
-                "test): reported is the equation error, whose intervals count the model error as a white "
-                "disturbance torque (run `inertia-gym diagnose` to find what is missing)")
-    return (f"reported is the equation error: its intervals expect a relative error of "
-            f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % "
-            "(residuals coloured by a model error widen the output error's)")
 
 
 def _nominal_factor(est: InertiaEstimate, nominal) -> float:

@@ -9,12 +9,11 @@ and, together, by the same two estimates over all of them:
   (multiple shooting, a segment per recording: output_error.solve_shooting), from the mean of
   the single fits.
 
-Identify's rule reports one of them (uncertainty.choose): the joint output error where the
-data accept its model and its covariance expects the smaller error, else the pooled equation
-error. The recordings' own estimates are tested against each other: the chi-square
-of their deviations from their precision-weighted mean, on 6 (R - 1) degrees of freedom (5 (R -
-1) at a fixed trace); a small p-value says they are not one body's, or their intervals are too
-narrow.
+The joint output error is reported where it passes the lack-of-fit test and its covariance
+expects the smaller error (uncertainty.choose); else the pooled equation error. The
+recordings' own estimates are tested against each other: the chi-square of their deviations
+from their precision-weighted mean, on 6 (R - 1) degrees of freedom (5 (R - 1) at a fixed
+trace); a small p-value says they are not one body's, or their intervals are too narrow.
 """
 
 from __future__ import annotations
@@ -32,8 +31,6 @@ from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_in
 from inertia_gym.estimation.uncertainty import TEST_LEVEL, InertiaEstimate, choose, inertia_estimate
 from inertia_gym.identification import (
     Identification,
-    _why_equation_error,
-    estimate_keys,
     identify_prepared,
     problem_from,
 )
@@ -65,8 +62,8 @@ class JointIdentification:
 
     def summary(self) -> dict:
         """joint.json's keys (all finite numbers)."""
-        return {"names": list(self.names), **estimate_keys(self.estimate), "estimator": self.estimator,
-                "equation_error": estimate_keys(self.reference),
+        return {"names": list(self.names), **self.estimate.summary(), "estimator": self.estimator,
+                "equation_error": self.reference.summary(),
                 "per_recording": [{"name": s.name, "estimator": s.estimator,
                                    "principal_moments": s.estimate.principal().moments.tolist(),
                                    "theta": s.estimate.theta.tolist(), "ci95": s.estimate.ci95().tolist()}
@@ -153,13 +150,18 @@ def identify_joint(recordings: list[Recording], singles: list[Identification] | 
     except (EstimatorDivergedError, ConfigError, np.linalg.LinAlgError) as err:
         oe, rms, passes = None, float("nan"), False
         notes.append(f"the joint output-error fit failed ({err}): the equation error is reported")
-    choice = choose(oe, reference, passes) if oe is not None else None
+    choice = choose(oe, reference, True) if oe is not None and passes else None
     if choice is not None and choice.efficient:
         est, estimator = oe, "output error"
     else:
         est, estimator = reference, "equation error"
-        if choice is not None:
-            notes.append(_why_equation_error(choice))
+        if oe is not None and not passes:
+            notes.append("the joint output-error fit fails the lack-of-fit test: the rigid model leaves "
+                         "physics out, and the pooled equation error is reported")
+        elif choice is not None:
+            notes.append(f"the pooled equation error is reported: its intervals expect a relative error "
+                         f"of {100 * choice.expected[1]:.2g} %, the joint output error's "
+                         f"{100 * choice.expected[0]:.2g} %")
     chi2, dof, p = _agreement([s.estimate for s in singles])
     if p < 1.0 - TEST_LEVEL:
         notes.append(f"the recordings' own estimates disagree beyond their intervals (chi-square {chi2:.3g} "

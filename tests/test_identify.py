@@ -19,8 +19,9 @@ from inertia_gym.errors import EstimatorDivergedError, RecordingError
 from inertia_gym.estimation.filters import realizable_estimate
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
 from inertia_gym.estimation.integrator import trajectory
-from inertia_gym.identification import identify
+from inertia_gym.identification import held_out, identify
 from inertia_gym.information import theta_from_inertia
+from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings, write_recording
 from inertia_gym.scenario import Scenario
 
@@ -620,25 +621,42 @@ def _dragged_throw(seed):
     return dataclasses.replace(rec, q=None, meta=meta), inertia
 
 
-def test_an_unmodelled_drag_that_bends_the_output_error_leaves_the_reported_estimate_close():
-    """A drag that identify does not model bends the fitted trajectory: over these seeds the
+def test_an_unmodelled_drag_that_the_residuals_hide_widens_the_output_error_past_the_equation_error():
+    """A drag that identify does not model bends the fitted trajectory: over these 8 seeds the
     output error lands about five times further from the truth than the equation error (medians
-    1.2 % and 0.2 % over 8 seeds), often with residuals the lack-of-fit test accepts. Their
-    colour widens the output error's covariance past the equation error's: the equation error
-    is reported on at least 4 of 6 seeds with its reason in the notes, and the reported
-    estimate's median error is under 0.5 %."""
-    reported, reference = [], []
-    for seed in range(6):
+    1.2 % and 0.2 %), mostly with residuals the lack-of-fit test accepts. Their colour widens
+    the output error's covariance past the equation error's, so the equation error is reported
+    on at least 4 of 8 seeds, its reason in the notes, and the reported estimate's median error
+    stays under 0.55 % (0.37 % with this rule; 0.73 % where the output error was reported
+    whenever the model fitted)."""
+    reported = []
+    for seed in range(8):
         rec, inertia = _dragged_throw(seed)
         res = identify(rec)
         if res.estimator == "equation error":
             assert any("reported is the equation error" in n or "lack-of-fit" in n for n in res.notes)
         reported.append((_rel(res.estimate.inertia, inertia), res.estimator))
-        reference.append(_rel(res.reference.inertia, inertia))
     assert sum(e == "equation error" for _, e in reported) >= 4
-    errs = np.array([e for e, _ in reported])
-    assert np.all(errs <= np.maximum(1.5 * np.array(reference), 0.005))
-    assert np.median(errs) < 0.005
+    assert np.median([e for e, _ in reported]) < 0.0055
+
+
+def test_where_the_model_is_rejected_the_output_error_needs_significantly_better_predictions():
+    """A white disturbance torque the record does not log: the output error's residuals fail the
+    lack-of-fit test; each estimator fitted on one half predicts the other (held_out); the
+    output error is reported only where its predictions are significantly better (the
+    Diebold-Mariano z over the 99.9 % quantile), the notes give both costs and z, and both
+    estimates' intervals hold the truth."""
+    truth = theta_from_inertia(np.array(SMALL_BODY["inertia_true"]))
+    rec = _disturbed_throw(0, 5e-9)
+    res = identify(rec)
+    forecast = held_out(prepared(rec), None, False, None)
+    assert np.all(np.isfinite(forecast.costs)) and np.isfinite(forecast.statistic)
+    assert res.estimator == ("output error" if forecast.first_better else "equation error")
+    said = next(n for n in res.notes if "the rigid model leaves physics out" in n)
+    assert f"{forecast.costs[0]:.4g} (output error) and {forecast.costs[1]:.4g} (equation error)" in said
+    assert f"z = {forecast.statistic:.3g}" in said
+    for est in (res.estimate, res.reference):
+        assert np.all(np.abs(est.theta - truth) <= 3.5 * est.sigma)
 
 
 @pytest.mark.parametrize("case", ["flat", "satellite"])

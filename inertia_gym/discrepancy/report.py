@@ -803,25 +803,36 @@ def _significant(values, digits: int = 4):
 LISTED_NUMBERS = 6
 
 
-def _fitted(value, ci: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool]:
-    """One fitted parameter's value, 95 % bounds ci ({"lo", "hi"}) as arrays, whether the fit held
-    it (lo = hi: knot times, a chart's centre: no interval) and whether it is read by its count
-    and range (more than LISTED_NUMBERS numbers) rather than listed.
+@dataclasses.dataclass(frozen=True)
+class _Fitted:
+    """One fitted parameter: value, its 95 % bounds lo and hi (arrays), held (the fit held it,
+    lo = hi: knot times, a chart's centre: no interval) and counted (read by its count and
+    range, more than LISTED_NUMBERS numbers, rather than listed).
     """
+
+    value: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    held: bool
+    counted: bool
+
+
+def _fitted(value, ci: dict) -> _Fitted:
+    """One fitted parameter's _Fitted from its value and 95 % bounds ci ({"lo", "hi"})."""
     value, lo, hi = (np.asarray(a, float) for a in (value, ci["lo"], ci["hi"]))
-    return value, lo, hi, bool(np.all(lo == hi)), value.size > LISTED_NUMBERS
+    return _Fitted(value, lo, hi, bool(np.all(lo == hi)), value.size > LISTED_NUMBERS)
 
 
 def _param_words(name: str, value, ci: dict) -> str:
     """One fitted parameter in words: its value and 95 % interval (_fitted: a held value without
     one, a long one by its count, range and widest interval).
     """
-    value, lo, hi, held, counted = _fitted(value, ci)
-    if counted:
-        text = f"{name}: {value.size} values from {value.min():.4g} to {value.max():.4g}"
-        return text + ("" if held else f" (95 % half-widths up to {np.max(hi - lo) / 2:.4g})")
-    text = f"{name} = {_significant(value)}"
-    return text + ("" if held else f" [{_significant(lo)}, {_significant(hi)}]")
+    f = _fitted(value, ci)
+    if f.counted:
+        text = f"{name}: {f.value.size} values from {f.value.min():.4g} to {f.value.max():.4g}"
+        return text + ("" if f.held else f" (95 % half-widths up to {np.max(f.hi - f.lo) / 2:.4g})")
+    text = f"{name} = {_significant(f.value)}"
+    return text + ("" if f.held else f" [{_significant(f.lo)}, {_significant(f.hi)}]")
 
 
 #: A slow mode and a momentum read together as one rotor (_rotor_reading): the most their axes
@@ -1156,13 +1167,13 @@ def _physics_table(report: dict) -> list[str]:
     for e in report["explanation"]:
         units = REGISTRY[e["name"]].units if e["name"] in REGISTRY else {}
         for key, value in e["params"].items():
-            val, lo, hi, held, counted = _fitted(value, e["ci95"][key])
-            if counted:
-                shown = f"{val.size} values, {val.min():.4g} to {val.max():.4g}"
-                interval = "" if held else f"± up to {np.max(hi - lo) / 2:.3g}"
+            f = _fitted(value, e["ci95"][key])
+            if f.counted:
+                shown = f"{f.value.size} values, {f.value.min():.4g} to {f.value.max():.4g}"
+                interval = "" if f.held else f"± up to {np.max(f.hi - f.lo) / 2:.3g}"
             else:
                 shown = str(_significant(value))
-                interval = "held" if held else f"{_significant(lo)} to {_significant(hi)}"
+                interval = "held" if f.held else f"{_significant(f.lo)} to {_significant(f.hi)}"
             rows.append(f"| {e['name']} | {key} | {shown} | {interval} | {units.get(key, '')} |")
     return rows
 

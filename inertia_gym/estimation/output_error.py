@@ -422,18 +422,28 @@ def evaluate_rms(prob: Problem, p, q_ref) -> float:
     return float(np.sqrt(np.mean(ev.r ** 2))) if ev.ok else np.inf
 
 
-def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> float:
-    """The record's whitened residual sum of squares at the inertia phi (6,), minimised over the
-    other parameters (initial rate and attitude, bias, drag) in at most max_iter iterations: the
-    profile likelihood of that inertia (an inertia whose trajectory needs more iterations than a
-    stage's to follow the record predicts it poorly), infinite where the trajectory does not
-    stay finite.
+def profile_losses(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> np.ndarray:
+    """(M,) each measurement row's whitened squared residual (gyro and attitude summed) at the
+    inertia phi (6,), the other parameters (initial rate and attitude, bias, drag) fitted in at
+    most max_iter iterations: the profile likelihood of that inertia row by row (an inertia
+    whose trajectory needs more iterations than a stage's to follow the record predicts it
+    poorly); infinite where the trajectory does not stay finite.
     """
     fixed = dataclasses.replace(prob, fixed_inertia=True)
     p = prob.start(phi)
     q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if q_ref is None else np.asarray(q_ref, float)
     ev = solve(fixed, p, q_ref, None, max_iter).evaluation
-    return float(np.sum(ev.r ** 2)) if ev.ok and np.all(np.isfinite(ev.r)) else np.inf
+    m = prob.meas_idx.size
+    if not (ev.ok and np.all(np.isfinite(ev.r))):
+        return np.full(m, np.inf)
+    return np.sum(ev.r.reshape(-1, m, 3) ** 2, axis=(0, 2))
+
+
+def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> float:
+    """The record's whitened residual sum of squares at the inertia phi (6,), minimised over the
+    other parameters (profile_losses summed); infinite where the trajectory does not stay finite.
+    """
+    return float(np.sum(profile_losses(prob, phi, q_ref, max_iter)))
 
 
 def _cuts(m: int, count: int) -> np.ndarray:
@@ -503,4 +513,4 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
 
 
 __all__ = ["Problem", "Evaluation", "Prior", "Fit", "Shooting", "evaluate", "solve", "solve_shooting", "fit",
-           "profile_cost"]
+           "profile_cost", "profile_losses"]

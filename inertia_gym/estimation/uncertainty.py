@@ -24,7 +24,7 @@ from scipy import stats
 
 from inertia_gym.errors import ConfigError
 from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, theta_from_phi
-from inertia_gym.estimation.longrun import long_run_covariance
+from inertia_gym.estimation.longrun import correlation_lags, long_run_covariance
 from inertia_gym.estimation.output_error import Evaluation, Problem
 from inertia_gym.estimation.solver import GRAM_CONDITION
 from inertia_gym.information import inertia_from_theta
@@ -160,6 +160,26 @@ class InertiaEstimate:
         vals, grads = vals[::-1], grads[::-1]
         g = (grads * vals[0] - np.outer(vals, grads[0])) / vals[0] ** 2
         return vals / vals[0], g @ self.theta_cov @ g.T
+
+    def summary(self) -> dict:
+        """Its keys of identify.json: the inertia, its entries, covariance and intervals,
+        principal moments, axes and ratios with theirs, whether its scale is identified and the
+        relative standard deviation of its trace.
+        """
+        principal = self.principal()
+        vals, half, axes, cone = principal.moments, principal.half, principal.axes, principal.cone_deg
+        ratios, ratio_cov = self.principal_ratios()
+        ratio_half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
+        ratio_ci = np.stack([ratios - ratio_half, ratios + ratio_half], axis=1)
+        return {"inertia": self.inertia.tolist(), "theta": self.theta.tolist(),
+                "theta_cov": self.theta_cov.tolist(), "ci95": self.ci95().tolist(),
+                "principal_moments": vals.tolist(),
+                "principal_moments_ci95": np.stack([vals - half, vals + half], axis=1).tolist(),
+                "principal_moments_cov": self.moment_covariance().tolist(), "principal_axes": axes.T.tolist(),
+                "principal_axes_ci95_deg": cone.tolist(), "principal_ratios": ratios.tolist(),
+                "principal_ratios_ci95": ratio_ci.tolist(),
+                "principal_ratios_cov": ratio_cov.tolist(), "scale_identified": bool(self.scale_identified),
+                "scale_rel_sigma": float(self.scale_sigma()) if self.scale_identified else None}
 
 
 def _eig_gradient(u, v) -> np.ndarray:
@@ -329,29 +349,76 @@ class Agreement:
 
 
 @dataclasses.dataclass(frozen=True)
+class Forecast:
+    """Two estimates' predictions of data neither was fitted to: costs (their summed losses:
+    the first's, the second's), statistic (the Diebold-Mariano z of the second's loss less the
+    first's: positive where the first predicts better) and p_value (one-sided, that the first
+    predicts no better).
+    """
+
+    costs: tuple[float, float]
+    statistic: float
+    p_value: float
+
+    @property
+    def first_better(self) -> bool:
+        """The first predicts significantly better, at TEST_LEVEL."""
+        return self.p_value < 1.0 - TEST_LEVEL
+
+
+def forecast_comparison(losses: list[tuple[np.ndarray, np.ndarray]]) -> Forecast:
+    """The Diebold-Mariano comparison of two predictors over held-out sequences: losses, per
+    sequence, each predictor's loss per row ((M,), (M,)). The rows' loss differences are
+    correlated in time (a model error spans many rows), so the sum's variance is the Bartlett
+    long-run variance over the lags they stay correlated (longrun), sequence by sequence.
+    """
+    costs, total, var = np.zeros(2), 0.0, 0.0
+    for first, second in losses:
+        first, second = np.asarray(first, float), np.asarray(second, float)
+        costs += [first.sum(), second.sum()]
+        d = (second - first)[:, None]
+        total += float(d.sum())
+        centred = d - d.mean()
+        var += float(long_run_covariance(centred, correlation_lags(centred))[0, 0])
+    if not (np.isfinite(total) and np.isfinite(var)):
+        z = np.inf if total > 0 else -np.inf
+    else:
+        z = total / math.sqrt(max(var, 1e-300))
+    return Forecast((float(costs[0]), float(costs[1])), float(z), float(stats.norm.sf(z)))
+
+
+@dataclasses.dataclass(frozen=True)
 class Choice:
     """Which of two estimates of one inertia to report: efficient (report the efficient one),
     model_fits (the data accept the efficient estimate's model: the lack-of-fit test), expected
     (the relative Frobenius errors their covariances expect: the efficient one's, the robust
-    one's).
+    one's), forecast (their comparison on held-out data, the efficient one first, or None).
     """
 
     efficient: bool
     model_fits: bool
     expected: tuple[float, float]
+    forecast: Forecast | None = None
 
 
-def choose(efficient: InertiaEstimate, robust: InertiaEstimate, model_fits: bool) -> Choice:
-    """The efficient estimate (a maximum-likelihood fit) where the data accept its model
-    (model_fits, the lack-of-fit test) and its covariance expects the smaller error; else the
-    robust one. Where the model holds, the fit is efficient and both hold; a model error shows
-    in the residuals' size (the fit of a rejected model has no claim to efficiency) or in their
-    colour, which widens the fit's covariance by the model error's share past the robust
-    estimate's, whose windows keep a model error local.
+def choose(efficient: InertiaEstimate, robust: InertiaEstimate, model_fits: bool,
+           forecast: Forecast | None = None) -> Choice:
+    """Which estimate to report. Where the data accept the efficient estimate's model
+    (model_fits: the lack-of-fit test), the one whose covariance expects the smaller error: the
+    maximum-likelihood fit of a model that holds is efficient, and a model error the residuals
+    hide colours them, which widens the fit's covariance by the model error's share. Where the
+    data reject the model, neither covariance is more than an approximation: the efficient
+    estimate is reported only where it predicts held-out data significantly better (forecast,
+    the efficient one first), else the robust one, whose error from a model error stays in the
+    windows the error acts in. Without a forecast the covariances decide.
     """
     expected = (relative_frobenius_bound(efficient.theta, efficient.theta_cov),
                 relative_frobenius_bound(robust.theta, robust.theta_cov))
-    return Choice(bool(model_fits and expected[0] < expected[1]), bool(model_fits), expected)
+    if model_fits or forecast is None:
+        keep = expected[0] < expected[1]
+    else:
+        keep = forecast.first_better
+    return Choice(bool(keep), bool(model_fits), expected, forecast)
 
 
 def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:

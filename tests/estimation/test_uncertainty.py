@@ -7,12 +7,16 @@ import dataclasses
 import numpy as np
 import pytest
 from rigid_records import J_TRUE, Q0, W0, noisy_problem
+from scipy import stats
 
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.estimation.longrun import correlation_lags
 from inertia_gym.estimation.uncertainty import (
+    Forecast,
     InertiaEstimate,
     choose,
+    forecast_comparison,
     inertia_estimate,
     model_error_covariance,
     relative_frobenius_bound,
@@ -58,17 +62,58 @@ def _estimate(theta, cov):
     return InertiaEstimate(np.asarray(theta, float), np.asarray(cov, float), True)
 
 
-@pytest.mark.parametrize("fits, narrower, expect_efficient", [
-    (True, True, True),      # the data accept the model and it is the more precise
-    (False, True, False),    # the data reject the efficient estimate's model
-    (True, False, False),    # no more precise than the robust one
+def test_the_forecast_comparison_is_diebold_mariano_with_the_bartlett_variance():
+    """z = sum(d) / sqrt(sum over sequences of the Bartlett long-run variance of d), d the
+    second predictor's loss less the first's, row by row; p = P(N(0, 1) > z)."""
+    rng = np.random.default_rng(1)
+    seqs = []
+    for n in (300, 200):
+        common = np.convolve(rng.normal(size=n + 9), np.ones(10) / 10, mode="valid")  # correlated
+        seqs.append((1.0 + common ** 2, 1.2 + common ** 2 + 0.3 * rng.normal(size=n)))
+    out = forecast_comparison(seqs)
+    total, var = 0.0, 0.0
+    for first, second in seqs:
+        d = second - first
+        total += d.sum()
+        c = d - d.mean()
+        lags = correlation_lags(c[:, None])
+        var += c @ c + sum(2 * (1 - k / (lags + 1)) * (c[k:] @ c[:-k]) for k in range(1, lags + 1))
+    assert out.statistic == pytest.approx(total / np.sqrt(var), rel=1e-9)
+    assert out.p_value == pytest.approx(stats.norm.sf(total / np.sqrt(var)), rel=1e-9)
+    assert out.costs == pytest.approx((sum(a.sum() for a, _ in seqs), sum(b.sum() for _, b in seqs)))
+    assert out.first_better  # 0.2 a row better on 500 rows
+
+
+def test_the_forecast_comparison_sees_no_difference_between_equal_predictors_over_fixed_seeds():
+    """Two predictors whose losses differ only by noise: the one-sided test at 99.9 % calls the
+    first better on no more than 1 of 200 seeds."""
+    calls = 0
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        base = np.convolve(rng.normal(size=409), np.ones(10) / 10, mode="valid") ** 2
+        calls += forecast_comparison([(base + rng.normal(size=400) ** 2,
+                                       base + rng.normal(size=400) ** 2)]).first_better
+    assert calls <= 1
+
+
+@pytest.mark.parametrize("fits, narrower, better, expect_efficient", [
+    (True, True, None, True),       # the model fits and the efficient estimate is the more precise
+    (True, False, None, False),     # no more precise than the robust one
+    (True, True, False, True),      # the model fits: the covariances decide, not the forecast
+    (False, False, True, True),     # rejected: the efficient one predicts significantly better
+    (False, True, False, False),    # rejected, and it does not
+    (False, True, None, True),      # rejected, no forecast: the covariances decide
 ])
-def test_choose_keeps_the_efficient_estimate_only_where_its_model_fits_and_it_is_more_precise(
-        fits, narrower, expect_efficient):
+def test_choose_by_precision_where_the_model_fits_and_by_forecast_where_it_does_not(
+        fits, narrower, better, expect_efficient):
     theta = np.array([1.0, 0.0, 0.0, 0.8, 0.0, 0.5])
     efficient = _estimate(theta, (1e-6 if narrower else 9e-6) * np.eye(6))
     robust = _estimate(theta + 1e-3, 4e-6 * np.eye(6))
-    choice = choose(efficient, robust, fits)
+    forecast = None if better is None else Forecast((1.0, 2.0), 5.0 if better else 0.5,
+                                                    float(stats.norm.sf(5.0 if better else 0.5)))
+    choice = choose(efficient, robust, fits, forecast)
     assert choice.efficient is expect_efficient
     assert choice.model_fits is fits
+    assert choice.forecast == forecast
     assert choice.expected[0] == pytest.approx(relative_frobenius_bound(efficient.theta, efficient.theta_cov))
+    assert choice.expected[1] == pytest.approx(relative_frobenius_bound(robust.theta, robust.theta_cov))
