@@ -15,12 +15,12 @@ level), then the estimation core. Two estimates are always made:
 Which is reported (uncertainty.choose): where the data accept the rigid model (the lack-of-fit
 test), the one whose covariance expects the smaller error (a torque the model leaves out and
 the residuals hide still colours them, which widens the output error's); where they reject it,
-neither is efficient and each is biased in its own way, so each is fitted on one half of the
-record and predicts the other (held_out): the output error is reported only where it predicts
-significantly better (a Diebold-Mariano test that counts the rows' correlation), else the
-equation error, whose error from a model error stays in the windows it acts in. Both
-covariances count the model error as a white disturbance torque of the intensity the
-residuals' excess implies; the notes say where the two estimates disagree.
+each is fitted on one half of the record and predicts the other (held_out). Where the two agree
+within their intervals, the output error is reported only where it predicts significantly
+better (a Diebold-Mariano test that counts the rows' correlation), else the equation error,
+whose error from a model error stays in the windows it acts in; where they disagree beyond
+them, the better predictor. Both covariances count the model error as a white disturbance
+torque of the intensity the residuals' excess implies.
 
 The scale is a quantity: with a known torque or a known internal momentum h that is not zero
 the inertia is absolute, its intervals carrying the scale's uncertainty; only without either is
@@ -164,14 +164,6 @@ def _starts(ee_phi: np.ndarray, trace: float) -> list[np.ndarray]:
     return out
 
 
-def _fit_from(prob: output_error.Problem, phi, cov_phi, q0, final_iter: int = output_error.FINAL_ITER
-              ) -> output_error.Fit:
-    """ml.fit_from_prior from inertia phi (6,) with covariance cov_phi (6, 6), the first row's
-    rate and q0.
-    """
-    return ml.fit_from_prior(prob, prob.start(phi), q0, cov_phi, final_iter)
-
-
 #: Every start is fitted as if each of its log-Cholesky parameters were this far off (its prior
 #: and its first shooting segments: ml.first_horizon): the equation error's own intervals say
 #: how well it knows the inertia, not how far its trajectory keeps the phase, and a thin body's
@@ -196,8 +188,8 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
     that fit is one trajectory that the data reject (lack_of_fit) while the equation error finds
     no model error (ee_misfit false) or disagrees with it beyond their intervals (agreement): a
     basin other than the equation error's, also from the other starts (_starts), the likelihood
-    choosing (_penalised_cost). Without a
-    stated noise level each fit is reweighted once by its own residuals' level. Raises
+    choosing (_penalised_cost). Without a stated noise level each fit is reweighted once by its
+    own residuals' level. Raises
     EstimatorDivergedError where no fit's error bars are finite.
     """
     q0 = None if prep.rec.q is None else prep.rec.q[0]
@@ -206,7 +198,7 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
     guess = GUESS_SIGMA ** 2 * np.eye(6)
 
     def one(phi, final_iter: int = output_error.FINAL_ITER) -> tuple[output_error.Problem, output_error.Fit]:
-        fit = _fit_from(prob, phi, guess, q0, final_iter)
+        fit = ml.fit_from_prior(prob, prob.start(phi), q0, guess, final_iter)
         if stated:
             return prob, fit
         level = np.sqrt(np.mean(fit.evaluation.e_w ** 2, axis=0))  # refit at the residuals' own level
@@ -395,14 +387,23 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     # refused: a misfit whose reported inertia is off the nominal (columns in other units than
     # stated), where no comparison can change that
     choice, forecast = None, None
-    if not fit_drag:
-        if not explained and not all(_off(_nominal_factor(e, nominal)) for e in (est, reference)):
+    off = [_off(_nominal_factor(e, nominal)) for e in (est, reference)]
+    # an estimate NOMINAL_SCALE_FACTOR off the nominal's trace, where the other is not, is not one
+    # (the sidecar's nominal rules out a scale that far off); where both are, no comparison helps
+    if not fit_drag and off[0] == off[1]:
+        if not explained and not off[0]:
             forecast = held_out(prep, fit_bias, fit_drag, trace_ref)
         choice = choose(est, reference, explained, forecast)
+
     estimator = "output error"
-    if choice is not None and not choice.efficient:
+    if (choice is not None and not choice.efficient) or (off[0] and not off[1]):
         est, estimator = reference, "equation error"
-    if choice is not None and explained and not choice.efficient:
+    if off[0] != off[1] and (off[0] or not explained):  # where it decides, not where the fit holds
+        names = ("output error", "equation error") if off[0] else ("equation error", "output error")
+        notes.append(f"reported is the {names[1]}: the {names[0]}'s inertia comes out "
+                     f"{_nominal_factor(reference if off[1] else oe.estimate, nominal):.3g} times the "
+                     f"nominal's (trace), the {names[1]}'s within a factor {NOMINAL_SCALE_FACTOR:g}")
+    elif choice is not None and explained and not choice.efficient:
         notes.append(f"reported is the equation error: its intervals expect a relative error of "
                      f"{100 * choice.expected[1]:.2g} %, the output error's {100 * choice.expected[0]:.2g} % "
                      "(residuals coloured by a model error widen the output error's)")

@@ -41,6 +41,7 @@ from inertia_gym.discrepancy.model import (
     integrated_attitude,
     simulate,
 )
+from inertia_gym.discrepancy.plausibility import implausible
 from inertia_gym.dynamics import skew
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation import solver
@@ -184,6 +185,8 @@ class Data:
     #: rounding of a gyro read coarser than its motion and noise move it (rounding_floors): added
     #: to the margin an effect must clear to be claimed (claim_margin); empty elsewhere.
     rounding_floor: dict = dataclasses.field(default_factory=dict)
+    #: The recording's sidecar (what it says of the sensor and the body: the plausible ranges).
+    meta: dict = dataclasses.field(default_factory=dict)
 
     def grid_for(self, omega_mode: float = 0.0) -> Grid:
         """The integration grid for a model whose fastest mode is omega_mode rad/s (0: none):
@@ -364,7 +367,7 @@ def prepare(source: Recording | Prepared, trim: tuple[int, int] = (0, 0), max_tu
                 None if rec.h is None else np.asarray(rec.h, float), grid, seg, row,
                 row_seg, row_scale, sigma, source_words, rec.has_torque, has_momentum, trace0,
                 not excited, nominal, omega_ref, trace0 / 3, tau_ref, dt,
-                duration, block, notes)
+                duration, block, notes, meta=dict(rec.meta))
 
 
 # ------------------------------------------------------------------------------------------
@@ -1492,12 +1495,15 @@ class Explanation:
     chain: fits, chain[i] holds the first i+1 effects; added: (name, delta BIC) per effect along
     the chain as selected (diagnose then polishes chain[-1], the fit it reports, and keeps these:
     the last effect's gain is not credited with the polish's); dropped: {name: reason} of effects
-    removed by the backward check or never added.
+    removed by the backward check or never added; refused: those left out as implausible.
     """
 
     chain: tuple[Fit, ...]
     added: tuple[tuple[str, float], ...]
     dropped: dict
+    #: {name: (why it is implausible, the BIC it would have gained)}: effects that cleared the
+    #: margin but are not physics the body or its sensor plausibly has (plausibility), left out
+    refused: dict = dataclasses.field(default_factory=dict)
 
     @property
     def fit(self) -> Fit | None:
@@ -1578,7 +1584,7 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     order = [final.names.index(lead)] + [i for i, n in enumerate(final.names) if n != lead]
     names, forms = [final.names[i] for i in order], [final.forms[i] for i in order]
     chain = [*_chain(names[:-1], forms[:-1], d, alone), final]
-    return Explanation(tuple(chain), _added(nominal, chain, names), expl.dropped)
+    return Explanation(tuple(chain), _added(nominal, chain, names), expl.dropped, expl.refused)
 
 
 def _claims_cost(fit: Fit, d: Data) -> float:
@@ -1662,12 +1668,16 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     if len(ranked) <= lead:
         return Explanation((), (), dropped)
     current = ranked[lead]
+    why = implausible(current.name, current.params, d, SIGNIFICANT_DELTA_BIC)
+    if why:
+        refused = {current.name: (why, float(nominal.bic - current.bic))}
+        return Explanation((), (), {**dropped, **_refused_words(refused)}, refused)
     chain = [current]
     pool = [f.name for f in singles if np.isfinite(f.bic)]
     removed = []  # the effects the backward checks dropped
     while True:
-        current, chain = _forward(d, current, chain, by_name, [n for n in pool if n not in removed],
-                                  max_effects)
+        current, chain, refused = _forward(d, current, chain, by_name,
+                                           [n for n in pool if n not in removed], max_effects)
         current, chain, now_removed = _backward(d, nominal, current, chain, by_name, dropped)
         if not now_removed:
             break
@@ -1678,14 +1688,24 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
             dropped[name] = (f"alone it improves the BIC by {nominal.bic - by_name[name].bic:.1f}, "
                              f"and it adds <= {margin_words(d, name)} once "
                              f"{', '.join(chosen)} {'is' if len(chosen) == 1 else 'are'} in")
-    return Explanation(tuple(chain), _added(nominal, chain, chosen), dropped)
+    refused = {n: r for n, r in refused.items() if n not in chosen}
+    return Explanation(tuple(chain), _added(nominal, chain, chosen), {**dropped, **_refused_words(refused)},
+                       refused)
+
+
+def _refused_words(refused: dict) -> dict:
+    """The dropped reasons of the effects left out as implausible ({name: (why, gain)})."""
+    return {n: f"it would improve the BIC by {gain:.1f}, but {why}" for n, (why, gain) in refused.items()}
 
 
 def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[str],
-             max_effects: int) -> tuple[Fit, list[Fit]]:
+             max_effects: int) -> tuple[Fit, list[Fit], dict]:
     """The forward steps of `search` from the fit current (chain: its prefixes): each adds the effect of
-    pool that improves the BIC most, by more than the margin; at most max_effects in all.
-    Returns the last fit and its chain.
+    pool that improves the BIC most, by more than the margin; at most max_effects in all. Where
+    that effect is not physics the body or its sensor plausibly has (plausibility), the steps
+    stop: what is left is best fitted by something the catalogue does not plausibly hold, and a
+    lesser effect that fits part of it would pad the explanation. Returns the last fit, its
+    chain and the effect refused so ({name: (why, gain)}, or {}).
     """
     while len(current.names) < max_effects:
         structured = effective_share(d, current) < 1.0  # the residual left is not white
@@ -1705,9 +1725,12 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         best = min(refits, key=lambda f: f.bic)
         if not current.bic - best.bic > claim_margin(d, best.name):
             break
+        why = implausible(best.name, best.params, d, SIGNIFICANT_DELTA_BIC)
+        if why:
+            return current, chain, {best.name: (why, float(current.bic - best.bic))}
         current = best
         chain = [*chain, best]
-    return current, chain
+    return current, chain, {}
 
 
 def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: dict,
@@ -2087,8 +2110,9 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
                                  f"gyro's rounding alone it gains up to {d.effective_share * gain:.1f} "
                                  f"(rounding check)")
                 names = [n for n in fit.names if n != name]
-                expl = Explanation((), (), dropped) if not rest else _led_by_best_single(
-                    Explanation(tuple(rest), _added(nominal, rest, names), dropped), d, nominal, singles)
+                expl = Explanation((), (), dropped, expl.refused) if not rest else _led_by_best_single(
+                    Explanation(tuple(rest), _added(nominal, rest, names), dropped, expl.refused), d, nominal,
+                    singles)
                 break
         else:
             break

@@ -9,8 +9,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-from scipy import interpolate, signal, stats
-from scipy.spatial.transform import Rotation
+from scipy import signal, stats
 
 from inertia_gym.discrepancy.effects import REGISTRY, jsonable
 from inertia_gym.discrepancy.fit import (
@@ -44,7 +43,7 @@ from inertia_gym.discrepancy.fit import (
     select,
     sparse_terms,
 )
-from inertia_gym.discrepancy.model import integrated_attitude
+from inertia_gym.discrepancy.plausibility import implausible
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation.inertia_param import nearest_realizable
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
@@ -512,6 +511,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
     if best is not nominal and (unexplained or not all(REGISTRY[n].keeps_invariants for n in best.names)):
         inv = _read_with_both(inv, invariants(d, nominal))  # its inertia alone is not sure
     explanation = _explanation(chosen, d, scale_firm, skipped, rec)
+    refused = [{"name": n, "why": why, "delta_bic": gain} for n, (why, gain) in chosen.refused.items()]
     report = {
         "recording": rec.name, "samples": int(rec.t.size), "duration_s": float(rec.t[-1] - rec.t[0]),
         "mismatch_detected": bool(sig) or bool(locations) or unexplained,
@@ -549,8 +549,9 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "spectrum_peak_hz": [float(f[1:][np.argmax(p[1:, i])]) if len(f) > 1 else 0.0 for i in range(3)],
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
+        "refused_implausible": refused,
         "beyond_catalogue": (not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE
-                             or any(e["implausible"] for e in explanation)),
+                             or any(e["implausible"] for e in explanation) or bool(refused)),
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
         "gyro_frame_mirrored": frame,
     }
@@ -604,73 +605,6 @@ def reading(name: str, rec: Recording) -> str:
     return {True: "physics", None: "if_carried", False: "unmodelled"}[carried]
 
 
-def attitude_rules_out(name: str, params: dict, d: Data) -> str | None:
-    """Why d's recorded attitude rules out the fitted gyro error `name` (params), or None.
-
-    A term that changes what the gyro reads (EffectModel.gyro) is taken out of the rates (to
-    first order: w - (gyro(w) - w)); a real gyro error makes the attitude integrated from the
-    rates as read drift from the recorded one, so the attitude integrated from the corrected
-    rates over each segment, from its recorded start, comes closer to the recorded attitude. It
-    is ruled out where it moves away by a Gaussian likelihood ratio over SIGNIFICANT_DELTA_BIC,
-    the evidence the selection asks of an effect: 3 n ln(rss_corrected / rss_as_read), n the
-    attitude samples after each segment's first. None without attitude, or for a term that does
-    not change the reading.
-    """
-    model = REGISTRY[name]
-    if d.q is None:
-        return None
-    read = np.asarray(model.gyro(params, d.w, d.t), float)
-    if np.array_equal(read, d.w):
-        return None
-    corrected = d.w - (read - d.w)
-    measured = Rotation.from_quat(np.asarray(d.q, float)[:, [1, 2, 3, 0]])  # scalar first in the file
-    rss, n = np.zeros(2), 0
-    for a, b in zip(d.seg[:-1], d.seg[1:]):
-        if b - a < 2:
-            continue
-        relative = measured[a].inv() * measured[a:b]  # the body at each sample in its axes at a
-        for i, rates in enumerate((d.w[a:b], corrected[a:b])):
-            turned = Rotation.from_matrix(_attitude_between_samples(d.t[a:b], rates))
-            rss[i] += float(np.sum((relative.inv() * turned).as_rotvec()[1:] ** 2))
-        n += b - a - 1
-    if n == 0 or not rss[0] > 0:
-        return None
-    ratio = 3 * n * np.log(rss[1] / rss[0])
-    if ratio <= SIGNIFICANT_DELTA_BIC:
-        return None
-    return (f"the recorded attitude rules it out: with it taken out of the rates, the attitude "
-            f"integrated from them moves away from the recorded one (likelihood ratio {ratio:.3g}, "
-            f"over {SIGNIFICANT_DELTA_BIC:g})")
-
-
-#: rad: the largest turn of one integration step of :func:`_attitude_between_samples`; its
-#: midpoint rule then errs by far less than any attitude sensor's noise.
-ATTITUDE_STEP_RAD = 0.01
-
-
-def _attitude_between_samples(t, rates) -> np.ndarray:
-    """(n, 3, 3) the body's axes at each sample time t (n,) s in its axes at t[0], integrated
-    from the rates (n, 3) rad/s through a cubic spline of them, in steps that turn the body by at
-    most ATTITUDE_STEP_RAD: the rates between samples curve, and a step of a whole sample
-    interval at the rates' mean would put its own drift in the attitude.
-    """
-    turn = np.max(np.linalg.norm(rates, axis=1)) * np.max(np.diff(t))
-    sub = max(1, int(np.ceil(turn / ATTITUDE_STEP_RAD)))
-    fine = np.r_[(t[:-1, None] + np.diff(t)[:, None] * (np.arange(sub) / sub)).ravel(), t[-1]]
-    spline = interpolate.CubicSpline(t, rates, axis=0) if t.size > 3 else None
-    at = spline(fine) if spline is not None else np.stack(
-        [np.interp(fine, t, rates[:, i]) for i in range(3)], 1)
-    return integrated_attitude(fine, at)[::sub]
-
-
-def _implausible(name: str, params: dict, d: Data, rec: Recording) -> str | None:
-    """Why effect `name`'s fitted params are not physics this body or sensor plausibly has:
-    beyond its plausible range (EffectModel.implausible), or ruled out by the recorded attitude
-    (:func:`attitude_rules_out`); None where neither.
-    """
-    return REGISTRY[name].implausible(params, rec.meta, d) or attitude_rules_out(name, params, d)
-
-
 def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict, rec: Recording) -> list[dict]:
     """The selected effects in order: name, params, 95 % intervals, the delta BIC each added
     (an inertia_offset's comparison with the nominal at the nominal's trace unless scale_seen:
@@ -691,7 +625,7 @@ def _explanation(chosen, d: Data, scale_seen: bool, skipped: dict, rec: Recordin
                  "ci95": {k: {"lo": np.asarray(v["lo"]).tolist(), "hi": np.asarray(v["hi"]).tolist()}
                           for k, v in ci[name].items()},
                  "delta_bic": added, "reading": reading(name, rec),
-                 "implausible": _implausible(name, named[name], d, rec),
+                 "implausible": implausible(name, named[name], d, SIGNIFICANT_DELTA_BIC),
                  "confounded_with": [{"with": other, "reason": why}
                                      for other, why in _live_ambiguities(name, form, skipped)]}
         if name == "inertia_offset":
@@ -1100,14 +1034,20 @@ def _beyond_words(report: dict) -> list[str]:
                 "physics the catalogue cannot model"]
     worst = max(after["rms_over_noise"])
     odd = [e for e in report["explanation"] if e.get("implausible")]
-    if odd and worst <= BEYOND_CATALOGUE:
+    refused = report.get("refused_implausible") or []
+    if (odd or refused) and worst <= BEYOND_CATALOGUE:
         return ["- **beyond the catalogue**: " + "; ".join(
-            f"`{e['name']}` is not physics this body or sensor plausibly has ({e['implausible']})"
-            for e in odd) + ": what it fits is physics the catalogue lacks, or a distortion of the "
-            "record, not that effect"]
+            [f"`{e['name']}` is not physics this body or sensor plausibly has ({e['implausible']})"
+             for e in odd] + [f"`{r['name']}` would improve the fit (delta BIC {r['delta_bic']:.1f}) but is "
+                              f"not physics this body or sensor plausibly has ({r['why']}), and is left out "
+                              "of the explanation" for r in refused])
+            + ": what it fits is physics the catalogue lacks, or a distortion of the record, not that "
+            "effect"]
     words = (f"- **beyond the catalogue**: the best fit still leaves {_fmt(after['rms_over_noise'])} "
              f"times the noise (over {BEYOND_CATALOGUE:g}): the recording holds physics the catalogue "
-             "lacks")
+             "lacks" + "".join(f"; `{r['name']}` would fit it better (delta BIC {r['delta_bic']:.1f}) "
+                               f"but is not physics this body or sensor plausibly has ({r['why']})"
+                               for r in refused))
     if not report["explanation"]:
         return [words + ", and none of its effects accounts for any of it"]
     return [words + f"; the explanation takes the worst axis from {max(before['rms_over_noise']):.3g} to "
@@ -1190,10 +1130,11 @@ def _next_steps(report: dict) -> list[str]:
     if report["ambiguous"] or any(e["confounded_with"] for e in report["explanation"]):
         steps.append("Effects this record cannot tell apart are named above: a recording with more "
                      "varied rates (another spin axis, a faster or a longer tumble) separates them.")
-    implausible = [e for e in report["explanation"] if e.get("implausible")]
+    implausible = ([(e["name"], e["implausible"]) for e in report["explanation"] if e.get("implausible")]
+                   + [(r["name"], r["why"]) for r in report.get("refused_implausible") or []])
     if implausible:
-        steps.append("Beyond the plausible range: " + "; ".join(f"`{e['name']}` ({e['implausible']})"
-                                                              for e in implausible)
+        steps.append("Beyond the plausible range: "
+                     + "; ".join(f"`{name}` ({why})" for name, why in implausible)
                      + ". Look for what else moves the rates so: the sensor's mounting, clock or "
                      "saturation, or a part of the body the catalogue does not hold.")
     if (report.get("beyond_catalogue") and not implausible) or report.get("unexplained_residual"):

@@ -407,15 +407,19 @@ def choose(efficient: InertiaEstimate, robust: InertiaEstimate, model_fits: bool
     (model_fits: the lack-of-fit test), the one whose covariance expects the smaller error: the
     maximum-likelihood fit of a model that holds is efficient, and a model error the residuals
     hide colours them, which widens the fit's covariance by the model error's share. Where the
-    data reject the model, neither covariance is more than an approximation: the efficient
-    estimate is reported only where it predicts held-out data significantly better (forecast,
-    the efficient one first), else the robust one, whose error from a model error stays in the
-    windows the error acts in. Without a forecast the covariances decide.
+    data reject the model, neither covariance is more than an approximation, and held-out data
+    decide (forecast, the efficient one first). Where the two agree within their intervals
+    (agreement), the robust one, whose error from a model error stays in the windows it acts
+    in, is kept unless the efficient one predicts significantly better; where they disagree
+    beyond them, one carries a model error its intervals do not count, and the better predictor
+    is reported. Without a forecast the covariances decide.
     """
     expected = (relative_frobenius_bound(efficient.theta, efficient.theta_cov),
                 relative_frobenius_bound(robust.theta, robust.theta_cov))
     if model_fits or forecast is None:
         keep = expected[0] < expected[1]
+    elif agreement(efficient, robust).disagree:
+        keep = forecast.costs[0] < forecast.costs[1]
     else:
         keep = forecast.first_better
     return Choice(bool(keep), bool(model_fits), expected, forecast)

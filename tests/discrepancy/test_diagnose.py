@@ -728,25 +728,28 @@ def test_an_effect_that_needs_a_part_is_named_as_the_sidecar_allows(body, readin
 
 
 @pytest.mark.parametrize("bias_max", [None, 1.0])
-def test_a_gyro_bias_beyond_any_gyro_s_is_reported_as_what_it_fits_and_beyond_the_catalogue(bias_max):
+def test_a_gyro_bias_beyond_any_gyro_s_is_left_out_said_and_read_as_beyond_the_catalogue(bias_max):
     """A 0.3-rad/s offset of the rates read by a gyro of 1e-3 rad/s noise fits like a gyro bias,
-    but no such gyro's zero-rate offset reaches it: the summary reports the offset, says the
-    range, and reads the record as beyond the catalogue; a sidecar that states a gyro of that
-    bias (gyro_bias_max) gets the bias."""
+    but no such gyro's zero-rate offset reaches it: the selection leaves it out of the
+    explanation, the report says what it would have fitted and the range, reads the record as
+    beyond the catalogue and does not tell the user to simulate it; a sidecar that states a
+    gyro of that bias (gyro_bias_max) gets the bias."""
     rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 60.0, "gyro_bias",
                                 overrides={"bias": [0.3, -0.1, 0.05]}, seed=0, sample_dt=0.1, torque=False)
     meta = _concealed(rec).meta | ({} if bias_max is None else {"gyro_bias_max": bias_max})
     report, _ = diagnose(dataclasses.replace(rec, meta=meta))
-    (entry,) = report["explanation"]
-    assert entry["name"] == "gyro_bias"
+    names = [e["name"] for e in report["explanation"]]
     text = markdown(report, [])
     if bias_max is None:
-        assert "beyond the 0.1 rad/s" in entry["implausible"] and report["beyond_catalogue"]
-        assert "a constant offset of the rates the gyro reads (fitted as `gyro_bias`" in text
+        assert "gyro_bias" not in names and report["beyond_catalogue"]
+        (refused,) = [r for r in report["refused_implausible"] if r["name"] == "gyro_bias"]
+        assert "beyond the 0.1 rad/s" in refused["why"] and refused["delta_bic"] > 10
+        assert "`gyro_bias` would" in text
         assert "is not physics this body or sensor plausibly has" in text
-        assert not any(step.startswith("- Add") for step in _next_steps(report))  # not into a simulation
+        assert not any("gyro_bias" in step and step.startswith("- Add") for step in _next_steps(report))
     else:
-        assert entry["implausible"] is None and not report["beyond_catalogue"]
+        assert names == ["gyro_bias"] and report["explanation"][0]["implausible"] is None
+        assert not report["beyond_catalogue"] and not report["refused_implausible"]
         assert "`gyro_bias` explains the record" in text
 
 
@@ -755,14 +758,14 @@ def test_the_recorded_attitude_supports_a_true_gyro_bias_and_rules_out_its_oppos
     recorded one; with the opposite taken out, it drifts away; without attitude, or for a term
     that does not change what the gyro reads, there is nothing to judge."""
     from inertia_gym.discrepancy.fit import prepare
-    from inertia_gym.discrepancy.report import attitude_rules_out
+    from inertia_gym.discrepancy.plausibility import attitude_rules_out
 
     bias = np.array([0.01, -0.005, 0.004])
     rec, _ = simulate_recording(Scenario(gyro_sigma=1e-3), 40.0, "gyro_bias",
                                 overrides={"bias": bias.tolist()}, seed=0, sample_dt=0.05, torque=False)
     d = prepare(_concealed(rec))
-    assert attitude_rules_out("gyro_bias", {"bias": bias}, d) is None
-    assert "the recorded attitude rules it out" in attitude_rules_out("gyro_bias", {"bias": -bias}, d)
-    assert attitude_rules_out("constant_body_torque", {"torque": np.ones(3)}, d) is None
+    assert attitude_rules_out("gyro_bias", {"bias": bias}, d, 10.0) is None
+    assert "the recorded attitude rules it out" in attitude_rules_out("gyro_bias", {"bias": -bias}, d, 10.0)
+    assert attitude_rules_out("constant_body_torque", {"torque": np.ones(3)}, d, 10.0) is None
     no_attitude = prepare(dataclasses.replace(_concealed(rec), q=None))
-    assert attitude_rules_out("gyro_bias", {"bias": -bias}, no_attitude) is None
+    assert attitude_rules_out("gyro_bias", {"bias": -bias}, no_attitude, 10.0) is None

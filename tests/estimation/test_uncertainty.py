@@ -117,3 +117,16 @@ def test_choose_by_precision_where_the_model_fits_and_by_forecast_where_it_does_
     assert choice.forecast == forecast
     assert choice.expected[0] == pytest.approx(relative_frobenius_bound(efficient.theta, efficient.theta_cov))
     assert choice.expected[1] == pytest.approx(relative_frobenius_bound(robust.theta, robust.theta_cov))
+
+
+@pytest.mark.parametrize("costs, z, expect_efficient", [
+    ((1.0, 2.0), 0.5, True),    # they disagree: the better predictor, significant or not
+    ((2.0, 1.0), -0.5, False),
+])
+def test_where_the_model_is_rejected_and_the_estimates_disagree_the_better_predictor_is_reported(
+        costs, z, expect_efficient):
+    theta = np.array([1.0, 0.0, 0.0, 0.8, 0.0, 0.5])
+    efficient = _estimate(theta, 1e-6 * np.eye(6))
+    robust = _estimate(theta + 0.05, 4e-6 * np.eye(6))  # far beyond both intervals
+    choice = choose(efficient, robust, False, Forecast(costs, z, float(stats.norm.sf(z))))
+    assert choice.efficient is expect_efficient
