@@ -16,6 +16,7 @@ import numpy as np
 from scipy import stats
 
 from inertia_gym.discrepancy.effects import REGISTRY
+from inertia_gym.estimation.uncertainty import homogeneity
 
 RATIO_LABELS = ("I1/I1", "I2/I1", "I3/I1")
 #: deg: internal_momentum's axes, fitted on several recordings of one body, lie along one axis
@@ -296,21 +297,16 @@ def combined(values: list[np.ndarray], covs: list[np.ndarray]) -> dict | None:
 
 
 def _one_vector_test(x: np.ndarray, covs) -> dict:
-    """chi2 of the estimates x (n, k) about their weighted mean (weights the inverse
-    covariances) and its p over k (n - 1) degrees of freedom; {} where a covariance is singular.
+    """uncertainty.homogeneity of the estimates x (n, k) with their covariances, its chi2 and p
+    over k (n - 1) degrees of freedom; {} where a covariance is not positive definite.
     """
     try:
         for c in covs:
             np.linalg.cholesky(np.asarray(c, float))  # positive definite, or no test
-        weights = [np.linalg.inv(np.asarray(c, float)) for c in covs]
-        mean = np.linalg.solve(np.sum(weights, 0), np.sum([w @ v for w, v in zip(weights, x)], 0))
     except np.linalg.LinAlgError:
         return {}
-    chi2 = float(sum((v - mean) @ w @ (v - mean) for w, v in zip(weights, x)))
-    if not np.isfinite(chi2):
-        return {}
-    dof = x.size - x.shape[1]
-    return {"chi2": chi2, "p": float(stats.chi2.sf(chi2, dof)) if dof else 1.0}
+    test = homogeneity(list(x), covs)
+    return {"chi2": test.statistic, "p": test.p_value} if np.isfinite(test.statistic) else {}
 
 
 def _interval(mean: np.ndarray, half: np.ndarray) -> list:

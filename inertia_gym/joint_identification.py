@@ -28,7 +28,13 @@ from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingErr
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.equation_error import pooled, system_of
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia
-from inertia_gym.estimation.uncertainty import TEST_LEVEL, InertiaEstimate, choose, inertia_estimate
+from inertia_gym.estimation.uncertainty import (
+    TEST_LEVEL,
+    InertiaEstimate,
+    choose,
+    homogeneity,
+    inertia_estimate,
+)
 from inertia_gym.identification import (
     Identification,
     identify_prepared,
@@ -71,19 +77,6 @@ class JointIdentification:
                 "agreement_chi2": float(self.agreement_chi2), "agreement_dof": int(self.agreement_dof),
                 "agreement_p": float(self.agreement_p), "rms_over_noise": float(self.rms_over_noise),
                 "notes": list(self.notes), "wall_s": float(self.wall_s)}
-
-
-def _agreement(singles: list[InertiaEstimate]) -> tuple[float, int, float]:
-    """(chi-square, dof, p) of the estimates' deviations from their precision-weighted mean."""
-    infos, thetas = [], []
-    for est in singles:
-        infos.append(np.linalg.pinv(est.theta_cov, hermitian=True))
-        thetas.append(est.theta)
-    mean = np.linalg.pinv(sum(infos), hermitian=True) @ sum(i @ t for i, t in zip(infos, thetas))
-    chi2 = float(sum((t - mean) @ i @ (t - mean) for i, t in zip(infos, thetas)))
-    rank = int(np.linalg.matrix_rank(singles[0].theta_cov, hermitian=True))
-    dof = rank * (len(singles) - 1)
-    return chi2, dof, float(stats.chi2.sf(chi2, dof)) if dof else 1.0
 
 
 def _joint_output_error(preps, singles, trace_ref) -> tuple[InertiaEstimate, float, bool]:
@@ -162,7 +155,8 @@ def identify_joint(recordings: list[Recording], singles: list[Identification] | 
             notes.append(f"the pooled equation error is reported: its intervals expect a relative error "
                          f"of {100 * choice.expected[1]:.2g} %, the joint output error's "
                          f"{100 * choice.expected[0]:.2g} %")
-    chi2, dof, p = _agreement([s.estimate for s in singles])
+    chi2, dof, p = dataclasses.astuple(homogeneity([s.estimate.theta for s in singles],
+                                                   [s.estimate.theta_cov for s in singles]))
     if p < 1.0 - TEST_LEVEL:
         notes.append(f"the recordings' own estimates disagree beyond their intervals (chi-square {chi2:.3g} "
                      f"on {dof} degrees of freedom): not one body's, or their intervals are too narrow")

@@ -334,8 +334,8 @@ def with_gyro_scale(est: InertiaEstimate, reference: InertiaEstimate, scale_sigm
 
 @dataclasses.dataclass(frozen=True)
 class Agreement:
-    """The output-error and equation-error estimates against each other: statistic (chi-square
-    of their difference over the sum of their covariances), dof, p_value.
+    """Estimates of one inertia against each other (homogeneity): statistic (chi-square), dof,
+    p_value.
     """
 
     statistic: float
@@ -425,15 +425,25 @@ def choose(efficient: InertiaEstimate, robust: InertiaEstimate, model_fits: bool
     return Choice(bool(keep), bool(model_fits), expected, forecast)
 
 
-def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:
-    """Agreement of two estimates of one inertia (see Agreement); at a fixed trace the trace's
-    direction is left out.
+def homogeneity(values, covs) -> Agreement:
+    """The test that several estimates values [(k,)] with covariances covs [(k, k)] are of one
+    vector: the chi-square of their deviations from their precision-weighted mean, on r (n - 1)
+    degrees of freedom (r the covariances' rank: k, or k - 1 at a fixed trace, whose direction a
+    normalised covariance leaves out). For two estimates it is their difference over the sum of
+    their covariances. p is 1 without degrees of freedom.
     """
-    d = a.theta - b.theta
-    cov = a.theta_cov + b.theta_cov
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
-    keep = vals > 1e-12 * max(vals.max(), 1e-300)
-    proj = vecs[:, keep].T @ d
-    stat = float(np.sum(proj ** 2 / vals[keep]))
-    dof = int(keep.sum())
-    return Agreement(stat, dof, float(stats.chi2.sf(stat, dof)))
+    x = [np.asarray(v, float) for v in values]
+    cs = [0.5 * (np.asarray(c, float) + np.asarray(c, float).T) for c in covs]
+    infos = [np.linalg.pinv(c, rcond=1e-12, hermitian=True) for c in cs]
+    mean = np.linalg.pinv(sum(infos), rcond=1e-12, hermitian=True) @ sum(i @ v for i, v in zip(infos, x))
+    stat = float(sum((v - mean) @ i @ (v - mean) for i, v in zip(infos, x)))
+    vals = np.linalg.eigvalsh(cs[0])
+    dof = int(np.sum(vals > 1e-12 * max(float(vals.max()), 1e-300))) * (len(x) - 1)
+    return Agreement(stat, dof, float(stats.chi2.sf(stat, dof)) if dof else 1.0)
+
+
+def agreement(a: InertiaEstimate, b: InertiaEstimate) -> Agreement:
+    """Agreement of two estimates of one inertia (homogeneity; see Agreement); at a fixed trace
+    the trace's direction is left out.
+    """
+    return homogeneity([a.theta, b.theta], [a.theta_cov, b.theta_cov])

@@ -17,6 +17,7 @@ from inertia_gym.estimation.uncertainty import (
     InertiaEstimate,
     choose,
     forecast_comparison,
+    homogeneity,
     inertia_estimate,
     model_error_covariance,
     relative_frobenius_bound,
@@ -130,3 +131,27 @@ def test_where_the_model_is_rejected_and_the_estimates_disagree_the_better_predi
     robust = _estimate(theta + 0.05, 4e-6 * np.eye(6))  # far beyond both intervals
     choice = choose(efficient, robust, False, Forecast(costs, z, float(stats.norm.sf(z))))
     assert choice.efficient is expect_efficient
+
+
+def test_homogeneity_is_the_weighted_scatter_and_for_two_the_difference_over_the_summed_covariance():
+    """chi-square = sum_i (v_i - m)^T V_i^-1 (v_i - m), m the precision-weighted mean, on
+    k (n - 1) degrees of freedom; for two estimates d^T (V_a + V_b)^-1 d; at a fixed trace
+    (covariances without the trace's direction) one degree of freedom fewer per estimate."""
+    rng = np.random.default_rng(3)
+    vals, covs = [], []
+    for _ in range(4):
+        a = rng.normal(size=(6, 6))
+        covs.append(a @ a.T + 0.1 * np.eye(6))
+        vals.append(rng.normal(size=6))
+    infos = [np.linalg.inv(c) for c in covs]
+    mean = np.linalg.solve(sum(infos), sum(i @ v for i, v in zip(infos, vals)))
+    expected = sum((v - mean) @ i @ (v - mean) for i, v in zip(infos, vals))
+    test = homogeneity(vals, covs)
+    assert test.statistic == pytest.approx(expected, rel=1e-8) and test.dof == 18
+    assert test.p_value == pytest.approx(stats.chi2.sf(expected, 18), rel=1e-8)
+    d = vals[0] - vals[1]
+    two = homogeneity(vals[:2], covs[:2]).statistic
+    assert two == pytest.approx(d @ np.linalg.solve(covs[0] + covs[1], d))
+    keep = np.linalg.svd(np.array([[1.0, 0, 0, 1.0, 0, 1.0]]))[2][1:].T  # directions at a fixed trace
+    fixed = [keep @ keep.T @ c @ keep @ keep.T for c in covs[:2]]
+    assert homogeneity(vals[:2], fixed).dof == 5
