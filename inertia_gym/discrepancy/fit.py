@@ -1725,9 +1725,13 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         best = min(refits, key=lambda f: f.bic)
         if not current.bic - best.bic > claim_margin(d, best.name):
             break
-        why = implausible(best.name, best.params, d, SIGNIFICANT_DELTA_BIC)
-        if why:
-            return current, chain, {best.name: (why, float(current.bic - best.bic))}
+        # every effect of the new fit, not only the one added: two effects that trade (a bias and
+        # a scale) can move an earlier one beyond what the body or its sensor plausibly has
+        for name in best.names:
+            why = implausible(name, best.effect_params[name], d, SIGNIFICANT_DELTA_BIC)
+            if why:
+                why = why if name == best.name else f"with it, `{name}` is fitted so that {why}"
+                return current, chain, {best.name: (why, float(current.bic - best.bic))}
         current = best
         chain = [*chain, best]
     return current, chain, {}
