@@ -40,7 +40,7 @@ from inertia_gym.identification import (
     identify_prepared,
     problem_from,
 )
-from inertia_gym.prepare import prepared
+from inertia_gym.prepare import Prepared, prepared
 from inertia_gym.recordings import Recording
 
 
@@ -117,15 +117,16 @@ def _joint_output_error(preps, singles, trace_ref) -> tuple[InertiaEstimate, flo
     return est, rms, passes
 
 
-def identify_joint(recordings: list[Recording], singles: list[Identification] | None = None
-                   ) -> JointIdentification:
+def identify_joint(recordings: list[Recording], singles: list[Identification] | None = None,
+                   preps: list[Prepared] | None = None) -> JointIdentification:
     """One inertia from several recordings of one body (see the module docstring). singles: the
-    recordings' own identify() results where already at hand (computed where None).
+    recordings' own identify() results, and preps their prepared records (prepare.prepared),
+    where already at hand (computed where None).
     """
     if len(recordings) < 2:
         raise RecordingError("a joint identification needs at least two recordings of the body")
     started = time.perf_counter()
-    preps = [prepared(rec) for rec in recordings]
+    preps = [prepared(rec) for rec in recordings] if preps is None else list(preps)
     singles = [identify_prepared(p) for p in preps] if singles is None else list(singles)
     seen = [p.rec.sees_scale for p in preps]
     if any(seen) != all(seen):

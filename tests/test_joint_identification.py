@@ -54,13 +54,29 @@ def test_a_joint_fit_needs_two_recordings_and_one_kind_of_scale():
         identify_joint([throws[0], free[0]])
 
 
-def test_identify_joint_cli_writes_joint_json_and_markdown(tmp_path, capsys):
+def test_identify_joint_cli_writes_joint_json_and_markdown(tmp_path, capsys, monkeypatch):
+    """--joint writes joint.json and joint.md and prepares each record once (the joint fit takes
+    the prepared records of the single fits)."""
+    import inertia_gym.commands.identify as command
+    import inertia_gym.identification as identification
+    import inertia_gym.joint_identification as joint_module
+
     folder = tmp_path / "throws"
     folder.mkdir()
     for rec in _throws(3):
         write_recording(folder / f"{rec.name}.csv", rec, {"gyro_sigma": 0.01})
     out = tmp_path / "out"
+    calls = []
+    real = command.prepared
+
+    def counted(rec):
+        calls.append(rec.name)
+        return real(rec)
+
+    for module in (command, identification, joint_module):
+        monkeypatch.setattr(module, "prepared", counted)
     assert main(["identify", str(folder), "--joint", "--no-plots", "--out", str(out)]) == 0
+    assert sorted(calls) == ["throw-0", "throw-1", "throw-2"]
     summary = json.loads((out / "joint.json").read_text())
     assert summary["names"] == ["throw-0", "throw-1", "throw-2"]
     assert len(summary["per_recording"]) == 3 and summary["scale_identified"] is True

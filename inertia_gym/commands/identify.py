@@ -5,6 +5,7 @@ with --joint, one inertia from every recording of a folder (or file of segments)
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,10 +19,11 @@ from inertia_gym.commands.common import (
     write_summary,
 )
 from inertia_gym.errors import ConfigError
-from inertia_gym.identification import METHODS, identify
+from inertia_gym.identification import METHODS, identify_prepared
 from inertia_gym.identify_report import joint_markdown, markdown
 from inertia_gym.joint_identification import identify_joint
 from inertia_gym.plots import plot_identification
+from inertia_gym.prepare import prepared
 
 
 def add_parser(subparsers) -> None:
@@ -48,15 +50,15 @@ def run(args: argparse.Namespace) -> int:
     if args.joint and args.method != "ml":
         raise ConfigError("--joint fits by maximum likelihood and the equation error: use it with "
                           "--method ml")
-    recordings, results = [], []
+    preps, results = [], []
 
     def one(rec, sub):
-        recordings.append(rec)
-        return _identify_one(rec, sub, args.method, args.no_plots, results)
+        return _identify_one(rec, sub, args.method, args.no_plots, results, preps)
 
     code = for_each_recording(args, one, _summarize)
     if args.joint:
-        joint = identify_joint(recordings, results)
+        recordings = [p.rec for p in preps]
+        joint = identify_joint(recordings, results, preps)
         summary = joint.summary()
         folder = Path(args.out)
         write_json(folder / "joint.json", summary)
@@ -78,13 +80,18 @@ def _moments(moments) -> str:
     return "[" + ", ".join(f"{m:.4g}" for m in moments) + "]"
 
 
-def _identify_one(rec, sub, method: str, no_plots: bool, results: list | None = None) -> dict:
+def _identify_one(rec, sub, method: str, no_plots: bool, results: list | None = None,
+                  preps: list | None = None) -> dict:
     """Identify one recording into the folder sub (identify.json, summary.md, plots); its summary.
-    results: where the Identification is kept (a joint fit reuses it).
+    results, preps: where the Identification and the prepared record are kept (a joint fit
+    reuses both: the record is prepared once).
     """
-    result = identify(rec, method)
+    started = time.perf_counter()
+    prep = prepared(rec)
+    result = identify_prepared(prep, method, started=started)
     if results is not None:
         results.append(result)
+        preps.append(prep)
     summary = result.summary()
     check_physical_inertia(summary["inertia"], rec.name)
     plots = [] if no_plots else plot_identification(result, sub)
