@@ -635,8 +635,8 @@ def test_an_unmodelled_drag_that_the_residuals_hide_widens_the_output_error_past
     1.2 % and 0.2 %), mostly with residuals the lack-of-fit test accepts. Their colour widens
     the output error's covariance past the equation error's, so the equation error is reported
     on at least 4 of 8 seeds, its reason in the notes, and the reported estimate's median error
-    stays under 0.55 % (0.37 % with this rule; 0.73 % where the output error was reported
-    whenever the model fitted)."""
+    stays under 0.55 % (0.37 % on these seeds; reporting the output error wherever the
+    residuals pass the lack-of-fit test gives 0.73 %)."""
     reported = []
     for seed in range(8):
         rec, inertia = _dragged_throw(seed)
