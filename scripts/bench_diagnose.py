@@ -32,7 +32,9 @@ import numpy as np
 from scipy import optimize
 
 from inertia_gym.discrepancy import fit as F
+from inertia_gym.discrepancy.objective import _free
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.discrepancy.starts import _inertia_starts
 from inertia_gym.discrepancy.synthetic import racquet_flip, simulate_recording
 from inertia_gym.executors import HELPERS_VARIABLE, wait_for_helpers
 from inertia_gym.recordings import Recording, read_recordings
@@ -70,8 +72,8 @@ def peer_nominal(d: F.Data) -> tuple[float, float]:
     """Wall time (s) and cost of scipy's least_squares on the nominal fit's objective, started
     where fit_nominal starts (its first inertia start)."""
     layout = F.Layout.of((), (), d)
-    free = F._free(layout, d)
-    x0 = np.concatenate([F._inertia_starts(d)[0], F.initial_rates(d)])
+    free = _free(layout, d)
+    x0 = np.concatenate([_inertia_starts(d)[0], F.initial_rates(d)])
 
     def residual(y):
         x = x0.copy()

@@ -20,7 +20,7 @@ creeping by projections.
 
 The solver is written as a generator: it yields what it needs evaluated, so that the caller may
 answer with analytic sensitivities (the rigid model: integrator.py) or with finite differences
-batched over many points (the effect catalogue: discrepancy/fit.py), and run several solves
+batched over many points (the effect catalogue: discrepancy/fitting.py), and run several solves
 side by side. run() drives one solve from a plain evaluate function.
 
 Convergence: a point no damped step improves by more than ``tol + rel_tol * cost / N`` (N

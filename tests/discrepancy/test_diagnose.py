@@ -24,11 +24,6 @@ from inertia_gym.discrepancy.fit import (
     TIE_BIC,
     Explanation,
     Layout,
-    _added,
-    _alone,
-    _chain,
-    _claims_cost,
-    _led_by_best_single,
     fit_effect,
     fit_nominal,
     initial_rates,
@@ -48,6 +43,7 @@ from inertia_gym.discrepancy.report import (
     inertia_comparison,
     markdown,
 )
+from inertia_gym.discrepancy.selection import _added, _alone, _chain, _claims_cost, _led_by_best_single
 from inertia_gym.discrepancy.synthetic import parse_effect, racquet_flip, simulate_recording
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia

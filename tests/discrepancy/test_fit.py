@@ -13,10 +13,13 @@ import pytest
 from records import cases, slow_tumble, thin_body, thin_body_record, true_gains
 
 from inertia_gym.discrepancy import fit as F
+from inertia_gym.discrepancy import fitting, statistics
 from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, Effect, rotvec_matrix
 from inertia_gym.discrepancy.model import Grid, held_cumulative
+from inertia_gym.discrepancy.objective import _bounds, _free, _steps
 from inertia_gym.discrepancy.report import diagnose, markdown, principal_ratios
+from inertia_gym.discrepancy.starts import _inertia_starts
 from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.errors import RecordingError
 from inertia_gym.estimation import solver
@@ -69,9 +72,9 @@ def test_jacobian_columns_equal_brute_force_differences():
     layout = F.Layout.of(("gyro_bias",), ("",), d)
     nominal = F.fit_nominal(d)
     x = F.Probe(layout, d, nominal).x(np.array([0.01, -0.02, 0.03]))
-    free = F._free(layout, d)
+    free = _free(layout, d)
     r0, g, js = F.jacobian(x, free, layout, d, central=True)
-    steps = F._steps(x, layout, d)
+    steps = _steps(x, layout, d)
     seg_of = np.repeat(d.row_seg, 3)
     for col, i in enumerate(np.flatnonzero(free[:layout.n_global])):
         up, dn = x.copy(), x.copy()
@@ -170,7 +173,7 @@ def test_the_shapes_intervals_count_the_residuals_correlation(monkeypatch):
                           1e-3, drag)
     rows = np.arange(0, 1001, 10)
     truth = np.sort(np.diag(RACQUET))[::-1] / RACQUET.max()
-    share = F.effective_share
+    share = statistics.effective_share
     covered = {True: 0, False: 0}
     for seed in range(20):
         white = np.random.default_rng(seed).normal(0.0, 0.005, (rows.size, 3))
@@ -181,7 +184,7 @@ def test_the_shapes_intervals_count_the_residuals_correlation(monkeypatch):
         d = F.prepare(Recording(rows * 1e-3, w[rows] + noise, None, None, {"gyro_sigma": 0.005}, "toss"))
         fit = F.fit_effect("aero_drag", d, F.fit_nominal(d))
         for counted in (True, False):
-            monkeypatch.setattr(F, "effective_share", share if counted else lambda d, fit: 1.0)
+            monkeypatch.setattr(statistics, "effective_share", share if counted else lambda d, fit: 1.0)
             lo, hi = np.array(principal_ratios(fit, d)[1]).T
             covered[counted] += bool(np.all((lo <= truth) & (truth <= hi)))
     assert covered[True] >= 12 and covered[True] - covered[False] >= 4, covered
@@ -438,10 +441,10 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(rac
     assert d.segments < F.SHORT_SEGMENTS
     nominal = F.fit_nominal(d)
     layout = F.Layout.of((), (), d)
-    lb, ub = F._bounds(layout, d)
-    free = F._free(layout, d)
+    lb, ub = _bounds(layout, d)
+    free = _free(layout, d)
     runs = [F.solve(np.r_[phi, F.initial_rates(d)], free, layout, d, lb, ub, F.FULL_ITER)[0]
-            for phi in F._inertia_starts(d)]
+            for phi in _inertia_starts(d)]
     direct = [F.finish(layout, x, d) for x in runs]
     assert nominal.bic <= min(f.bic for f in direct) + F.SIGNIFICANT_DELTA_BIC
     worst_axis = np.sqrt(np.mean(nominal.r ** 2, 0)).max()
@@ -466,7 +469,7 @@ def test_a_fit_asked_again_is_reused_and_rescored_on_recounted_rows(monkeypatch)
     def solve_again(*args, **kwargs):
         raise AssertionError("solved again")
 
-    monkeypatch.setattr(F, "solve_many", solve_again)  # every solve runs through it
+    monkeypatch.setattr(fitting, "solve_many", solve_again)  # every solve runs through it
     same = F.fit_model(("viscous_damping",), ("",), d, nominal)
     np.testing.assert_array_equal(same.x, first.x)
     assert same.bic == first.bic
@@ -527,7 +530,7 @@ def _drag_and_bias_layout():
     layout = F.Layout.of(("viscous_damping", "gyro_bias"), ("", ""), d)
     nominal = F.fit_nominal(d)
     x = np.r_[nominal.x[:6], np.zeros(layout.sizes[0]), [0.01, -0.02, 0.005], nominal.x[6:]]
-    x[layout.slices()[0]] = F.REGISTRY["viscous_damping"].neutral("", d, nominal)
+    x[layout.slices()[0]] = REGISTRY["viscous_damping"].neutral("", d, nominal)
     return d, layout, x
 
 
@@ -553,8 +556,8 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
     """solve_many integrates the points its solves ask for in one batch, and each iteration
     tries SPECULATE dampings at once: neither changes a solve's path, bit for bit."""
     d, layout, x = _drag_and_bias_layout()
-    lb, ub = F._bounds(layout, d)
-    free = F._free(layout, d)
+    lb, ub = _bounds(layout, d)
+    free = _free(layout, d)
     starts = [x, x + np.r_[0.1, np.zeros(x.size - 1)], np.where(np.arange(x.size) == 6, x * 2, x)]
     together = F.solve_many(starts, free, layout, d, lb, ub, F.FULL_ITER)
     for speculate in (1, 2, 3):

@@ -19,7 +19,7 @@ from inertia_gym.estimation.inertia_param import (
 class InertiaOffset(EffectModel):
     """The body's inertia differs from the sidecar's nominal.
 
-    Every other model holds the user's nominal inertia as given (fit.py); this effect fits J in
+    Every other model holds the user's nominal inertia as given (objective.py); this effect fits J in
     the positive-definite log-Cholesky parameterization p = phi (estimation.inertia_param: never
     indefinite), each step projected onto the inertias a body can have (realizable_phi), its
     overall scale too where a known torque or a known momentum shows it, else
