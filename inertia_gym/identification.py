@@ -189,8 +189,7 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
     no model error (ee_misfit false) or disagrees with it beyond their intervals (agreement): a
     basin other than the equation error's, also from the other starts (_starts), the likelihood
     choosing (_penalised_cost). Without a stated noise level each fit is reweighted once by its
-    own residuals' level. Raises
-    EstimatorDivergedError where no fit's error bars are finite.
+    own residuals' level. Raises EstimatorDivergedError where no fit's error bars are finite.
     """
     q0 = None if prep.rec.q is None else prep.rec.q[0]
     stated = prep.sigma is not None
@@ -383,13 +382,12 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     agree = agreement(est, reference)
     explained = lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL
     nominal = prep.rec.inertia_nominal
-    # with a drag fitted, the equation error (no drag term) is not an estimate of the same model;
-    # refused: a misfit whose reported inertia is off the nominal (columns in other units than
-    # stated), where no comparison can change that
+    # An estimate NOMINAL_SCALE_FACTOR off the nominal's trace, where the other is not, is ruled
+    # out (the sidecar's nominal excludes a scale that far off); where both are, no comparison
+    # helps (a misfit so far off is refused in _result). With a drag fitted, the equation error
+    # (no drag term) is not an estimate of the same model: the output error is reported.
     choice, forecast = None, None
     off = [_off(_nominal_factor(e, nominal)) for e in (est, reference)]
-    # an estimate NOMINAL_SCALE_FACTOR off the nominal's trace, where the other is not, is not one
-    # (the sidecar's nominal rules out a scale that far off); where both are, no comparison helps
     if not fit_drag and off[0] == off[1]:
         if not explained and not off[0]:
             forecast = held_out(prep, fit_bias, fit_drag, trace_ref)
@@ -412,7 +410,8 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
                     f"; fitted on one half, each predicts the other with a residual sum of "
                     f"{forecast.costs[0]:.4g} (output error) and {forecast.costs[1]:.4g} (equation error) "
                     f"noise variances (the output error better by z = {forecast.statistic:.3g}, the rows' "
-                    "correlation counted; it is reported only where significantly better)")
+                    "correlation counted; where the two agree within their intervals it is reported only "
+                    "where significantly better, where they disagree the better predictor is)")
         notes.append(f"the rigid model leaves physics out (the output-error fit's residuals fail the "
                      f"lack-of-fit test): reported is the {estimator}{compared}; the intervals count the "
                      "model error as a white disturbance torque (run `inertia-gym diagnose` to find what "
@@ -421,7 +420,6 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
         notes.append(f"the output-error and equation-error estimates disagree beyond their intervals "
                      f"(chi-square {agree.statistic:.3g} on {agree.dof} degrees of freedom): the rigid "
                      "model misses something that moves them differently")
-    nominal = prep.rec.inertia_nominal
     bias = oe.fit.p[-3:].copy() if prob.fit_bias else None
     result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
                      bias, oe.fit.converged, not explained and _off(_nominal_factor(est, nominal)), notes,
