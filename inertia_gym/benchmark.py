@@ -188,8 +188,8 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
     over the evaluation seeds); recommended_curve {"evaluations": checkpoints i, "reeval_cost":
     the re-evaluated cost of the xi the agent would have recommended after i evaluations} (its
     learning curve, free of the noise of single episodes); xi_recommended and
-    reeval_cost_recommended (= xi_star and reeval_cost, their names before xi_star was the
-    recommendation); val_rel_error / val_rel_errors / val_diverged /
+    reeval_cost_recommended (= xi_star and reeval_cost: contract keys, never renamed);
+    val_rel_error / val_rel_errors / val_diverged /
     val_scale_identified (validation of xi*); wall_s (the optimisation), score_wall_s
     (re-evaluation and validation), settings_key.
     Grid record: agent "grid", seed None, n_points, xi_star (the best grid point), reeval_cost,
@@ -227,7 +227,7 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
             "xi_observed_best": result.xi_observed_best.tolist(),
             "best_cost": float(result.cost_observed_best),
             "reeval_cost": cost_of[int(path[-1])], "reeval_cost_observed_best": cost_of[best],
-            # The names these had when xi_star was the observed best (contracts: never renamed).
+            # Contract keys equal to xi_star and reeval_cost (docs/contracts.md: never renamed).
             "xi_recommended": result.xi_star.tolist(),
             "reeval_cost_recommended": cost_of[int(path[-1])],
             "recommended_curve": {"evaluations": checkpoints.tolist(),
@@ -274,7 +274,7 @@ def summarize(records: list[dict]) -> dict:
     Returns {"grid": the grid record or None, "reference_cost": its re-evaluated cost or None,
     "runs": the agent records (sorted by agent, then seed) with ``regret`` and
     ``regret_observed_best`` added (re-evaluated cost of xi* / of the observed best minus the
-    grid optimum's; None without a grid; ``regret_recommended`` = ``regret``, its old name),
+    grid optimum's; None without a grid; ``regret_recommended`` = ``regret``, a contract key),
     "agents": {agent: {"runs", "seeds", "best_cost", "reeval_cost",
     "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error", "wall_s"
     (each median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of the shared

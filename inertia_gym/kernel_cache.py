@@ -13,8 +13,8 @@ nothing stale is ever run.
 ``inertia_gym/__init__.py`` calls it. The folder is ``<package>/__pycache__/numba-<hash>`` (or
 ``$NUMBA_CACHE_DIR/inertia_gym-<hash>`` when that is set); where it cannot be written, numba
 falls back to its default locations. In the package's own ``__pycache__`` only the
-:data:`KEEP_VERSIONS` most recently used folders are kept (a day of editing kernels left
-14 folders, 75 MB); a folder named by ``$NUMBA_CACHE_DIR`` is the user's and never pruned.
+:data:`KEEP_VERSIONS` most recently used folders are kept (a day of editing kernels leaves
+some 14 folders, 75 MB); a folder named by ``$NUMBA_CACHE_DIR`` is the user's and never pruned.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def use_fork_safe_threading() -> str:
 
     With GNU OpenMP (numba's default where it is installed), a process that has run a parallel
     kernel cannot fork: ``gym.make_vec(..., vectorization_mode="async")`` and SB3's
-    ``SubprocVecEnv`` (fork start method) died with "fork() called from a process already using
+    ``SubprocVecEnv`` (fork start method) die with "fork() called from a process already using
     GNU OpenMP". The workqueue layer forks safely; it must not be entered from two Python
     threads at once (the package never does; run batches in processes, as executors.py does).
     """

@@ -69,7 +69,7 @@ class OptimizationResult:
 
     @property
     def xi_recommended(self) -> np.ndarray:
-        """The recommended xi (3,): xi_star (the name result.json used before xi_star was it)."""
+        """The recommended xi (3,): xi_star, under result.json's contract key xi_recommended."""
         return self.xi_star
 
     @property

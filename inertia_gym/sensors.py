@@ -161,8 +161,7 @@ def estimate_white_noise(w) -> np.ndarray:
 
     Never under the rounding error of the samples' quantisation, q / sqrt(12) (q from
     quantisation_step): on a lattice coarse for the noise most differences are exactly zero and
-    their median reads nothing (an independent audit: 0 on one axis of a gyro quantised in steps
-    of 10 sigma).
+    their median reads nothing (0 on one axis of a gyro quantised in steps of 10 sigma).
     """
     w = np.asarray(w, float)
     orders = [k for k in NOISE_ORDERS if w.shape[0] > k + 2] or [min(NOISE_ORDERS)]
@@ -181,7 +180,7 @@ def estimate_white_noise(w) -> np.ndarray:
 #: within this share of a step of one; gaps of more steps than QUANTUM_MAX_STEPS are not checked
 #: (the values a log was written with round them by more). QUANTUM_MIN_VALUES distinct values
 #: at least: on 3-5 values of a continuous reading the gaps fall near whole multiples of the
-#: least by chance (0.4-15 % of axes, an independent review's Monte Carlo).
+#: least by chance (0.4-15 % of axes, by Monte Carlo).
 QUANTUM_TOLERANCE = 0.05
 QUANTUM_MAX_STEPS = 100
 QUANTUM_MIN_VALUES = 8
@@ -206,14 +205,14 @@ def quantisation_step(w) -> np.ndarray:
     of the commonest gap size, counting the gaps within QUANTUM_TOLERANCE of it) and those gaps
     give q (their mean), or where that fails a step of it divided by up to QUANTUM_DIVISORS
     that recurs too (a rate sweeping fast over the levels steps one level rarely: a 400-Hz
-    gyro in steps of 2 sigma read 12 gaps of one step and 44 of two); every gap of up to
+    gyro in steps of 2 sigma reads 12 gaps of one step and 44 of two); every gap of up to
     QUANTUM_MAX_STEPS steps must be a whole number of steps within QUANTUM_TOLERANCE, and those
     gaps must be at least half of all (values written to full precision have gaps of no common
     step); and the values must repeat or skip steps (gaps of more than one size): a smooth
     noise-free reading sampled evenly (a ramp) has equal gaps and no repeats, and no rounding.
     A few samples read off the lattice (a glitch, a sample a logger interpolated: at most
     QUANTUM_OFF_SHARE of the axis's samples, one at least) are passed over (_off_lattice); an
-    axis with more gets 0: its level is then the stated one, as before.
+    axis with more gets 0: its level is then the stated one (no rounding added).
     """
     w = np.asarray(w, float)
     out = np.zeros(w.shape[1])
@@ -254,9 +253,9 @@ def _few_levels_step(values, samples: int) -> float:
     """The step (rad/s) of an axis read on fewer than QUANTUM_MIN_VALUES distinct values (m,),
     sorted, over `samples` samples, or 0: their least gap where each value is read
     QUANTUM_REPEATS times on average at least (a reading to full precision repeats none) and
-    every gap is a whole number of it. A slow axis read by a coarse gyro sits on 2-7 levels (an
-    audit's cubesat at 0.05 rad/s, steps of 0.01: 3-9 values per axis); its rounding error,
-    unread, left the noise level low and physics was named to explain it (4 of 8 records).
+    every gap is a whole number of it. A slow axis read by a coarse gyro sits on 2-7 levels (a
+    cubesat at 0.05 rad/s, steps of 0.01: 3-9 values per axis); its rounding error, unread,
+    leaves the noise level low, and physics is named to explain it (4 of 8 records).
     """
     if values.size < 2 or samples < QUANTUM_REPEATS * values.size:
         return 0.0
@@ -380,7 +379,7 @@ def stated_noise_note(w, stated, residual_rms) -> str | None:
 
     The stated level sets the intervals' width and the noise-based flags: stated 3x too small,
     the residual reads as 3x the noise, a mismatch; 3x too large, the intervals are 3x wider
-    than the data need (an independent audit: neither was said). A level read under the stated
+    than the data need (without this sentence, neither is said). A level read under the stated
     one can be right: a coloured noise (the rotor throws' vibration at 200-260 Hz, sampled at
     4 kHz, reads 0.02-0.3 of their in-flight gyro_sigma, which their residuals exceed) or a
     low-passed gyro reads so too.

@@ -205,7 +205,7 @@ Truth = collections.namedtuple("Truth", "y inertia dist")
 #: Estimator: x (B, 13), P (B, 13, 13), and the prediction in progress: phi_top (B, 7, 13),
 #: sigma (B, 26, 13) (see SimState). The 1-D per-run counters and flags (n_updates,
 #: sigma_fresh) go to the compiled loop as plain arguments: written through a namedtuple inside
-#: numba's parallel loop, their updates were lost.
+#: numba's parallel loop, their updates are lost.
 Estimator = collections.namedtuple("Estimator", "x P phi_top sigma")
 #: Plan: n_steps (B,); bursts (B, nb, 2) [start, stop) steps and n_bursts (B,); xi (B, 3);
 #: v (B, 3) burst directions; tau_max N·m; meas_at (B, m) steps of the measurements and
@@ -522,8 +522,8 @@ def _call_kernel(kernel, args) -> None:
 
     Why a thread: numba compiles recursively, and CPython 3.11 frees a frame-stack chunk each
     time the stack pops back over the chunk's start. Started deep in a caller's stack (the
-    CLI's optimize: agent, env, episode, run_segment), the compile crossed such a border so
-    often that it spent 170 s of system time and 20 M page faults on it. A new thread's stack
+    CLI's optimize: agent, env, episode, run_segment), the compile crosses such a border so
+    often that it spends 170 s of system time and 20 M page faults on it. A new thread's stack
     starts empty, whoever calls. Each kernel compiles only when a batch first needs it, so a
     command pays for the kernels it uses.
     """

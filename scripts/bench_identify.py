@@ -36,7 +36,7 @@ timed test.
 import os
 
 # One thread for numba and for BLAS: on a shared 2-core machine a threaded SVD of the peer's
-# 6000 x 9 Jacobian took 60 ms instead of 1 ms (oversubscription), which is noise, not speed.
+# 6000 x 9 Jacobian takes 60 ms instead of 1 ms (oversubscription), which is noise, not speed.
 for _var in ("NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 

@@ -251,7 +251,7 @@ def cases(duration: float) -> list[SpacecraftCase]:
 
 def named_effects(report: dict, count: int) -> list[str]:
     """The names the report gives: its compound `explanation` where present, else its leading
-    `count` significant single effects (today's report has no explanation).
+    `count` significant single effects (where the explanation is empty).
     """
     if report.get("explanation"):
         return [e["name"] for e in report["explanation"]]

@@ -42,8 +42,8 @@ def pytest_sessionstart(session):
 def pytest_collection_modifyitems(config, items):
     """The slow tests first (a stable sort: each group keeps its order). xdist hands the tests
     out in this order, so the long ones start while there is still work to balance them; last in
-    file order, the two validate tests (50 s each alone, 3 minutes each beside other work) had
-    left one worker running them while the other sat idle."""
+    file order, the two validate tests (50 s each alone, 3 minutes each beside other work) would
+    leave one worker running them while the other sits idle."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 

@@ -82,7 +82,7 @@ def test_the_combined_interval_covers_the_truth_about_95_percent(understated, re
     two decades (0.001-0.1): intervals honest, all 3x too narrow, or missing an error of 0.02
     of each recording's own (a model misfit: the real tosses' case). The combined interval
     covers the truth on 88.5-99.8 % of seeds (measured); weighting by the stated intervals, even
-    widened by one common factor, covered 62 % of the model-error seeds (an ad hoc script)."""
+    widened by one common factor, covers 62 % of the model-error seeds (a separate simulation)."""
     covered = 0
     for seed in range(400):
         rng = np.random.default_rng(seed)
@@ -239,7 +239,7 @@ def test_momentum_axes_say_whether_one_rotor_fixed_in_the_body_would_explain_the
     assert ("as one rotor fixed in the body would." in text) is one
     assert ("not one rotor fixed in the body" in text) is (not one)
     assert diagnoses_across(done[:1] + done[-1:], [])["momentum_axes"] is None  # one: nothing to compare
-    # held by a minority (2 of 6, as 3 of 30 drag-led racquet flips of an independent audit): said
+    # held by a minority (2 of 6, as by 3 of 30 drag-led racquet flips of an independent simulator): said
     assert "recordings hold it" not in text  # 4 of 5 hold it
     if one:
         minority = diagnoses_markdown(diagnoses_across(done[:2] + [done[-1]] * 4, []))

@@ -1,8 +1,8 @@
 """A body carrying a known internal momentum at constant speed (a momentum wheel, a rotor), gyro
 only, no torque: J w_dot = -w x (J w + h), so scaling J without h changes the motion and the
-data fix the inertia's scale. Until 2026-11-28 only a changing h counted: diagnose pinned the
-trace to 1 kg·m² beside h in kg·m²/s and explained the misfit it made with a gyro bias and scale,
-and identify reported the scale unidentified."""
+data fix the inertia's scale, as a changing h does. With the trace pinned to 1 kg·m² beside h
+in kg·m²/s, diagnose's fit would misfit and read the misfit as a gyro bias and scale, and
+identify would report the scale unidentified."""
 
 import numpy as np
 import pytest

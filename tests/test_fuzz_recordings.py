@@ -162,9 +162,9 @@ def test_identify_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
     event(f"exit {code}: {err.split('rec.csv')[-1].strip()[:50] if code else 'identify'}")
 
 
-#: Found by the fuzzer in a fresh clone (2026-11-26): the rotor's momentum logged 1000x too large.
-#: The explanation's inertia_offset had a covariance so wide that draws from it overflowed, and
-#: the principal ratios' intervals became NaN, which the JSON writer refused (an internal error).
+#: The rotor's momentum logged 1000x too large: the explanation's inertia_offset can get a
+#: covariance so wide that draws from it overflow, and principal ratios' intervals of NaN would be
+#: refused by the JSON writer (an internal error).
 LOGGED_MOMENTUM_1000X = {
     "n": ROWS, "time_unit": "s", "rate_unit": "rad/s", "stated": "none",
     "scales": {"t": 1.0, "w": 1.0, "tau": 1.0, "h": 1000.0}, "constant_time": False,
@@ -195,13 +195,13 @@ def test_diagnose_on_damaged_recordings_gives_a_result_or_one_line(plan, base, t
 def test_units_of_a_simulated_recording_are_refused_or_converted(base, tmp_path, capsys, time_factor,
                                                                   rate_factor, momentum_factor, stated,
                                                                   expected):
-    """The reported cases: t in µs (was a traceback), rates in °/s (was an indefinite inertia);
-    and, found by the fuzz test: time stated in s but 1e8 times too long (identify integrated
-    ~1e7 rad between samples for minutes), rates stated in rad/s but 10 times too large (the
-    model-error covariance overflowed, an internal error; refused, or reported with notes that
-    the residuals and the samples' own scatter are ten times the sidecar's noise), time 1000 and
-    the rotor's momentum 100 times too large (a finite model-error covariance of 1e306 whose
-    error bars overflowed into NaN in identify.json, an internal error; refused as several times
+    """Units that break a fit unless read: t in µs (a traceback), rates in °/s (an indefinite
+    inertia); time stated in s but 1e8 times too long (identify would integrate ~1e7 rad between
+    samples for minutes), rates stated in rad/s but 10 times too large (the model-error
+    covariance can overflow, an internal error: refused, or reported with notes that the
+    residuals and the samples' own scatter are ten times the sidecar's noise), time 1000 and the
+    rotor's momentum 100 times too large (a finite model-error covariance of 1e306 whose error
+    bars would overflow into NaN in identify.json, an internal error: refused as several times
     the nominal)."""
     columns, side = base
     factors = {"t": time_factor, "wx": rate_factor, "wy": rate_factor, "wz": rate_factor,

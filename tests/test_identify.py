@@ -133,8 +133,8 @@ def test_model_error_intervals_cover_over_fixed_seeds():
 def test_a_short_free_flight_converges_and_its_shape_intervals_cover(spin):
     """1 s of a racquet-like body's torque-free flight at 100 Hz, gyro noise 2e-3 rad/s, over 8
     seeds: the fit crawls along a curved valley (the nutation's frequency and shape fix nearly one
-    combination of the moments). Stopped at 40 iterations it ended 2-3 % off in the ratios with
-    intervals that missed the truth on every seed; carried on (ml.CRAWL_MAX_ITER) it converges
+    combination of the moments). Stopped at 40 iterations it ends 2-3 % off in the ratios with
+    intervals that miss the truth on every seed; carried on (ml.CRAWL_MAX_ITER) it converges
     and they cover it."""
     from inertia_gym.dynamics import propagate
 
@@ -280,7 +280,7 @@ def test_a_torque_the_recording_stops_logging_is_model_error_said_and_no_single_
 
 def test_without_a_sidecar_sigma_every_row_keeps_its_residual():
     """No gyro_sigma: identify reweights with the residuals' own level and refits; the result has
-    one row per recorded row (it raised a broadcast error on a phyphox racquet segment)."""
+    one row per recorded row."""
     rec, _ = simulate_recording(Scenario(), 60.0, seed=4, sample_dt=0.01)
     tau = rec.tau.copy()
     tau[rec.t > 20.0] = 0.0
@@ -311,8 +311,8 @@ def test_a_scale_far_from_the_nominal_gets_a_note_on_units(paper_recording, pape
 def test_a_gyro_bias_without_attitude_is_fitted_where_it_explains_the_misfit(seed):
     """Gyro only, torque bursts, a bias of (0.02, -0.01, 0.015) rad/s under 0.03 rad/s noise:
     fitted and said (the inertia within 3.5 sigma per parameter, residuals at the noise); the
-    same recording without a bias gets none. Before, no bias was fitted without attitude:
-    Basilisk recordings with a 1 % bias kept 1.4-2.7x the noise and z up to 16."""
+    same recording without a bias gets none. Without a bias fitted, gyro-only Basilisk
+    recordings with a 1 % bias keep 1.4-2.7x the noise and z up to 16."""
     truth = Scenario().inertia_true_array
     for bias in ([0.02, -0.01, 0.015], None):
         rec, _ = simulate_recording(Scenario(), 100.0, effect_name="gyro_bias" if bias else None,
@@ -371,9 +371,9 @@ def _with_jolt(rec: Recording, rows: int, at_start: bool, seed: int = 0) -> Reco
                          ids=["catch", "release", "catch-without-gyro_sigma"])
 def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sigma):
     """20 ms of a catch, or of the hand letting go, on a simulated throw: without the trim the
-    estimate was 97 % off at 1031x the noise. Located, left out, said, and the estimate is the
+    estimate is 97 % off at 1031x the noise. Located, left out, said, and the estimate is the
     clean record's; a clean record loses nothing and gets no such note. Without gyro_sigma in the
-    sidecar the search whitens with the rates' own noise level, not the misfit's (which hid the
+    sidecar the search whitens with the rates' own noise level, not the misfit's (which hides the
     catch: 85 % off). (A record that cannot be fitted whole stays refused:
     test_fuzz_recordings' units cases.)"""
     rec, sc = _throw(3)
@@ -401,8 +401,8 @@ def test_an_impulse_at_an_end_of_a_throw_is_left_out_and_said(at_start, gyro_sig
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_a_catch_on_a_real_throw_is_left_out_even_where_the_rest_still_fits():
-    """Empty_LOG00179 with a 20-row catch appended: the fit through it was 84 % off while the
-    other rows fitted only 1.3x worse (its residual located the catch); trimmed, the estimate is
+    """Empty_LOG00179 with a 20-row catch appended: the fit through it is 84 % off while the
+    other rows fit only 1.3x worse (its residual locates the catch); trimmed, the estimate is
     the clean record's."""
     rec = read_recordings(ROTOR / "Empty_LOG00179.csv")[0]
     clean, caught = identify(rec), identify(_with_jolt(rec, 20, at_start=False, seed=20))
@@ -412,7 +412,7 @@ def test_a_catch_on_a_real_throw_is_left_out_even_where_the_rest_still_fits():
 
 def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path, capsys):
     """The 0.5-s throw's gyro clipped at 18 rad/s (x peaks at 18.2; 22 % of the rows): the
-    clipped rows were fitted as rates and took the estimate 10 % off; left out, it is within
+    clipped rows, fitted as rates, take the estimate 10 % off; left out, it is within
     0.1 % of the truth at the noise, with a note. Clipped at 10 rad/s every row is: one line."""
     rec, sc = _throw(3)
     res = identify(dataclasses.replace(rec, w=np.clip(rec.w, -18.0, 18.0)))
@@ -435,8 +435,8 @@ def test_a_clipped_gyro_is_left_out_and_said_and_all_clipped_is_refused(tmp_path
 def test_white_residuals_over_the_stated_noise_say_how_much_they_widen_the_intervals():
     """The 0.5-s throw with its sidecar's gyro_sigma halved: the residuals stay white at 2x the
     stated level, the intervals are widened by that factor, and the noise model's sentence says
-    so (it did not: an independent audit's record at 1.98x read as plain white noise). At the
-    true level it says nothing of it."""
+    so (without that sentence a record at 1.98x reads as plain white noise). At the true level
+    it says nothing of it."""
     rec, _ = _throw(3)
     halved = identify(dataclasses.replace(rec, meta={**rec.meta, "gyro_sigma": 0.005}))
     assert halved.noise.kind == "white" and 1.9 < halved.noise.inflation < 2.1
@@ -458,8 +458,8 @@ def test_a_gyro_both_quantised_and_clipped_is_fitted_at_its_rounding_error_witho
 
 @pytest.mark.skipif(not ROTOR.is_dir(), reason="development data (../shared/data) absent")
 def test_a_real_throw_with_a_long_catch_is_identified_without_it():
-    """Empty_LOG00184 with an 80-row catch: the rates locate it before any fit (the whole fit had
-    left 1e4x the noise), and the estimate is the clean throw's."""
+    """Empty_LOG00184 with an 80-row catch: the rates locate it before any fit (the whole fit
+    leaves 1e4x the noise), and the estimate is the clean throw's."""
     rec = read_recordings(ROTOR / "Empty_LOG00184.csv")[0]
     caught = _with_jolt(rec, 80, at_start=False, seed=80)
     clean, rescued = identify(rec), identify(caught)
@@ -484,8 +484,8 @@ def test_scattered_time_stamps_are_placed_on_their_clock():
 
 def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it(racquet_toss):
     """Racquet round 1, segment 4, its free-flight window widened by 0.05 s at both ends: the
-    last rows hold the catch (34.7 rad/s), the whole fit's sensitivities grow to 1e8 and numpy's
-    'Singular matrix' escaped identify. The rates locate the catch before any fit, and the toss
+    last rows hold the catch (34.7 rad/s), and the whole fit's sensitivities grow to 1e8, past
+    inversion (numpy's 'Singular matrix'). The rates locate the catch before any fit, and the toss
     without it has the principal ratios of the toss as cut by its window."""
     res = identify(racquet_toss("round1", 4, (-0.05, 0.05)))
     assert "look like an impulse" in res.notes[0] and "left out" in res.notes[0], res.notes
@@ -495,9 +495,9 @@ def test_a_real_toss_cut_to_hold_its_catch_is_identified_without_it(racquet_toss
 
 
 def test_a_nearly_flat_real_toss_is_identified_as_a_body_that_exists(racquet_toss):
-    """Racquet round 2 segment 4: the ML fit had ended at moments (0.0327, 0.3593, 0.3939), the
-    largest beyond the sum of the others, and the CLI refused it as no body's; its steps are now
-    projected onto the bodies that exist and move along their limit."""
+    """Racquet round 2 segment 4: unprojected, the ML fit ends at moments (0.0327, 0.3593,
+    0.3939), the largest beyond the sum of the others, which the CLI refuses as no body's; its
+    steps are projected onto the bodies that exist and move along their limit."""
     res = identify(racquet_toss("round2", 4))
     check_physical_inertia(res.estimate.inertia, "identify")
     check_physical_inertia(res.reference.inertia, "identify")
@@ -505,9 +505,10 @@ def test_a_nearly_flat_real_toss_is_identified_as_a_body_that_exists(racquet_tos
 
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
 def test_the_filters_identify_a_torque_free_record_up_to_scale(method):
-    """Gyro only, no torque, no momentum: the filter holds the scale (its variance zero). The UKF
-    refused every such record ('the filter's covariance is not positive definite': the held scale
-    made P singular at its first sigma points), real racquet tosses and our own simulator's alike."""
+    """Gyro only, no torque, no momentum: the filter holds the scale (its variance zero). The
+    held scale makes P singular, so the UKF's factor of P gives it a zero column (a Cholesky
+    factor of the whole P would refuse every such record, 'the filter's covariance is not positive
+    definite', real racquet tosses and our own simulator's alike)."""
     rec, sc = _throw(0, rotor=None)
     res = identify(rec, method)
     assert res.method == method and not res.estimate.scale_identified
@@ -520,7 +521,7 @@ def test_the_filters_identify_a_torque_free_record_up_to_scale(method):
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
 def test_a_filter_that_ends_beyond_the_triangle_inequality_reports_the_nearest_body(racquet_toss, method):
     """Racquet round 2 segment 0: both filters' means end with the largest moment about 12-14 %
-    above the sum of the other two (the CLI refused the toss as no body's); the estimate is
+    above the sum of the other two (which the CLI refuses as no body's); the estimate is
     projected onto the nearest inertia a body can have, axes kept, and the notes say so."""
     res = identify(racquet_toss("round2", 0), method)
     check_physical_inertia(res.estimate.inertia, method)
@@ -570,13 +571,13 @@ def test_identification_does_not_depend_on_the_units_of_mass_and_time(method, to
         assert other["rms_over_noise"] == pytest.approx(paper["rms_over_noise"], rel=1e-6)
 
 
-@pytest.mark.parametrize("name", ["s0.01_e0.0_d1.2_seed2",  # the linear start's fit: 101x, refused
-                                  "s0.03_e0.005_d20_seed0"])  # the fit with a bias overflowed: refused
+@pytest.mark.parametrize("name", ["s0.01_e0.0_d1.2_seed2",  # the linear start's fit alone: 101x
+                                  "s0.03_e0.005_d20_seed0"])  # the fit with a bias overflows
 def test_a_clean_thin_body_is_identified(tmp_path, name):
     # A thin, nearly flat body (moments 1 : 0.99 : 0.01, exactly a plate, and 1 : 0.975 : 0.03)
-    # from scipy's integrator: its linear start's fit stalled far from the noise, or the fit with
-    # a bias overflowed where the plain fit was at the noise, and identify refused the record.
-    # The exact plate's single trajectory still stops on the plate's limit at 3.4x the noise: the
+    # from scipy's integrator: its linear start's fit alone stalls far from the noise, or the fit
+    # with a bias overflows where the plain fit is at the noise; neither may refuse the record.
+    # The exact plate's single trajectory stops on the plate's limit at 3.4x the noise: the
     # equation error is reported, its ratios within 1e-3 as well.
     rec, inertia = thin_body(tmp_path, name)
     result = identify(rec)
@@ -588,7 +589,7 @@ def test_a_clean_thin_body_is_identified(tmp_path, name):
 
 def test_a_long_thin_body_record_with_torque_bursts_is_identified(tmp_path):
     # 8 s of a thin body (moments 40 : 39.6 : 0.4 kg·m²) pushed by logged torque bursts: one
-    # trajectory from the linear start followed its first half second only (the moments 15 %
+    # trajectory from the linear start follows its first half second only (the moments 15 %
     # off); fitted in pieces joined pairwise, it follows all of it, at the noise
     inertia = forced_record(tmp_path / "forced.csv", 12012, np.array([1.0, 0.99, 0.01]) * 40.0)
     result = identify(read_recordings(tmp_path / "forced.csv")[0])

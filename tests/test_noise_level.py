@@ -35,7 +35,8 @@ def test_each_orders_level_is_the_noises_by_its_definition(k):
 
 def test_on_white_noise_alone_it_is_the_third_differences_level():
     """Over 200 seeds of 100 rows of white noise, the estimate is the third differences' level
-    on nearly every axis (the slow-motion case is left as it was), and unbiased to a few %."""
+    on nearly every axis (white noise alone is motion slow for the sampling), and unbiased to a
+    few %."""
     third, ratios = [], []
     for seed in range(200):
         w = np.random.default_rng(seed).normal(0.0, 1e-3, (100, 3))
@@ -139,11 +140,11 @@ def test_quantisation_step_reads_a_lattice_and_none_where_values_are_written_in_
 
 
 def test_an_axis_on_a_few_levels_reads_its_step_and_a_few_full_precision_samples_none():
-    """A slow cubesat axis read in steps of 0.01 rad/s sits on 3-9 levels (an audit's records:
-    fewer than QUANTUM_MIN_VALUES read no step, the noise level stayed at a fifth of the rounding
-    error, and physics was named to explain it on 4 of 8); read many times each, the levels give
-    their step. A handful of full-precision samples, or levels not a whole number of steps
-    apart, give none."""
+    """A slow cubesat axis read in steps of 0.01 rad/s sits on 3-9 levels (fewer than
+    QUANTUM_MIN_VALUES: with no step read, the noise level stays at a fifth of the rounding
+    error, and physics is named to explain it on 4 of 8 such records); read many times each, the
+    levels give their step. A handful of full-precision samples, or levels not a whole number of
+    steps apart, give none."""
     t = np.arange(1200) * 0.1
     slow = np.stack([0.02 * np.sin(0.01 * t), 0.015 * np.cos(0.02 * t), 0.5 + 0.012 * np.sin(0.03 * t)], 1)
     levels = np.round(slow / 0.01) * 0.01
@@ -155,9 +156,9 @@ def test_an_axis_on_a_few_levels_reads_its_step_and_a_few_full_precision_samples
 
 
 def test_a_lattice_with_a_few_samples_off_it_still_reads_its_step():
-    """A glitch or an interpolated sample had set the whole axis's step to 0 (the last session's
-    open item): now up to QUANTUM_OFF_SHARE of the samples may lie off the lattice, anywhere in
-    its range (at either end too), and a far spike is passed over; more than that reads 0."""
+    """A glitch or an interpolated sample does not set the whole axis's step to 0: up to
+    QUANTUM_OFF_SHARE of the samples may lie off the lattice, anywhere in its range (at either
+    end too), and a far spike is passed over; more than that reads 0."""
     rng = np.random.default_rng(5)
     signal = np.cumsum(rng.normal(0.0, 3e-3, (2000, 3)), axis=0) + 0.3
     q = np.array([1e-3, 2.5e-4, 1.0653e-3])
@@ -179,8 +180,8 @@ def test_a_lattice_with_a_few_samples_off_it_still_reads_its_step():
 
 def test_a_coarse_lattice_reads_its_rounding_error_not_nothing():
     """A slow signal with white noise of 1e-4 rad/s read in steps of 10x that: most differences
-    are exactly zero, and their median had read 0 (an independent audit); the level is now at
-    least the rounding error, step / sqrt(12), and within 25 % of the error's rms."""
+    are exactly zero, and their median reads 0; the level is at least the rounding error,
+    step / sqrt(12), and within 25 % of the error's rms."""
     rng = np.random.default_rng(8)
     t = np.arange(6000) * 0.1
     signal = np.stack([0.1 * np.sin(0.02 * t), 0.02 * np.cos(0.01 * t), 0.1 * np.sin(0.03 * t + 1)], 1)
@@ -198,8 +199,7 @@ def test_a_gyro_quantised_in_steps_of_10_sigma_is_diagnosed_and_identified_at_it
     mismatch, and says the step was added to the level; identify's intervals are within a small
     factor of the same record's unquantised ones (the rounding error is sqrt(1 + 100/12) = 3.05x
     the noise; its correlation, where the rate dwells within a step, widens them further) and
-    cover the truth; before, the residual read 3x the noise and the intervals were 130-150x as
-    wide (an independent audit's smallsat)."""
+    cover the truth; at the stated level alone the residual would read 3x the noise."""
     from inertia_gym import identify
 
     sc = Scenario(omega0=(0.05, 0.1, 0.04), dt=0.05, gyro_sigma=1e-4, quat_sigma=1e-3, tau_max=0.5)
@@ -224,12 +224,12 @@ def test_a_gyro_quantised_in_steps_of_10_sigma_is_diagnosed_and_identified_at_it
                                   pytest.param(2, marks=pytest.mark.science)])
 def test_a_gyro_read_coarser_than_its_noise_names_no_effect_on_a_clean_record(seed):
     """The slow tumble read in steps of 20x its noise, nothing in it but the rounding: single
-    effects had improved the BIC by up to 330 by tracing the rounding error (a scale, a bias, a
-    mode, a torque: an explanation on seeds 0-3 of 4, on 1 of 7 at 300 s). Each effect must
-    now beat what it gains on the rounded nominal model alone (fit.rounding_floors), and each
-    effect an explanation claims what it gains there on top of the others (fit.rounding_checked;
-    seed 2 was explained by a gyro scale on top of a rotor's momentum without it): none is
-    claimed, and the report and its summary say why."""
+    effects improve the BIC by up to 330 by tracing the rounding error (a scale, a bias, a mode,
+    a torque: with the rounding counted as white noise, an explanation on seeds 0-3 of 4, on 1 of
+    7 at 300 s). Each effect must beat what it gains on the rounded nominal model alone
+    (fit.rounding_floors), and each effect an explanation claims what it gains there on top of
+    the others (fit.rounding_checked; without it seed 2 reads as a gyro scale on top of a
+    rotor's momentum): none is claimed, and the report and its summary say why."""
     from inertia_gym.discrepancy.fit import ROUNDING_RUNS
 
     report, _ = diagnose(slow_tumble_read_coarsely(seed, None))
@@ -245,8 +245,8 @@ def test_a_gyro_read_coarser_than_its_noise_names_no_effect_on_a_clean_record(se
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
     """The slow tumble read in steps of 20x its noise, no nominal given: the rounding error
-    follows the motion, and the principal ratios' 95 % intervals missed the truth on both ratios
-    of these seeds, by 1.6-3.6 of their half-widths (measured before fit.lattice_spread). With the
+    follows the motion, and without fit.lattice_spread the principal ratios' 95 % intervals miss
+    the truth on both ratios of these seeds, by 1.6-3.6 of their half-widths. With the
     spread of the fit's refits on its prediction read on the lattice added to the covariance,
     they hold it (measured 0.48-0.69 of the half-width), and the summary says so."""
     rec = slow_tumble_read_coarsely(seed, None)
@@ -262,7 +262,7 @@ def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
 
 def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are_counted():
     """The line follows noise.lattice_refits (how many refits on the lattice the intervals
-    count), not the runs of equal samples alone: where every refit blew up, nothing was added.
+    count), not the runs of equal samples alone: where every refit blows up, nothing is added.
     The bench's toss, written in full, counts none."""
     report, _ = diagnose(racquet_flip(10, True))
     assert report["noise"]["lattice_refits"] == 0
@@ -275,9 +275,9 @@ def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are
 
 @pytest.mark.slow
 def test_a_momentum_under_a_coarse_rounding_is_still_named():
-    """The same body with a wheel's momentum concealed (seed 2, 4.5-7.4x the rounding error
-    before): the momentum is named, alone (the mode beside it, traced from the rounding, is no
-    longer claimed), and fits to the rounding's level."""
+    """The same body with a wheel's momentum concealed (seed 2): the momentum is named, alone (a
+    mode beside it would trace the rounding: none is claimed), and fits to the rounding's
+    level."""
     report, _ = diagnose(slow_tumble_read_coarsely(2, "internal_momentum"))
     assert [e["name"] for e in report["explanation"]] == ["internal_momentum"]
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15
@@ -300,9 +300,9 @@ def test_rounding_runs_are_the_mean_run_of_equal_samples_on_a_lattice():
 @pytest.mark.slow
 def test_a_gyro_read_coarsely_with_noise_of_a_quarter_step_reads_the_level_its_samples_have():
     """The slow tumble with noise of a quarter step (runs of about 3.4): the differences of the
-    rounded samples had read 0.0029 rad/s on every axis, where the samples are 0.0038 off the
-    truth, and the clean record was flagged unexplained at 1.32x that level (3 of seeds 0-3).
-    The level is now read by simulating the rounding of the rigid fit's rates
+    rounded samples read 0.0029 rad/s on every axis, where the samples are 0.0038 off the
+    truth, and at that level the clean record would be flagged unexplained at 1.32x it (3 of
+    seeds 0-3). The level is read by simulating the rounding of the rigid fit's rates
     (fit.lattice_level): within 10 % of the samples' own error, the fit at about 1x it, nothing
     flagged."""
     rec = slow_tumble_read_coarsely(0, None, noise=2.5e-3)
@@ -317,9 +317,9 @@ def test_a_gyro_read_coarsely_with_noise_of_a_quarter_step_reads_the_level_its_s
 
 def test_identify_counts_a_coarse_lattice_in_its_intervals():
     """A tumble read in steps 20x its noise repeats its reading on most rows: the rounding error
-    follows the motion, and with the residuals' noise model alone the principal ratios'
-    intervals missed the truth by 4.1 and 8.4 sigma on these two seeds (measured before
-    identification._lattice_replayed). The spread of replays of the fit read on the lattice,
+    follows the motion, and with the residuals' noise model alone (without
+    identification._lattice_replayed) the principal ratios' intervals miss the truth by 4.1 and
+    8.4 sigma on these two seeds. The spread of replays of the fit read on the lattice,
     added to the covariance, makes them cover (measured within 1.15 sigma), and identify says
     so; the filters, which replay nothing, keep a warning (_coarse_lattice_note). Read in
     steps of 2x the ratios are within 1 % as well."""

@@ -43,8 +43,8 @@ def test_end_impulses_keeps_the_rows_between_the_last_jump_near_the_start_and_th
 
 def test_a_coarsely_quantized_gyro_is_not_taken_for_a_clipped_one_and_a_clipped_one_still_is():
     """A slow spin read by a gyro quantized at 4x its noise repeats its extreme values at smooth
-    peaks (125 of 1201 rows were taken as clipped, and identify left them out with a false
-    note); clipped at 0.3 rad/s it sits there, and is."""
+    peaks (a rule that counts repeats alone takes 125 of 1201 rows as clipped, which identify
+    would leave out with a false note); clipped at 0.3 rad/s it sits there, and is."""
     sc = Scenario(omega0=(0.05, 0.03, 0.5), tau_max=50.0, gyro_sigma=0.0005)
     rec, _ = simulate_recording(sc, 120.0, None, seed=3, sample_dt=0.1, torque=False)
     quantized = np.round(rec.w / 0.002) * 0.002
@@ -71,10 +71,11 @@ def _free_spin(omega0, dt, duration, seed, sigma=0.001):
 def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still_climbing(levels_per_sigma):
     """A device flipping about its intermediate axis, read at 400 Hz in steps of 2 or 8 noise
     sigmas, and a slow spin read every 0.1 s in steps of 30 sigmas (its spin axis on one or two
-    levels): no sample is clipped. The former test (the extreme level read 3x as often as the
-    next) took 7 samples of the first at 8 sigmas and the whole spin axis of the second as
-    clipped (1201 of 1201 rows left out). The lattice of the first is read at 2 sigmas too (the
-    one-step gaps are rare where the rate sweeps fast: it read none on one axis). Each clipped at
+    levels): no sample is clipped. Taking an extreme level read 3x as often as the next for a
+    clip would take 7 samples of the first at 8 sigmas and the whole spin axis of the second
+    (1201 of 1201 rows left out). The lattice of the first is read at 2 sigmas too (the
+    one-step gaps are rare where the rate sweeps fast: the least recurring gap alone reads none
+    on one axis). Each clipped at
     70 % of an axis's peak (the axes whose peak lies inside the record), that axis is clipped
     exactly there and the others not."""
     flip = _free_spin((2.0, 15.0, 1.0), 0.0025, 2.0, seed=3)
@@ -90,8 +91,8 @@ def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still
         np.testing.assert_array_equal(flagged[:, axis], np.abs(coarse[:, axis]) >= top)
         assert not np.delete(flagged, axis, axis=1).any()
     # a full scale in the sidecar: an int16 gyro's rails (+FS - step, -FS) are clipped, a peak
-    # 3 steps under the full scale is not (0.999 of it took 19 samples of a peak at 99.93 %,
-    # 23 steps under, as clipped: an audit)
+    # 3 steps under the full scale is not (a band from 0.999 of it takes 19 samples of a peak at
+    # 99.93 %, 23 steps under, as clipped)
     under = {"gyro_full_scale_rad_s": np.abs(coarse).max() + 3 * step}
     assert not saturated_samples(dataclasses.replace(flip, w=coarse, meta=under)).any()
     full = np.round(0.7 * np.abs(coarse[:, 0]).max() / step) * step
@@ -109,9 +110,10 @@ def test_a_gyro_read_in_coarse_steps_is_clipped_only_where_it_is_cut_while_still
 def test_a_clip_at_both_ends_only_is_said_not_left_out():
     """An axis clipped at 8 rad/s only in its first and last 103 samples, read in steps of 2 noise
     sigmas: a run with one side shows no clip by itself (a rate may start at its peak), so
-    nothing is left out, but the axis and its ends are named for identify's misfit sentences (an
-    audit's device: refused at 1.1e3 times the noise without a word on clipping); with the full
-    scale given they are clipped and nothing more is said; unclipped, nothing is."""
+    nothing is left out, but the axis and its ends are named for identify's misfit sentences (a
+    device so read is refused at 1.1e3 times the noise, and the sentence names the clipping);
+    with the full scale given they are clipped and nothing more is said; unclipped, nothing
+    is."""
     rng = np.random.default_rng(0)
     t = np.arange(1001) / 500.0
     w = np.stack([4.0 + 5.0 * np.cos(np.pi * t), 3.0 * np.sin(np.pi * t), 1.0 + 0.5 * t], 1)

@@ -50,15 +50,15 @@ SCREEN_ITER, START_ITER, FULL_ITER, CONVERGED = 4, 4, 60, 1.0
 #: rms is within POLISH_MAX_RMS. On 1-s flights near the major or the middle axis the fits
 #: crawl along a curved valley (the nutation fixes nearly one combination of the moments), where
 #: single steps gain under CONVERGED long before the valley's floor. Stopped there (8 seeds,
-#: the noise estimated from the data), the torque-free rigid fit sat 1-3 % off in the ratios,
-#: its intervals missed the truth on 7 (major axis) and 3 (middle axis) of 8 seeds, and a gyro
-#: scale or bias gained over 10 in BIC on 3 of the 8 clean flights near the major axis; with
-#: drag, the explanation's fit sat 2-40 above its floor in cost, its intervals missing the
+#: the noise estimated from the data), the torque-free rigid fit sits 1-3 % off in the ratios,
+#: its intervals miss the truth on 7 (major axis) and 3 (middle axis) of 8 seeds, and a gyro
+#: scale or bias gains over 10 in BIC on 3 of the 8 clean flights near the major axis; with
+#: drag, the explanation's fit sits 2-40 above its floor in cost, its intervals missing the
 #: truth on 7 of 8 (major axis). A fit beyond POLISH_MAX_RMS leaves physics out: its intervals
 #: are its misfit's (covariance() widens them by it), and a rigid one is only the effects'
 #: start. Polished, the rigid fits of the real rotor throws with the rotor's momentum withheld
-#: (hundreds of times the noise) led 3 of 20 explanations into worse fits (1 into a better),
-#: and the explanations of the real racquet tosses (1.5-8 times the noise) took up to 3.5 s
+#: (hundreds of times the noise) lead 3 of 20 explanations into worse fits (1 into a better),
+#: and the explanations of the real racquet tosses (1.5-8 times the noise) take up to 3.5 s
 #: more a toss.
 POLISH_MAX_RMS = 1.5
 POLISH_ITER, POLISH_DECREMENT, STEP_FLOOR = 400, 0.1, 1e-4
@@ -225,9 +225,9 @@ def _continued_start(x0, layout: Layout, d: Data) -> np.ndarray:
     times its segments in turn, then brought to d: each piece's initial rates those fitted on
     the last cut for a piece starting at the same sample, else its first sample. A short piece's
     basin is wide: on a thin body's 1.2-s flip (moments 1 : 0.985 : 0.02) the linear start's fit
-    stopped at 12x the noise in a basin of its own, where polished on 8 pieces, then 4, 2, 1 it
-    reached the noise; on a 6-s record of the same body the rates of its 1.2-s segments taken
-    from their first samples (not the last cut's) left one segment at 4000x.
+    stops at 12x the noise in a basin of its own, where polished on 8 pieces, then 4, 2, 1 it
+    reaches the noise; on a 6-s record of the same body the rates of its 1.2-s segments taken
+    from their first samples (not the last cut's) leave one segment at 4000x.
     """
     glob, fitted = x0[:layout.n_global], {}
 

@@ -22,7 +22,7 @@ from inertia_gym.sensors import lattice_replays, read_on_lattice
 #: is a function of the rate, not white noise, and the same at every pass of the rate through a
 #: value (a torque-free tumble repeats its rates each period). Fits gain by tracing it: on a slow
 #: tumble read in steps of 20 times its noise, with no effect in the data, single effects
-#: improved the BIC by up to 330 and every record was explained by one to three effects.
+#: improve the BIC by up to 330, enough for one to three effects to explain every record.
 ROUNDING_RUNS = 2.0
 #: The rounded nominal models rounding_floors reads: the data's own lattice and lattices shifted
 #: by random fractions of a step (what a fit gains from the rounding scatters with the lattice's
@@ -63,9 +63,9 @@ def lattice_level(d: Data, nominal: Fit) -> Data:
     to the axis's lattice; the noise whose rounded rates' third differences spread as the data's
     do (_third_spread) gives the level, the rms of those rounded rates about the fit's. The
     differences of rounded samples miss the part of the rounding error that follows the rate:
-    a slow tumble in steps of 0.01 rad/s with noise of a quarter step read 0.0029-0.0033 rad/s
-    where its samples are 0.0038 off the truth, and its clean fits were flagged unexplained at
-    1.3 times that level. d itself where the level is the sidecar's or no axis is so read.
+    a slow tumble in steps of 0.01 rad/s with noise of a quarter step reads 0.0029-0.0033 rad/s
+    where its samples are 0.0038 off the truth, and its clean fits would be flagged unexplained
+    at 1.3 times that level. d itself where the level is the sidecar's or no axis is so read.
     """
     coarse = rounding_runs(d) >= ROUNDING_RUNS
     if d.sigma_source == "sidecar" or not coarse.any() or not np.isfinite(nominal.bic):
@@ -109,7 +109,7 @@ def lattice_spread(fit: Fit, d: Data, idx) -> np.ndarray:
     fraction of a step), where an axis runs ROUNDING_RUNS samples or more on one value; zeros
     elsewhere. The rounding error follows the motion, and neither the residual's level nor its
     correlation counts it: on 600-s tumbles read in steps of 20x the noise the principal ratios'
-    95 % intervals held the truth on 1 of 12 without it. The spread holds the noise's share too,
+    95 % intervals hold the truth on 1 of 12 without it. The spread holds the noise's share too,
     which the information already counts: a little too wide where the noise outweighs the
     rounding. Refits that blow up are left out (lattice_refits_counted: how many are not).
     Kept in d.cache per fit.

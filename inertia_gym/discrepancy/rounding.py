@@ -26,7 +26,7 @@ from inertia_gym.discrepancy.selection import (
 ROUNDING_CHECK_DRAWS = 19
 #: What an effect added on top of others gains from the rounding, over the most any effect gained
 #: alone (the largest single floor), beyond which rounding_checked does not look: 1.44 on the one
-#: clean record where the check mattered (279 against 194, 600-s slow tumble seed 2)
+#: clean record of the tests where the check decides (279 against 194, 600-s slow tumble seed 2)
 ROUNDING_CHECK_REACH = 4.0
 
 
@@ -73,12 +73,12 @@ def rounding_checked(d: Data, nominal: Fit, expl: Explanation,
     the rows' independent share) is dropped, until none is. The single floors price each effect
     alone, over few draws; on top of another effect the rounding can give it more (a gyro scale
     on top of a rotor's momentum on a clean slow tumble read in steps of 20x its noise: 111 in
-    BIC, where alone it gained 32 against a floor of 95), and over more draws the rounding gives
+    BIC, where alone it gains 32 against a floor of 95), and over more draws the rounding gives
     more (that momentum alone: 21 against a floor of 11 from four draws). An effect whose
     removal costs more than ROUNDING_CHECK_REACH times the largest single floor (and the margin)
-    is kept unchecked, and an effect's draws stop once one drops it: the check's refits of a
-    mode and a varying momentum, 19 draws each, had taken 68 s of a 111-s diagnosis where the
-    largest floor was 4.3 and the effects gained 39333 and 52.
+    is kept unchecked, and an effect's draws stop once one drops it: checked in full, the refits
+    of a mode and a varying momentum, 19 draws each, take 68 s of a 111-s diagnosis where the
+    largest floor is 4.3 and the effects gain 39333 and 52.
 
     Returns the explanation left and {name: gain} of each effect checked alone (on the rigid
     fit's records: what rounding_floors reads, over more draws; the caller raises the floors).

@@ -168,7 +168,7 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     expl's forms to give what each adds, its compound fit kept. expl itself where it is so led.
 
     Ranked in their best forms, not in expl's: racquet round 1 segment 0's explanation (an
-    inertia change, then a constant drag) was listed led by the inertia change, whose single fit
+    inertia change, then a constant drag) would be listed led by the inertia change, whose single fit
     beats the constant drag's, while the report's best single effect is the drag, which in its
     varying form alone explains almost three times as much (354 against 128 in BIC).
     """
@@ -255,8 +255,8 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     the forward steps resume from what is left (an effect once dropped is not screened again),
     then the backward check again, until it drops none: a rich effect taken early can be made
     redundant by those added after it, and the explanation without it may lack an effect that it
-    had stood in for (Basilisk's slosh with a hidden torque: led by the varying momentum, the
-    search added the inertia offset and a mode, then dropped the momentum, short of the torque).
+    stands in for (Basilisk's slosh with a hidden torque: led by the varying momentum, the
+    search adds the inertia offset and a mode, then drops the momentum, short of the torque).
     """
     by_name = {f.name: f for f in singles}
     ranked = [f for f in singles if np.isfinite(f.bic) and nominal.bic - f.bic > claim_margin(d, f.name)]

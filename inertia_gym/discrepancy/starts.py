@@ -41,8 +41,8 @@ KNOTS_FOLLOW, NOISE_CHANGES = 2, 5.0
 #: The share of those knots that follow the change (the rest evenly spaced over the record): a
 #: smooth spin-up's corners, where its curvature jumps, need knots a fraction of its length
 #: apart (a wheel of 15 % of the body's momentum spinning up in 5 s of a 300-s record at 10 Hz:
-#: with half, 3.6 s apart there, a second effect took up the corners in 4 of 8 cases and the
-#: worst axis reached 1.59x the noise; with three quarters, 2.6 s apart, 2 of 8 and 1.18x).
+#: with half, 3.6 s apart there, a second effect takes up the corners in 4 of 8 cases and the
+#: worst axis reaches 1.59x the noise; with three quarters, 2.6 s apart, 2 of 8 and 1.18x).
 KNOTS_ON_CHANGE = 0.75
 #: A flexible mode's fit may move its frequency up to this factor above its fastest start; its
 #: screen scans frequencies this factor apart.
@@ -131,10 +131,10 @@ class Probe:
         """Each joint x with, segment by segment, its initial rates or the segment's first gyro
         sample (initial_rates), whichever leaves that segment's rows the smaller residual.
 
-        The base's rates were fitted without the new effect and bent to stand in for it: on a
+        The base's rates are fitted without the new effect and bend to stand in for it: on a
         300-s record of five segments whose only misfit is an internal momentum, the momentum's
-        equation-error start (within 2 % of the truth) with the nominal fit's rates cost 9993 in
-        BIC more than no momentum at all, and the fit stalled at a gain of 821 where the truth
+        equation-error start (within 2 % of the truth) with the nominal fit's rates costs 9993 in
+        BIC more than no momentum at all, and the fit stalls at a gain of 821 where the truth
         gains 93324; from the first samples' rates it reaches the truth.
         """
         d, n = self.d, self.layout.n_global
@@ -249,7 +249,7 @@ class Probe:
         free[delta] = True
         # (change time, rates moved) -> (gain, x): the two scans share their times, so one
         # linearisation serves both and only its two steps are kept (a long record's Jacobians,
-        # kept for every time scanned, took 1.5 GB at 60 000 rows)
+        # kept for every time scanned, would take 1.5 GB at 60 000 rows)
         steps = {}
 
         def gauss_newton(tc, rates):
@@ -376,18 +376,18 @@ class Probe:
         changes somewhere beyond its noise; then a quarter of them are evenly spaced in time and
         three quarters (KNOTS_ON_CHANGE) follow that change, so that a rotor spinning up for ten
         seconds of a ten-minute record is followed through its spin-up (evenly spaced, twenty
-        knots half a minute apart drew it as a slow ramp, and a gyro drift and a flexible mode
-        took up the rest). Where it changes: a
+        knots half a minute apart draw it as a slow ramp, and a gyro drift and a flexible mode
+        take up the rest). Where it changes: a
         first estimate on KNOTS_FOLLOW times as many evenly spaced knots (momentum_estimate along
         the axis that explains most, in windows of a third of a turn where the record has room
-        for four times as many equations as that estimate's unknowns: shorter windows left the
+        for four times as many equations as that estimate's unknowns: shorter windows leave the
         spin-up of a wheel of 5 % of the body's momentum at 4-8 times the median change, longer
         at 23-31): the intervals where it changes by more than NOISE_CHANGES times the median
         change, and those beside them, are where the change's knots go, evenly spread over them.
         A smooth spin-up starts and ends below the noise of that estimate, and its corners are
-        where a spline needs knots: placed in proportion to the change, they gathered where the
-        spin-up is steepest, began after the start of a thrown device's 0.3-s spin-up, and a
-        flexible mode took up the corner the spline could not draw (2 of 3 seeds). Neighbouring
+        where a spline needs knots: placed in proportion to the change, they gather where the
+        spin-up is steepest, begin after the start of a thrown device's 0.3-s spin-up, and a
+        flexible mode takes up the corner the spline cannot draw (2 of 3 seeds). Neighbouring
         knots stay at least ROWS_PER_KNOT residual rows apart. Cached in d.cache
         (depends on the data and the base).
         """

@@ -28,8 +28,9 @@ def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
     over the share of its rows that are independent (effective_share). Rows correlated over tau
     of them carry the information of 1/tau as many: the same count the BICs are recounted with.
     Without it, on a 1-s racquet toss with AR(1) gyro noise (coefficient 0.9 per row, stated
-    level given) the shape's 95 % intervals covered the truth on 8 of 20 seeds; with it on 13
-    (tests/discrepancy/test_fit.py), and white noise gives the same intervals as before.
+    level given) the shape's 95 % intervals cover the truth on 8 of 20 seeds; with it on 13
+    (tests/discrepancy/test_fit.py), and white noise (a share of 1) gives the same intervals as
+    without it.
     """
     layout = fit.layout
     free = _free(layout, d)
@@ -68,10 +69,9 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
 
     From covariance() by the delta method through each class's named parameters as reported
     (named_params: an inertia_offset's inertia at the nominal's trace where the scale is not
-    seen; through the bare unpack its intervals were at the held gauge's trace, and an
-    independent audit found its 95 % interval of Ixx of zero width and off the estimate on 7 of
-    7 wrong nominals); held parameters (a scanned t_change, bookkeeping) get no width from the
-    fit.
+    seen; through the bare unpack its intervals would be at the held gauge's trace, the 95 %
+    interval of Ixx of zero width and off the estimate on 7 of 7 wrong nominals); held
+    parameters (a scanned t_change, bookkeeping) get no width from the fit.
     """
     cov_free, idx = covariance(fit, d)
     layout = fit.layout

@@ -226,8 +226,7 @@ class ExcitationEnv(gym.Env):
     :class:`~inertia_gym.envs.vector.ExcitationVectorEnv` (one call of the batched loop per
     step) unless ``vectorization_mode="sync"`` or ``"async"`` asks for copies of this env.
 
-    Version history: v0 (first release; the native vector entry point added within v0: it
-    gives the same results as "sync" mode).
+    Version: v0 (its native vector entry point gives the same results as "sync" mode).
     """
 
     metadata = {"render_modes": []}

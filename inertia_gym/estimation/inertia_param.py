@@ -122,8 +122,8 @@ def nearest_realizable(inertia) -> np.ndarray:
     moment S >= 0; equality only for a flat plate). Where that holds it is the inertia itself;
     otherwise its moments are moved, least squares with its principal axes kept, onto the
     nearest flat plate's: (1, 0.45, 0.05) becomes (5/6, 37/60, 13/60). A fit projected on it
-    cannot end where no body is, as racquet tosses did (the largest moment 0.04-3.9 % beyond
-    the limit, pulled there by what the model leaves out).
+    cannot end where no body is, as unprojected fits of racquet tosses do (the largest moment
+    0.04-3.9 % beyond the limit, pulled there by what the model leaves out).
     """
     j = np.asarray(inertia, dtype=float)
     j = 0.5 * (j + j.T)

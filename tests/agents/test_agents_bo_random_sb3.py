@@ -114,7 +114,7 @@ def test_make_agent_unknown_name():
 
 @pytest.mark.parametrize("name", ["sac", "td3", "ppo"])
 def test_sb3_agents_take_exactly_the_budget(name, tmp_path, monkeypatch):
-    """... and leave nothing in the temporary folder (SB3's default logger made an empty
+    """... and leave nothing in the temporary folder (SB3's default logger would make an empty
     SB3-<time> folder there on every run)."""
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     sc = Scenario()

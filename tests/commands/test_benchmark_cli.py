@@ -19,8 +19,8 @@ SMALL = ["--agents", "bo,random,ppo,grid", "--seeds", "2", "--budget", "10", "--
 N_TASKS = 7
 WALL_KEYS = {"wall_s", "score_wall_s"}
 # meant to keep the module on one xdist worker, so that `sequential` (a sweep of 7-15 s here) is built
-# once; with pytest 9.2 xdist 3.8's loadgroup no longer groups (pytest-xdist issue #1386: its nodeid
-# suffix is ignored), and each worker that runs one of these tests builds it (measured 2026-12-02)
+# once; under pytest 9.2, xdist 3.8's loadgroup does not group (pytest-xdist issue #1386: its nodeid
+# suffix is ignored), and each worker that runs one of these tests builds it
 pytestmark = pytest.mark.xdist_group("benchmark_sweep")
 
 

@@ -185,7 +185,7 @@ def test_subset_diagnosis_is_correct(subset_rows, name):
 def test_a_moving_mass_left_out_is_named_as_mass_and_motion_and_explained(subset_rows, name):
     """Slosh and a hinged panel, already moving where the log starts: their mass (inertia_offset)
     and their motion (flexible_mode, from its state at the start) are both named, and together
-    they explain the rates to within 3x the noise (before the mode's initial state: 7 and 33x)."""
+    they explain the rates to within 3x the noise (a mode started at rest leaves 7 and 33x)."""
     row = subset_rows[0][name]
     assert {"inertia_offset", "flexible_mode"} <= set(row["named"]), row["named"]
     assert max(row["rms_over_noise_after"]) < 3.0, row["rms_over_noise_after"]
@@ -195,9 +195,9 @@ def test_a_moving_mass_left_out_is_named_as_mass_and_motion_and_explained(subset
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["control_smallsat_bursts", "torque_smallsat_free"])
 def test_software_time_stamps_do_not_change_the_diagnosis(tmp_path, name):
-    """Stamps logged up to +-10 % of the interval off the sampling instants (before the samples
-    were placed on their clock the control read as aero_drag): the same diagnosis; the samples
-    are placed within 2 % of the interval of their instants."""
+    """Stamps logged up to +-10 % of the interval off the sampling instants (read on its stamps,
+    the control reads as aero_drag): the same diagnosis; the samples are placed within 2 % of the
+    interval of their instants."""
     row = harness.run_case(_case(name), tmp_path, stamp_scatter=0.1)
     assert row["correct"], f"{name}: concealed {row['components']}, diagnose named {row['named']}"
     (rec,) = read_recordings(tmp_path / f"{name}.csv")
@@ -262,8 +262,8 @@ def test_a_search_resumes_after_its_backward_check_drops_its_lead(tmp_path):
     """Slosh with a hidden torque (60 s, the harness's own case): the varying momentum explains
     most alone and leads the search, which adds the inertia offset and a mode and then drops the
     momentum in its backward check, short of the torque. The forward steps resume after the
-    drop, and the torque is named (the search had stopped there, and the explanation ended at
-    the offset alone, 8.6x the noise, once its misfit's correlation recounted the rows)."""
+    drop, and the torque is named (stopped there, the search would end at the offset alone,
+    8.6x the noise, once its misfit's correlation recounts the rows)."""
     row = harness.run_case(_case("pair_torque_slosh", duration=60.0), tmp_path)
     assert row["correct"], row["named"]
     assert "constant_body_torque" in row["named"]

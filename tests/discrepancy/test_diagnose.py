@@ -106,8 +106,9 @@ def _param_error(name, truth, fitted):
 @pytest.mark.parametrize("seed", [11, 12, 13])
 @pytest.mark.parametrize("name", ["actuator_scale", "gravity_gradient", "flexible_mode"])
 def test_formerly_missed_effects_are_found_blind(name, seed):
-    """actuator_scale used to lose to gyro_scale (its s was mis-rescaled), gravity_gradient was
-    drawn below what a fast tumble lets the gyro see, and flexible_mode was never fitted."""
+    """Each found blind (the best effect, the fit within 1.2x the noise, its parameters within
+    20 %): actuator_scale against gyro_scale (separable on a spinning body, and said so),
+    gravity_gradient drawn to a size a fast tumble lets the gyro see, and flexible_mode."""
     rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0, name, seed=seed)
     report, _ = diagnose(_concealed(rec))
     assert report["best_effect"] == name
@@ -206,7 +207,7 @@ def test_a_gyro_clipped_on_most_rows_is_refused_in_one_line_without_warnings():
     """Clipped samples are left out; where too few rows remain, diagnose itself (not only the
     CLI) says so in the preparation's words (identify's too), naming the clipping, and no
     RuntimeWarning of the fits on a handful of rows
-    escapes (a racquet toss clipped at 0.7 of its peak rate leaked four kinds of them).
+    escapes (fitted, a racquet toss clipped at 0.7 of its peak rate raises four kinds of them).
     """
     rec, _ = simulate_recording(Scenario(), 1.0, seed=4)
     limit = np.percentile(np.abs(rec.w).max(axis=1), 5)
@@ -285,7 +286,7 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
 
 def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
     """A 5e-4 kg·m² device's torque (1.234e-6 N·m) and a 2e-5 rad/s noise level are written to
-    significant digits, not to fixed decimals (which printed them as 0.0)."""
+    significant digits, not to fixed decimals (which print them as 0.0)."""
     torque = {"name": "constant_body_torque", "form": None, "delta_bic": 40.0,
               "params": {"torque": [1.23456e-6, -2.5e-7, 0.0]},
               "ci95": {"torque": {"lo": [1.1e-6, -3.0e-7, -1e-8], "hi": [1.3e-6, -2.0e-7, 1e-8]}},
@@ -479,11 +480,10 @@ def test_beyond_catalogue_words_say_what_is_left_and_what_the_effects_named_are(
 
 
 def test_a_real_spin_about_the_handle_is_read_as_the_air_of_its_flight(racquet_toss):
-    """Racquet round 1 segment 2, a spin about the handle. Until aero_drag's flight form its
-    explanation (a momentum along the spin) took the second ratio to 0.53 with a 95 % interval
-    0.18-0.83 and the summary said not to read the shape from it (that rule: the test above).
-    The air of the flight now leads it, with the shape of round 1's other tosses, (1, 0.79, 0.21),
-    held to a narrow interval (measured: 242 -> 7.9x the noise); it is still beyond the catalogue.
+    """Racquet round 1 segment 2, a spin about the handle: the air of the flight (aero_drag's
+    flight form) leads its explanation, with the shape of round 1's other tosses, (1, 0.79, 0.21),
+    held to a narrow interval, so the summary does not warn against reading the shape (that rule:
+    the test above). The fit falls from 242 to 7.9x the noise (measured): beyond the catalogue.
     """
     rec = racquet_toss("round1", 2)
     report, _ = diagnose(rec)
@@ -501,10 +501,10 @@ def test_a_real_spin_about_the_handle_is_read_as_the_air_of_its_flight(racquet_t
 
 def test_a_nearly_flat_real_toss_is_fitted_as_a_body_that_exists(racquet_toss):
     """Racquet round 2 segment 0, nearly a flat plate: pulled by what the model leaves out, its
-    fits had put the largest moment beyond the sum of the other two (rigid (0.069, 0.426,
-    0.506), compound (0.048, 0.448, 0.504)), and the CLI refused the toss as no body's. Every
-    step is now projected onto the bodies that exist, and the fit still explains the toss
-    (measured: rms 56.7 -> 2.9 times the noise)."""
+    unprojected fits put the largest moment beyond the sum of the other two (rigid (0.069, 0.426,
+    0.506), compound (0.048, 0.448, 0.504)), which the CLI refuses as no body's. Every step is
+    projected onto the bodies that exist, and the fit still explains the toss (measured: rms
+    56.7 -> 2.9 times the noise)."""
     report, _ = diagnose(racquet_toss("round2", 0))
     for key in ("fit_before", "fit_after"):
         check_physical_inertia(report[key]["inertia"], key)
@@ -536,9 +536,9 @@ def test_a_drag_that_changes_over_a_toss_is_named_with_its_profile(seed):
 
 
 def test_real_intermediate_axis_flips_lead_with_a_drag_that_changes_in_flight(racquet_toss):
-    """Racquet round 2 segment 4: the time-varying internal momentum (a rotor the racquet does
-    not have) had led its explanation (7 of the 12 tosses); a drag whose coefficient changes
-    over the flight now explains it better (measured: worst axis 141 -> 2.7x the noise, was 7.5x)."""
+    """Racquet round 2 segment 4: a drag whose coefficient changes over the flight leads its
+    explanation, ahead of the time-varying internal momentum (a rotor the racquet does not have),
+    and explains it (measured: worst axis 141 -> 2.7x the noise)."""
     report, _ = diagnose(racquet_toss("round2", 4))
     first = report["explanation"][0]
     assert (first["name"], first["form"]) == ("viscous_damping", "varying")
@@ -547,18 +547,13 @@ def test_real_intermediate_axis_flips_lead_with_a_drag_that_changes_in_flight(ra
 
 
 def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss):
-    """Racquet round 1's first toss (17-03-03 segment 0): its explanation had been flexible_mode
-    then a constant drag, from the search over the simplest forms, which fitted only 1.5 better
-    in BIC (5.7 before the recount) than the varying drag alone, the best single effect by far.
-    Each effect an explanation names is now charged the significance margin, as the forward
-    selection charges it. Since the solver takes no step along a column the residual does not
-    see (d7f86c4), the explanation there is the time-varying momentum, a constant torque and a
-    gyro bias, 21.3 better in BIC than the drag alone: it earns the two margins its two extra
-    effects cost (measured: worst axis 53.4 -> 7.6x the noise; 11.1x with the drag alone).
-    Since the noise level is read where the motion is fast (c86d596) the explanation is an
-    inertia change and a constant drag, from the search over the simplest forms; it is listed led
-    by the report's best single effect, the drag (its varying form alone 354 in BIC against the
-    inertia change's 128), not by the inertia change, whose single fit beats the constant drag's."""
+    """Racquet round 1's first toss (17-03-03 segment 0), whose best single effect by far is the
+    varying drag: each effect an explanation names is charged the significance margin, as the
+    forward selection charges it, so every effect beyond the best single one must earn its
+    margin. The explanation is an inertia change and a constant drag, from the search over the
+    simplest forms; it is listed led by the report's best single effect, the drag (its varying
+    form alone 354 in BIC against the inertia change's 128), not by the inertia change, whose
+    single fit beats the constant drag's."""
     report, _ = diagnose(racquet_toss("round1", 0))
     expl = report["explanation"]
     assert expl[0]["name"] == report["best_effect"] == report["effects"][0]["name"]
@@ -572,11 +567,11 @@ def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss
 def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
     """Racquet round 2 segment 3: the searches led by the best single effect (the varying drag)
     and by the runner-up; select keeps an explanation at least as good as either, listed led by
-    the best single effect. With the momentum's piecewise-linear profile the runner-up's search
-    had ended better (483.1 against 516.1 in BIC with each named effect's margin, the rows
-    recounted); with its spline profile (2026-11-28) both end at the varying drag and the varying
-    momentum, 476.6. The runner-up's search finding the better explanation is tested on a rotor
-    throw below and on Basilisk's slosh with a hidden torque (test_basilisk.py)."""
+    the best single effect. Both end at the varying drag and the varying momentum, 476.6 in BIC
+    with each named effect's margin (the rows recounted), below the 483.1 of the better search
+    with a piecewise-linear momentum profile (the runner-up's; the other's 516.1). The
+    runner-up's search finding the better explanation is tested on a rotor throw below and on
+    Basilisk's slosh with a hidden torque (test_basilisk.py)."""
     found = _fits(prepared(racquet_toss("round2", 3)))
     d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
     first = search(d, nominal, singles, MAX_EFFECTS)
@@ -584,7 +579,7 @@ def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
     assert first.fit.names[0] == singles[0].name
     cost = _claims_cost(chosen.fit, d)
     assert cost <= min(_claims_cost(first.fit, d), _claims_cost(runner_up.fit, d)) + TIE_BIC
-    assert cost < 483.1  # better than either search found with the linear profile
+    assert cost < 483.1  # better than either search with a piecewise-linear momentum profile
     assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
 
 
@@ -613,11 +608,9 @@ def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
 def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, monkeypatch):
     """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the explanation, a constant
     torque and the time-varying momentum, is listed led by the effect of the best single-effect
-    fit among those it holds, the momentum, which alone explains far more. Until aero_drag's
-    flight form the search led by the runner-up found it in the other order (a constant torque
-    first) and the listing reordered it (_led_by_best_single, tested on a racquet toss above);
-    now the first search finds it in this order. One diagnosis: the fits it reports from are
-    kept as _fits returns them."""
+    fit among those it holds, the momentum, which alone explains far more (the first search finds
+    it in this order; one found in the other order is listed so by _led_by_best_single, tested
+    above). One diagnosis: the fits it reports from are kept as _fits returns them."""
     rec = dataclasses.replace(rotor_throw("Empty_LOG00180"), h=None)
     kept = []
     monkeypatch.setattr(report_module, "_fits", lambda r: kept.append(_fits(r)) or kept[-1])
@@ -644,7 +637,7 @@ def test_a_window_in_a_sidecar_is_not_taken_for_a_free_flight_window(hand_tosses
 def test_an_ambiguity_with_an_effect_the_recording_cannot_test_is_not_said(torque):
     """A wrong nominal inertia: with torque bursts its overall scale trades against the torque's
     (actuator_scale), and the report says so; with no torque commanded, actuator_scale cannot be
-    tested and no such trade is said (an independent audit found it said on a torque-free throw)."""
+    tested and no such trade is said."""
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, "inertia_offset", seed=3, torque=torque)
     report, _ = diagnose(_concealed(rec))
     (entry,) = [e for e in report["explanation"] if e["name"] == "inertia_offset"]
@@ -656,11 +649,11 @@ def test_an_ambiguity_with_an_effect_the_recording_cannot_test_is_not_said(torqu
 @pytest.mark.parametrize("widen", [1.0, 1e8])
 def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monkeypatch, widen):
     """A nearly flat body's 1-s flip (the speed bench's racquet toss), its fit's covariance as
-    it is and 1e8 times wider (as on an independent audit's slow flips, whose momentum profile
-    left the shape barely fixed): every interval holds the fit's own ratios, and its draws are
-    bodies that exist (each moment at most the sum of the other two: I2/I1 >= 1/2, as the fits
-    are kept). Before, the wide draws were read as they fell: I2/I1 down to 1e-9, and the
-    estimate 0.787 outside its own interval [1.5e-9, 0.562] (audit flip 1001)."""
+    it is and 1e8 times wider (as on slow flips whose momentum profile leaves the shape barely
+    fixed): every interval holds the fit's own ratios, and its draws are bodies that exist (each
+    moment at most the sum of the other two: I2/I1 >= 1/2, as the fits are kept). Wide draws
+    read as they fall would take I2/I1 down to 1e-9 and leave the estimate outside its own
+    interval (on such a slow flip: 0.787 against [1.5e-9, 0.562])."""
     found = _fits(prepared(racquet_flip()))
     d, chosen = found.data, found.chosen
     real = report_module.covariance

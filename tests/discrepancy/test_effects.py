@@ -333,8 +333,8 @@ def test_drag_that_feeds_energy_in_is_projected_out(name):
 
 def test_the_inertia_after_a_change_is_always_a_bodys():
     """feasible() leaves a change whose J + delta_J a body can have as it is, bit for bit, and
-    projects one that no body can have (here indefinite, as fits on the rotor throws had left
-    it) onto the nearest that one can: positive definite, each principal moment at most the
+    projects one that no body can have (here indefinite, as unprojected fits on the rotor throws
+    leave it) onto the nearest that one can: positive definite, each principal moment at most the
     sum of the other two, and a fixed point of the projection; the change time is kept."""
     model = REGISTRY["inertia_change"]
     inertia = np.array([[0.45, 0.02, 0.0], [0.02, 0.35, 0.01], [0.0, 0.01, 0.2]])  # kg·m²

@@ -1,7 +1,7 @@
 """The output-error engine of diagnose (discrepancy/fit.py, model.py) against its definitions:
 the grid and the held torque, the arrow-shaped Jacobian and its Levenberg-Marquardt step, the
-rows (block means, clipped samples, trimmed impulses), and fits on cases the old equation error
-could not do (a fast toss at 100 Hz, a rotor with its momentum withheld).
+rows (block means, clipped samples, trimmed impulses), and fits on cases a modulating-function
+equation-error fit does not reach (a fast toss at 100 Hz, a rotor with its momentum withheld).
 """
 
 from __future__ import annotations
@@ -97,8 +97,8 @@ def test_jacobian_columns_equal_brute_force_differences():
 @pytest.mark.parametrize("w0", [(0.3, 15.0, 0.4), (0.5, 0.5, 25.0)])
 def test_a_fast_toss_at_100_hz_is_fitted_to_its_noise(w0):
     """A racquet flipping at 15-25 rad/s sampled at 100 Hz (0.15-0.25 rad per sample): the
-    output-error fit reaches the noise and the inertia's ratios (the equation error of the
-    earlier diagnose left 15-33x the noise on the same data)."""
+    output-error fit reaches the noise and the inertia's ratios (a modulating-function
+    equation-error fit leaves 15-33x the noise on the same data)."""
     d = F.prepare(_toss(w0))
     fit = F.fit_nominal(d)
     assert np.sqrt(np.mean(fit.z ** 2)) < 1.15
@@ -111,8 +111,8 @@ def test_a_fast_toss_at_100_hz_is_fitted_to_its_noise(w0):
                                       ((12.0, 0.5, 0.3), True)])  # near the major, the middle axis
 def test_a_short_flight_is_fitted_to_its_valleys_floor_and_its_shape_intervals_cover(w0, drag):
     """1 s of the racquet's flight at 100 Hz, gyro noise 2e-3 rad/s (given), 8 seeds, torque-free
-    or with drag: the fits crawl along a curved valley. Stopped where a step gained under 1 in
-    BIC, the ratios' intervals covered the truth on 4 (major axis), 8 (middle axis) and, with
+    or with drag: the fits crawl along a curved valley. Stopped where a step gains under 1 in
+    BIC, the ratios' intervals cover the truth on 4 (major axis), 8 (middle axis) and, with
     drag near the major axis, 1 of 8 seeds; polished, on 8, 8 and 8. (With the noise estimated
     from the data, torque-free: 1 and 5 of 8, and a gyro scale or bias named on 3 of the 8 near
     the major axis; polished, 8 and 8, none named.) Near the middle axis with drag (not a case
@@ -136,7 +136,7 @@ def test_the_ratios_intervals_are_the_delta_methods_where_the_ratios_are_linear(
     """A racquet flip with drag (1 s at 100 Hz), whose ratios are linear in the parameters over
     their interval: the percentile interval from the quasi-random draws is the delta method's,
     +-1.96 sqrt(g^T Cov g) with g the ratio's gradient (central differences) and Cov the fit's
-    covariance, within 3 %. (400 pseudo-random draws had given 3.45e-4 for 3.92e-4 here.)
+    covariance, within 3 %. (400 pseudo-random draws give 3.45e-4 for 3.92e-4 here.)
     """
     c_true = np.diag([0.1, 0.1, 0.02]) * np.diag(RACQUET)
     d = F.prepare(_toss((0.3, 10.0, 0.2), sigma=2e-3, seed=1,
@@ -216,7 +216,7 @@ def test_drag_nil_about_one_axis_is_fitted_and_stays_dissipative(seed):
     """A racquet toss with air drag about the two broad axes and none about the handle (C of
     rank 2, as the real tosses fit): the drag fit finds C's two coefficients within 15 % and
     nothing about the handle, and every step is projected onto dissipative C (a penalty row
-    left C slightly indefinite here, and froze the drag fit of two real tosses at C = 0).
+    leaves C slightly indefinite here, and freezes the drag fit of two real tosses at C = 0).
     """
     c_true = np.diag([0.1, 0.1, 0.0]) * np.diag(RACQUET)  # N·m·s: ~10 % spin decay over the toss
     w0 = np.array([0.3, 15.0, 0.4]) + np.random.default_rng(seed).normal(0, 0.3, 3)
@@ -269,7 +269,8 @@ def test_an_impulse_the_first_searchs_explanation_uncovers_is_trimmed_before_the
         monkeypatch):
     """A small catch that a strong drag's misfit hides from the nominal fit stands out once the
     first search has explained the drag: the record is trimmed then, and select's searches run
-    only on the trimmed record (each ran twice before: 1.3 s of racquet round 1 segment 2's 5.6)."""
+    only on the trimmed record (run on both, they would take 1.3 s more of racquet round 1
+    segment 2's 5.6)."""
     drag = Effect("aero_drag", {"c": np.diag([3e-4, 2.25e-4, 1.5e-5])})
     rec = _toss((0.3, 15.0, 0.4), effects=drag)
     hit = rec.w.copy()
@@ -290,8 +291,9 @@ def test_an_impulse_the_first_searchs_explanation_uncovers_is_trimmed_before_the
 
 def _slow_tumble_with_momentum() -> tuple[Recording, np.ndarray]:
     """The slow tumble of records.slow_tumble with a constant internal momentum of ~4 %
-    of the body's own; and the momentum (3,) kg·m²/s. Found by a fuzz: its diagnosis named a
-    constant torque, a varying momentum and a flexible mode."""
+    of the body's own; and the momentum (3,) kg·m²/s. Where the momentum's starts keep the
+    nominal fit's rates, its diagnosis names a constant torque, a varying momentum and a
+    flexible mode (the test below)."""
     rec, truth = slow_tumble("internal_momentum", 2, 202)
     return rec, np.asarray(truth["internal_momentum"]["h"])
 
@@ -314,8 +316,8 @@ def test_the_pairs_harness_measures_what_each_true_effect_shows():
 @pytest.mark.slow
 def test_a_momentum_beside_a_gyro_bias_is_found_from_its_own_start():
     """A gyro bias and a constant momentum: screened on top of the bias from its single fit's
-    momentum (fitted with the bias missing), the momentum gained nothing, was never refitted,
-    and an inertia offset stood in for it (1801 in BIC where the momentum adds 1845): its own
+    momentum (fitted with the bias missing), the momentum gains nothing, is never refitted,
+    and an inertia offset stands in for it (1801 in BIC where the momentum adds 1845): its own
     start on top of the bias is tried too (restarts_on_base)."""
     rec, truth = slow_tumble(["internal_momentum", "gyro_bias"], 0, 300)
     report, _ = diagnose(rec)
@@ -328,8 +330,8 @@ def test_a_momentum_beside_a_gyro_bias_is_found_from_its_own_start():
 
 
 def test_a_start_takes_each_segments_rates_from_its_first_sample_where_they_fit_it_better():
-    """The nominal fit's rates are bent to stand in for what it lacks: the momentum's equation-error
-    start (within 2 % of the truth) with them cost more than no momentum at all and its fit stalled
+    """The nominal fit's rates bend to stand in for what it lacks: the momentum's equation-error
+    start (within 2 % of the truth) with them costs more than no momentum at all and its fit stalls
     (a gain of 821 in BIC where the truth gains 93324); with each segment's first sample's rates,
     where they fit that segment better, the fit reaches the truth."""
     rec, h = _slow_tumble_with_momentum()
@@ -433,9 +435,9 @@ def test_rows_too_far_apart_for_the_rotation_are_refused():
 
 def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(racquet_toss):
     """A real toss (round 1, segment 1) cut 0.05 s shorter at both ends is one segment: the start
-    chosen on short pieces led the whole toss to a worst-axis rms of about 11 rad/s (1604x the
+    chosen on short pieces leads the whole toss to a worst-axis rms of about 11 rad/s (1604x the
     noise level the third differences read) with principal ratios (1, 0.06, 0.03), where the
-    equation-error start reaches 1.2 rad/s and (1, 0.81, 0.20). The nominal fit is now within
+    equation-error start reaches 1.2 rad/s and (1, 0.81, 0.20). The nominal fit is within
     the significance margin of the best of its starts run to convergence on the record."""
     d = F.prepare(retimed(racquet_toss("round1", 1, (0.05, -0.05))))
     assert d.segments < F.SHORT_SEGMENTS
@@ -448,7 +450,7 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(rac
     direct = [F.finish(layout, x, d) for x in runs]
     assert nominal.bic <= min(f.bic for f in direct) + F.SIGNIFICANT_DELTA_BIC
     worst_axis = np.sqrt(np.mean(nominal.r ** 2, 0)).max()
-    assert worst_axis < 2.0  # rad/s; about 11 before the fix
+    assert worst_axis < 2.0  # rad/s; about 11 from the start chosen on short pieces
     ratios = np.sort(np.linalg.eigvalsh(nominal.inertia))[::-1]
     np.testing.assert_allclose(ratios / ratios[0], [1.0, 0.81, 0.20], atol=0.03)
 
@@ -502,10 +504,9 @@ def test_an_effects_own_starts_are_found_once_per_base(monkeypatch):
 def test_diagnose_says_an_axis_held_at_its_extreme_at_both_ends():
     """A torque-free axisymmetric spin (I = 2, 2, 1 g·m², 2.5 rad/s about the axis: the transverse
     rate turns at 1.25 rad/s with amplitude 3) recorded for one turn at 100 Hz, its x axis clipped
-    at 2.7 rad/s, which it reads only in its first and last ~36 samples, steps of 0.004: identify's
-    misfit notes said so; diagnose's report had said nothing of it. Its report now lists the two
-    ends (`clipped_at_ends`) and its summary asks for the full scale; given, the rows are left
-    out and nothing is said."""
+    at 2.7 rad/s, which it reads only in its first and last ~36 samples, steps of 0.004: as
+    identify's misfit notes do, diagnose's report lists the two ends (`clipped_at_ends`) and its
+    summary asks for the full scale; given, the rows are left out and nothing is said."""
     from inertia_gym.discrepancy.report import diagnose, markdown
 
     t = np.arange(0.0, 2 * np.pi / 1.25, 0.01)
@@ -573,9 +574,9 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
                                   "s0.02_e0.005_d6_seed2"])  # five: one left at 4000x from its first sample
 def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path, name):
     # A thin, nearly flat body (moments 1 : 0.985 : 0.02; a racquet is 1 : 0.91 : 0.07): its
-    # fastest rate turns with (J1 - J2) / J3, a ratio of two small numbers, and the linear
-    # start's fit stopped in a basin of its own (12x and 2800x the noise before the continued
-    # start); 7 of 32 such 1.2-s records and 8 of 12 longer ones named effects on clean data.
+    # fastest rate turns with (J1 - J2) / J3, a ratio of two small numbers: without the continued
+    # start the linear start's fit stops in a basin of its own (12x and 2800x the noise), and 7 of
+    # 32 such 1.2-s records and 8 of 12 longer ones name effects on clean data.
     rec, inertia = thin_body(tmp_path, name)
     d = F.prepare(rec)
     nominal = F.fit_nominal(d)
@@ -589,7 +590,7 @@ def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path,
 
 def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path):
     # A flat plate (moments 1 : 0.99 : 0.01) tumbling, its gyro's x and y columns swapped: no
-    # right-handed rigid body fits it (a plate's mirror is a rod's limit), and the fits named an
+    # right-handed rigid body fits it (a plate's mirror is a rod's limit), and the fits name an
     # inertia change; the same rates fitted with the columns swapped back reach the noise.
     _, seed, moments, duration, rate, middle = next(c for c in cases() if c[0] == "s0.01_e0.0_d1.2_seed0")
     path = tmp_path / "mirrored.csv"

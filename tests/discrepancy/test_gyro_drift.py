@@ -134,9 +134,8 @@ def test_a_scale_drifting_linearly_is_read_as_a_drifting_gyro_scale():
     """5 min of a tumbling body with torque bursts, no nominal inertia, its gyro scale drifting
     linearly (not the model's spline) by (+1.5, -1, +2) % over the record, noise 1e-3 rad/s: led by
     gyro_scale's varying form, fitted to the noise, the shape within its intervals, the drift's
-    end within 0.3 % of the truth. (The catalogue had only a constant scale: an independent
-    audit's 20-min record of this kind had read as a drifting bias, a rotor and a constant scale,
-    its inertia 2-4 % off.)"""
+    end within 0.3 % of the truth. (With a constant scale only, a 20-min record of this kind
+    reads as a drifting bias, a rotor and a constant scale, its inertia 2-4 % off.)"""
     sc = Scenario(omega0=(0.05, 0.3, 0.04), dt=0.05, gyro_sigma=1e-3)
     rec, _ = simulate_recording(sc, 300.0, None, seed=3, sample_dt=0.5)
     end = np.array([0.015, -0.01, 0.02])

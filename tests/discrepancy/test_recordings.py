@@ -719,7 +719,7 @@ def dropout_recordings(tmp_path_factory):
 def test_a_dropout_in_the_logged_torque_splits_the_recording_and_each_piece_is_right(dropout_recordings):
     """Across a 15-s dropout the torque the file would hold is not the torque that acted: the
     recording comes as two pieces, each identified within 3x its Cramer-Rao bound and 3 sigma
-    per parameter (measured: 2.1x, 0.08x; the unsplit file gave an impossible inertia)."""
+    per parameter (measured: 2.1x, 0.08x; the unsplit file gives an impossible inertia)."""
     from inertia_gym import identify
     from inertia_gym.information import theta_from_inertia
     from inertia_gym.scenario import Scenario
@@ -839,7 +839,7 @@ def test_stamps_that_are_right_are_kept_on_a_slow_body_whose_noise_dominates(see
     """10 minutes at 10 Hz of a slow tumble (0.1 rad/s) whose torque bursts change the rates by
     about the noise over the stamps' scatter (+-30 % of the interval): sampled at the instants
     its stamps record, the stamps are kept (uneven spacing amplifies the noise in the
-    interpolation test; unscaled, it had the clock win on every seed); stamped off a regular
+    interpolation test; unscaled, it makes the clock win on every seed); stamped off a regular
     sensor, the clock is taken."""
     def rates(t):  # 5-s bursts every minute, 0.004 rad/s^2
         burst = np.clip(t[:, None] - np.arange(20.0, 570.0, 60.0), 0.0, 5.0).sum(1)

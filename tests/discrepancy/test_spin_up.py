@@ -1,7 +1,7 @@
 """A thrown device whose rotor spins up exponentially, its momentum not logged: the varying
-internal momentum explains it alone. Until 2026-11-28 its profile was piecewise linear, and the
-straight lines' error, periodic at the knots' spacing, was taken up by a flexible mode at that
-frequency (found by an audit with an independent simulator, on 3 of 3 seeds)."""
+internal momentum explains it alone. Its profile is a spline: straight lines between the knots
+leave an error periodic at the knots' spacing, which a flexible mode at that frequency takes up
+(an independent simulator's throws, 3 of 3 seeds)."""
 
 import numpy as np
 import pytest

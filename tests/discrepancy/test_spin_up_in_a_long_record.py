@@ -1,8 +1,8 @@
 """A wheel that spins up in a few seconds of a long record, its momentum not logged: the varying
 internal momentum's knots follow the spin-up (fit.Probe.momentum_knots) and it explains the
-record alone. Spaced evenly, its twenty knots drew a spin-up of a few seconds as a slow ramp,
-and a drifting gyro bias and a flexible mode took up the rest (an audit's independent simulator:
-an upper stage, a cubesat and a thrown device, 7 of 10 runs)."""
+record alone. Spaced evenly, its twenty knots draw a spin-up of a few seconds as a slow ramp,
+and a drifting gyro bias and a flexible mode take up the rest (an independent simulator's upper
+stage, cubesat and thrown device: 7 of 10 runs)."""
 
 import numpy as np
 import pytest
@@ -81,8 +81,8 @@ def test_a_short_spin_up_in_a_long_record_is_the_varying_momentum_alone(seed):
 def test_a_large_wheel_s_spin_up_is_drawn_through_its_corners(seed):
     """A wheel of 15 % of |J w0| spinning up in 5 s, read at 10 Hz: the spin-up's corners need
     knots closer than half of them give. With half following the change (3.6 s apart there) a
-    flexible mode took up what the spline could not draw (seeds 5 and 7, worst axis 1.11x and
-    1.09x the noise; 4 of 8 such cases had a second effect); with three quarters (2.6 s apart)
+    flexible mode takes up what the spline cannot draw (seeds 5 and 7, worst axis 1.11x and
+    1.09x the noise; 4 of 8 such cases have a second effect); with three quarters (2.6 s apart)
     the momentum explains them alone at 1.04x and 1.0x (6 of 8 alone, all within 1.2x)."""
     rec, truth = spinning_up(seed, share=0.15, spin_up=5.0, sample_dt=0.1)
     report, _ = diagnose(rec)

@@ -70,14 +70,14 @@ def test_simulate_cli_rotor_writes_h_columns(tmp_path, capsys):
 
 
 def test_simulate_without_rotor_unchanged(tmp_path):
-    """Same seed, no --rotor-momentum: the file the code wrote before the rotor existed."""
+    """Same seed, no --rotor-momentum: the seed's file as without any rotor option (pinned)."""
     out = tmp_path / "plain.csv"
     assert main(["simulate", "--duration", "20", "--out", str(out)]) == 0
     header = out.read_text().splitlines()[0]
     assert header == "t,wx,wy,wz,qw,qx,qy,qz,tau_x,tau_y,tau_z"
     assert "rotor" not in json.loads(out.with_suffix(".json").read_text())
     data = np.loadtxt(out, delimiter=",", skiprows=1)
-    # Rows 0, 1000 and 1999 and column sums of the output before the rotor option was added.
+    # Rows 0, 1000 and 1999 and column sums of the seed's output with no rotor option at all.
     golden = {
         0: [0, 0.5012397794, 9.930249077, 0.4434362501, 0.9998923326, 0.006675689766, 0.006441812145,
             0.01136931687, 0, 0, 0],

@@ -1,10 +1,10 @@
 """A cubesat whose nominal inertia puts the middle moment 10 % low: `inertia_offset` leads the
-explanation with the moment's change. Started from the nominal alone (until 2026-11-29), its
-single fit on seed 3 stalled at a delta BIC of 1087 (the same offset fitted after a drag: 65624;
-from the equation-error inertia too: 93540), and an internal momentum led the ranking, a drag the
-explanation, with the percent changes (-12.0, -7.3, +11.5) for the truth's (0, +11.1, 0): found by
-an audit's independent simulator (3 of 54 runs), whose recording this rebuilds (its integrator
-aside) to those figures."""
+explanation with the moment's change. Its single fit starts from the equation-error inertia as
+well as from the nominal: from the nominal alone it stalls on seed 3 at a delta BIC of 1087 (the
+same offset fitted after a drag: 65624; from the equation-error inertia too: 93540), and an
+internal momentum leads the ranking, a drag the explanation, with the percent changes (-12.0,
+-7.3, +11.5) for the truth's (0, +11.1, 0). The recording rebuilds a case of an independent
+simulator (3 of 54 of its runs read so), its integrator aside, to those figures."""
 
 import dataclasses
 
@@ -17,8 +17,8 @@ from inertia_gym.discrepancy.synthetic import simulate_recording, simulate_truth
 from inertia_gym.recordings import Recording
 from inertia_gym.scenario import Scenario
 
-#: kg·m², rad/s, N·m, s, Hz: the audit's cubesat (principal moments turned by xyz Euler angles
-#: in degrees), its gyro noise, burst torque, record length and rate
+#: kg·m², rad/s, N·m, s, Hz: the independent simulator's cubesat (principal moments turned by xyz
+#: Euler angles in degrees), its gyro noise, burst torque, record length and rate
 MOMENTS, TURN_DEG = np.array([0.035, 0.05, 0.065]), (5.0, -7.0, 4.0)
 SIGMA, BURST, DURATION, RATE = 5e-4, 5e-4, 300.0, 10.0
 
@@ -41,7 +41,7 @@ def bursts(rng, t) -> np.ndarray:
 
 
 def cubesat(seed: int) -> Recording:
-    """The tumbling cubesat under bursts, its nominal's middle moment 10 % low (seeded as the audit's)."""
+    """The tumbling cubesat under bursts, its nominal's middle moment 10 % low (seeded as that case)."""
     rng = np.random.default_rng(seed)
     t = np.arange(int(DURATION * RATE) + 1) / RATE
     u = rng.normal(size=3)
@@ -67,11 +67,10 @@ def test_a_wrong_middle_moment_is_the_inertia_offset():
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_torque_free_offset_s_intervals_hold_its_estimate_and_the_truth(seed):
     """Torque-free, the scale unseen: the offset's inertia is reported at the nominal's trace, and
-    its intervals now are too. They were taken at the fit's own gauge (its first log-Cholesky
-    entry held), so Ixx's had zero width and every interval could miss the estimate (an
-    independent audit: 0 of 9 entries inside on a nominal whose axes were turned 10 deg, 7 of 7
-    wrong nominals with Ixx outside). Measured: the truth at the nominal's trace within 1.15 and
-    0.81 half-widths."""
+    its intervals are too. Taken at the fit's own gauge (its first log-Cholesky entry held),
+    Ixx's would have zero width and every interval could miss the estimate (0 of 9 entries inside
+    on a nominal whose axes are turned 10 deg, 7 of 7 wrong nominals with Ixx outside).
+    Measured: the truth at the nominal's trace within 1.15 and 0.81 half-widths."""
     rec, side = simulate_recording(Scenario(), 60.0, "inertia_offset", seed=seed, torque=False, sample_dt=0.1)
     meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects")}
     report, _ = diagnose(dataclasses.replace(rec, meta=meta))

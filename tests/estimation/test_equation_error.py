@@ -57,7 +57,7 @@ def test_valid_theta_is_positive_definite_and_meets_the_triangle_inequality(thet
 @pytest.mark.parametrize("forced, sigma", [(True, 0.001), (True, 0.003), (False, 0.01), (False, 0.03)])
 def test_the_equation_errors_intervals_cover_over_fixed_seeds(forced, sigma):
     """20 noisy records, with a known torque and momentum (whose signal in the windows is weak:
-    the noise's share of A^T A is corrected, else the inertia shrank 38 % at sigma 0.01) and
+    the noise's share of A^T A is corrected, else the inertia shrinks 38 % at sigma 0.01) and
     without: the sandwich of the windows' scores gives intervals that hold the truth at about
     their level."""
     truth = theta_from_inertia(J_TRUE)

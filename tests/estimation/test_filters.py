@@ -21,7 +21,7 @@ def test_filter_over_validate_readings_reproduces_validate(paper, estimator):
     """Replaying the readings and torques of a validate run through InertiaFilter gives the same
     estimate after every update as the filter inside the compiled closed loop. The run crosses
     a segment boundary (a ~95-s coast, then a burst segment): the closed loop must carry the
-    update count and the prediction in progress across it (it once did not)."""
+    update count and the prediction in progress across it."""
     sc = paper.replace(estimator=estimator)
     res = validate(sc, (0.4, 4.0, 1.0), 150.0, [3])
     start = initial_state(sc, [np.random.default_rng([3, 0])])

@@ -66,7 +66,7 @@ def test_the_decrement_is_the_fall_of_the_linear_least_squares(seg_free):
 @pytest.mark.parametrize("seg_free", [True, False])
 def test_a_parameter_the_residual_does_not_see_takes_no_step(seg_free):
     # a flexible mode's frequency while its coupling is zero, an inertia change's time while the
-    # change is zero: the column is exactly zero, and the step along it must be too (it was the
+    # change is zero: the column is exactly zero, and the step along it must be too (not the
     # pseudo-inverse's round-off divided by 1e-300), the other entries the step without it
     n_seg = 3
     seg_of, g, js, r = _arrow_problem(1, n_seg, 20, [1e-3, 1.0, 1e3, 1.0])

@@ -36,7 +36,7 @@ def test_normalised_covariance_has_no_variance_along_the_trace():
 
 def test_model_error_error_bars_are_infinite_where_the_transition_cannot_be_inverted():
     """dL(s)/dL0 is read off the sensitivities to the initial rates; where they are grown past
-    inversion (a real toss cut to hold its catch had entries of 1e8 and rank 1) the model error's
+    inversion (a real toss cut to hold its catch has entries of 1e8 and rank 1) the model error's
     intensity and covariance are infinite (refine then refuses the error bars) instead of numpy's
     LinAlgError escaping identify."""
     prob = noisy_problem(0, torque=False, momentum=False, n=400)

@@ -29,7 +29,7 @@ class _Drag(EffectModel):
     energy out (the power w . tau = -w^T C w (times |w|) <= 0): every solver step is projected
     onto positive semi-definite C (negative eigenvalues set to zero), so a fit that needs C
     feeding energy in is not drag. A projection, not a penalty row: drag about one axis is
-    often nil (a racquet's handle), and a penalty's one-sided derivative there froze the fit.
+    often nil (a racquet's handle), and a penalty's one-sided derivative there freezes the fit.
     """
 
     params, size, family = ("c",), 6, "drag"

@@ -19,10 +19,10 @@ def flex_floor_hz(d) -> float:
     the record's length, and no lower than FLEX_BAND[0] or the body's own rotation rate,
     whichever is lower (a slower mode follows the rotation quasi-statically, as an inertia
     would). A 1e4 kg·m² stage tumbling at 0.02 rad/s for 20 min with its propellant sloshing at
-    0.02 Hz had the slosh out of reach of a fixed 0.05 Hz floor (left 6x the noise). On a record
-    shorter than MODE_MIN_CYCLES / FLEX_BAND[0] (40 s) the floor is two cycles in the record:
-    a 1-s toss had been screened down to 0.05 Hz, where a "mode" is a drift of a twentieth of a
-    cycle (the fit's bounds keep half the floor: at least one cycle).
+    0.02 Hz has the slosh out of reach of a fixed 0.05 Hz floor (which leaves 6x the noise). On a
+    record shorter than MODE_MIN_CYCLES / FLEX_BAND[0] (40 s) the floor is two cycles in the
+    record: on a 1-s toss a 0.05 Hz floor would screen a "mode" that is a drift of a twentieth
+    of a cycle (the fit's bounds keep half the floor: at least one cycle).
     """
     return max(MODE_MIN_CYCLES / max(d.duration, 1e-9), min(FLEX_BAND[0], d.omega_ref / (2 * np.pi)))
 
@@ -47,7 +47,7 @@ class FlexibleMode(EffectModel):
     restarts_on_base = ("",)
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises
-    # and falls along d (a simulated rotor's spin-up and brake, 0.5 (1 - cos 2 pi t / T), was read
+    # and falls along d (a simulated rotor's spin-up and brake, 0.5 (1 - cos 2 pi t / T), reads
     # so, its ten parameters against the varying momentum's twenty-four)
     ambiguities = (("internal_momentum", (
         "the mode's own motion acts on the rates as a momentum along its coupling that rises and "

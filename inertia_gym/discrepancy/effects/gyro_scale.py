@@ -14,8 +14,8 @@ GYRO_SCALE_BOUND = 0.1
 @register
 class GyroScale(_GyroError):
     """Gyro reads (1 + s) w, s per axis, constant or drifting (_GyroError's forms: a scale factor
-    that follows the sensor's temperature over a long record; an independent audit's 20-min
-    record drifting by 1-2 % had read as a drifting bias, a rotor and a constant scale, the
+    that follows the sensor's temperature over a long record; without the drifting form, a
+    20-min record drifting by 1-2 % reads as a drifting bias, a rotor and a constant scale, the
     inertia 2-4 % off).
     """
 

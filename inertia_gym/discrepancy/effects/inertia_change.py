@@ -64,8 +64,8 @@ class InertiaChange(EffectModel):
     @override
     def feasible(self, p, inertia):
         # the inertia after the change is a body's too, never indefinite: where J + delta_J is
-        # not, it is projected onto the nearest a body can have (nearest_realizable; fits had
-        # left delta_J of 2 kg·m² on a body of trace 1), moved toward the isotropic inertia of
+        # not, it is projected onto the nearest a body can have (nearest_realizable; unprojected,
+        # fits can leave delta_J of 2 kg·m² on a body of trace 1), moved toward the isotropic inertia of
         # its trace where that left its least moment below AFTER_MOMENT_FLOOR of the mean (a
         # rod's zero moment: a convex mix of two bodies' inertias is a body's), and delta_J
         # follows

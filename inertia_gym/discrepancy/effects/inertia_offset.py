@@ -72,9 +72,9 @@ class InertiaOffset(EffectModel):
     @override
     def starts(self, form, d, probe):
         # the nominal, and the record's own equation-error inertia: from the nominal alone, the
-        # single fit of a cubesat whose nominal put the middle moment 10 % low stalled at a delta
-        # BIC of 1087 (from both starts: 93540), and a momentum and a drag led its diagnosis (an
-        # audit's independent simulator, 3 of 54 runs; tests/discrepancy/test_wrong_nominal.py)
+        # single fit of a cubesat whose nominal puts the middle moment 10 % low stalls at a delta
+        # BIC of 1087 (from both starts: 93540), and a momentum and a drag lead its diagnosis (an
+        # independent simulator, 3 of 54 runs; tests/discrepancy/test_wrong_nominal.py)
         return [self.neutral(form, d, probe.base), probe.inertia_estimate()]
 
     @override

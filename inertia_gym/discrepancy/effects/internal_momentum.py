@@ -32,9 +32,9 @@ class InternalMomentum(EffectModel):
                  "varying": "an unmodelled torque that varies in time, fitted as a free momentum profile"}
     ROWS_PER_KNOT, KNOTS = 5, (4, 20)
     #: screened on top of a gyro bias from its single fit's momentum (fitted with the bias
-    #: missing), a constant momentum gained nothing and was never refitted; from its own start
+    #: missing), a constant momentum gains nothing and is never refitted; from its own start
     #: it adds 1845 in BIC there (tests/discrepancy/test_fit.py). Not the varying form: refitted
-    #: on every structured fit, it took up an independent simulator's hidden constant torque
+    #: on every structured fit, it takes up an independent simulator's hidden constant torque
     #: beside a hinged panel (Basilisk's pair_panel_torque, a profile for a constant torque)
     restarts_on_base = ("constant",)
     varying_ambiguities = (("external torque", (
