@@ -9,13 +9,13 @@ from inertia_gym.dynamics import (
     pack_fields,
     propagate,
     propagate_batch,
-    propagate_model_batch,
     quat_mul,
     quat_to_rotation,
     rk4_lanes,
     rk4_step_into,
 )
 from inertia_gym.errors import ConfigError
+from inertia_gym.model_dynamics import propagate_model_batch
 
 J = np.array([[100.0, 6, -4], [6, 80, 3], [-4, 3, 70]])
 

@@ -1,7 +1,7 @@
 """Fit the rigid model and the catalogue's effects to a recording by output error; rank by BIC.
 
 The model is the truth simulator itself: the effects' own physics hooks (effects/, assembled
-by model.py) integrated by dynamics.propagate_model_batch predict the gyro reading at every
+by model.py) integrated by model_dynamics.propagate_model_batch predict the gyro reading at every
 sample from the body's initial rates, and a fit minimises the whitened difference from the
 recorded reading (output error: no derivative of the noisy gyro enters, and the integration is
 as accurate as its sub-steps, whatever the sampling rate). The BIC of a Gaussian fit of these

@@ -1,4 +1,4 @@
-"""The body with its effects as inputs of the compiled integrator (dynamics.propagate_model_batch).
+"""The body with its effects as inputs of the compiled integrator (model_dynamics.propagate_model_batch).
 
 One path turns a nominal inertia and a list of (effect model, parameters) into the integrator's
 inputs: the truth simulator (synthetic.py) and the model that diagnose fits (fit.py) both call
@@ -19,7 +19,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from inertia_gym.discrepancy.effects import Cumulative, EffectModel
-from inertia_gym.dynamics import pack_fields, propagate_model_batch
+from inertia_gym.dynamics import pack_fields
+from inertia_gym.model_dynamics import propagate_model_batch
 
 
 @dataclasses.dataclass(frozen=True)

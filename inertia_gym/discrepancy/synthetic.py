@@ -33,7 +33,7 @@ def simulate_truth(q0, omega0, inertia, torque_cmd, dt: float, effects=(), momen
     disturbance hook of dynamics.state_rate carries the body torques, a flexible mode and
     internal dissipation are added around it, an inertia change happens with the momentum kept
     (J1 w1 = J2 w2). This is the model diagnose fits (discrepancy.model), integrated by the one
-    compiled augmented integrator, dynamics.propagate_model_batch.
+    compiled augmented integrator, model_dynamics.propagate_model_batch.
     momentum: None, or a known internal angular momentum relative to the body (reaction wheels,
     a rotor) at t = 0, dt, ..., n dt, shape (n+1, 3) kg·m²/s, body frame, linear in between;
     the body then obeys J w_dot = tau - h_dot - w x (J w + h) (plus the effects' terms).
