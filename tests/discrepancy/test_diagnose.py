@@ -15,6 +15,7 @@ import pytest
 
 from inertia_gym.cli import main
 from inertia_gym.commands.common import check_physical_inertia
+from inertia_gym.discrepancy import analysis as analysis_module
 from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, random_params
 from inertia_gym.discrepancy.fit import (
@@ -656,10 +657,10 @@ def test_the_ratios_intervals_hold_the_estimate_and_only_bodies_that_exist(monke
     interval (on such a slow flip: 0.787 against [1.5e-9, 0.562])."""
     found = _fits(prepared(racquet_flip()))
     d, chosen = found.data, found.chosen
-    real = report_module.covariance
-    monkeypatch.setattr(report_module, "covariance",
+    real = analysis_module.covariance
+    monkeypatch.setattr(analysis_module, "covariance",
                         lambda fit, dd: (real(fit, dd)[0] * widen, real(fit, dd)[1]))
-    ratios, ci = report_module.principal_ratios(chosen.fit, d)
+    ratios, ci = analysis_module.principal_ratios(chosen.fit, d)
     ci = np.array(ci)
     assert np.all((ci[:, 0] <= ratios) & (ratios <= ci[:, 1])), (ratios, ci)
     assert ci[1, 0] >= 0.5 - 1e-9 and ci[2, 1] <= ci[1, 1] + 1e-12
