@@ -43,8 +43,8 @@ NOISE_READ_HIGH = 0.8
 #: Draws of a fit's parameters behind the ratios' intervals: 2**RATIO_DRAWS_LOG2 points of a
 #: scrambled Sobol sequence (seeded) mapped to normal quantiles. Their 2.5/97.5 percentiles come
 #: within 2 % of the exact interval where the ratios are linear in the parameters; 400
-#: pseudo-random draws, as before, missed it by up to 12 % (a racquet flip with drag: half-width
-#: 3.45e-4 against 3.92e-4; tests/discrepancy/test_fit.py).
+#: pseudo-random draws miss it by up to 12 % (a racquet flip with drag: half-width 3.45e-4
+#: against 3.92e-4; tests/discrepancy/test_fit.py).
 RATIO_DRAWS_LOG2 = 9
 #: The least eigenvalue a fit's information (scaled to a unit diagonal) counts with, as a share
 #: of its largest (trace_sigma).
@@ -194,9 +194,8 @@ def principal_ratios(fit: Fit, d: Data) -> tuple[list, list | None]:
     inertia, so an effect that trades with the inertia widens them; each draw kept to the bodies
     that exist as the fits are (nearest_realizable: each moment at most the sum of the other
     two), and the interval stretched to hold the fit's own ratios where the draws' percentiles
-    miss them. A wide covariance read as it fell had given I2/I1 down to 1e-9 (no body) and an
-    estimate outside its own interval (an independent audit's slow racquet flip: 0.787 against
-    [1.5e-9, 0.562]).
+    miss them. Read as it falls, a wide covariance gives I2/I1 down to 1e-9 (no body) and an
+    estimate outside its own interval (a slow racquet flip: 0.787 against [1.5e-9, 0.562]).
     """
     def ratios(inertia):
         if not np.all(np.isfinite(inertia)):
