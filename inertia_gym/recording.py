@@ -200,9 +200,9 @@ def interpolation_residual(t, w) -> np.ndarray:
     whatever the spacing. Smaller where t says better when the samples were taken.
 
     Unscaled, unevenly spaced nodes amplify the noise more than even ones, and a slowly moving
-    body sampled at the uneven instants its stamps record read as better fitted by an even
-    clock: a clean record then placed there was read as an internal momentum (an independent
-    audit's smallsat at 10 Hz, stamps right within +-30 % of the interval).
+    body sampled at the uneven instants its stamps record reads as better fitted by an even
+    clock: a clean record then placed there reads as an internal momentum (a smallsat at 10 Hz,
+    stamps right within +-30 % of the interval).
     """
     t, w = np.asarray(t, float), np.asarray(w, float)
     reach = int(CUBIC_NODES.max())
@@ -223,8 +223,8 @@ def retimed(rec: Recording) -> Recording:
     unless the gyro says the stamps are right: a logger that stamps each sample when software
     reads it, not when the sensor took it, scatters the stamps of a regularly sampled gyro, and
     the rate change over that scatter, and a commanded torque's edges moved by it, then look
-    like physics (measured on Basilisk: stamps scattered by +-10 % of the interval had a clean
-    record read as aero_drag, by +-2 % a record with bursts as internal_dissipation).
+    like physics (on Basilisk, stamps scattered by +-10 % of the interval make a clean record
+    read as aero_drag, by +-2 % a record with bursts as internal_dissipation).
     The gyro judges by a paired test: each interior sample's squared miss of the cubic through
     its neighbours (interpolation_residual) over the clock minus over the stamps; the stamps
     are kept (rec returned as is) when that difference's mean is CLOCK_KEEP_STAMPS_Z standard
