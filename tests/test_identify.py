@@ -47,8 +47,8 @@ def _throw(seed, rotor=2e-3):
 
 @pytest.fixture(scope="module")
 def paper_recording():
-    """200 s at 100 Hz of the paper's body with torque bursts and attitude."""
-    rec, _ = simulate_recording(Scenario(), 200.0, seed=1, sample_dt=0.01)
+    """100 s at 100 Hz of the paper's body with torque bursts and attitude."""
+    rec, _ = simulate_recording(Scenario(), 100.0, seed=1, sample_dt=0.01)
     return rec
 
 

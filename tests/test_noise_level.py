@@ -241,8 +241,8 @@ def test_a_gyro_read_coarser_than_its_noise_names_no_effect_on_a_clean_record(se
     assert "coarser than its motion and noise move it" in markdown(report, [])
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
+@pytest.mark.science
+@pytest.mark.parametrize("seed", [0, 1])
 def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
     """The slow tumble read in steps of 20x its noise, no nominal given: the rounding error
     follows the motion, and without fit.lattice_spread the principal ratios' 95 % intervals miss
@@ -273,7 +273,7 @@ def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are
     assert f"lattice (7 of {LATTICE_REPLAYS} replays" in markdown(counted, [])
 
 
-@pytest.mark.slow
+@pytest.mark.science
 def test_a_momentum_under_a_coarse_rounding_is_still_named():
     """The same body with a wheel's momentum concealed (seed 2): the momentum is named, alone (a
     mode beside it would trace the rounding: none is claimed), and fits to the rounding's

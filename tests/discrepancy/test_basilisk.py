@@ -243,17 +243,18 @@ def test_identify_on_basilisk_is_accurate_and_its_intervals_cover_at_both_ends_o
     """`identify` on Basilisk recordings of a rigid body (scripts/basilisk_harness.py identify): a
     1e-4 kg·m² device at 2 rad/s sampled at 100 Hz and a 1e4 kg·m² stage at 0.02 rad/s sampled
     at 2 Hz, each with bursts and attitude, bursts gyro-only, logged wheels and a free tumble
-    (ratios), 2 seeds, a nominal 20-70 % off: every inertia within 0.1 %, and the 95 % intervals
-    cover the 96 parameters as 95 % intervals should (measured 90/96, rms z 0.97)."""
+    (ratios), one seed, a nominal 20-70 % off: every inertia within 0.1 %, and the 95 % intervals
+    cover the 48 parameters as 95 % intervals should (at least 85 %; the harness's own table
+    runs more seeds)."""
     import basilisk_identify as study
 
-    rows = [study.run_case(kind, body, seed) for kind in ("bursts", "bursts_gyro_only", "wheels", "free")
-            for body in ("device", "stage") for seed in range(2)]
+    rows = [study.run_case(kind, body, 0) for kind in ("bursts", "bursts_gyro_only", "wheels", "free")
+            for body in ("device", "stage")]
     summary = study.summarise(rows)
     assert summary["max_error"] < 1e-3, summary
     assert summary["covered"] >= 0.85 * summary["parameters"], summary
     assert 0.7 < summary["rms_z"] < 1.35, summary
-    assert summary["scale_identified"] == summary["carries_scale"] == 12, summary
+    assert summary["scale_identified"] == summary["carries_scale"] == 6, summary
 
 
 @requires_bsk
