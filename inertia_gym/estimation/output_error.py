@@ -302,6 +302,29 @@ class _Stage:
         return float(np.sqrt(np.mean(self.evaluation.r ** 2)))
 
 
+def _minimised(n_global: int, free, x0, max_iter: int, linearize, residuals, segments: int = 0,
+               local_size: int = 3) -> solver.Result:
+    """The damped Gauss-Newton run of both solves: x (n_global globals, then `segments` blocks of
+    local_size locals) from x0 over the free globals, phi kept on the bodies that exist
+    (_inertia_limits) and moved at most MAX_PHI_STEP a step (its trust radius).
+    """
+    max_step = np.full(n_global, np.inf)
+    max_step[:6] = MAX_PHI_STEP
+    project, face = _inertia_limits(n_global)
+    spec = solver.Problem(n_global=n_global, free=free, segments=segments, project=project, face=face,
+                          max_step=max_step, local_size=local_size)
+    return solver.run(solver.levenberg_marquardt(spec, np.asarray(x0, float), max_iter, tol=TOL), linearize,
+                      residuals)
+
+
+def _folded(q_ref, dq) -> np.ndarray:
+    """The unit attitude q_ref (x) exp(dq/2): a fit's attitude correction dq taken into its
+    reference attitude (the correction then restarts at zero).
+    """
+    q = quat_mul(q_ref, quat_exp(dq))
+    return q / np.linalg.norm(q)
+
+
 def _inertia_limits(n: int):
     """(project, face) keeping phi = x[:6] on the bodies that exist, its scale coordinate kept
     (inertia_param.realizable_phi), and along the limit where it sits on it (realizable_face).
@@ -355,19 +378,12 @@ def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) 
                                     np.vstack([lin.js, np.zeros((k, lo.size))]),
                                     np.r_[lin.seg_of, np.full(k, -1)])
 
-    max_step = np.full(gl.size, np.inf)
-    max_step[:6] = MAX_PHI_STEP
-    project, face = _inertia_limits(gl.size)
-    spec = solver.Problem(n_global=gl.size, free=free, segments=sh.segments, project=project, face=face,
-                          max_step=max_step, local_size=lo.size)
-    res = solver.run(solver.levenberg_marquardt(spec, np.asarray(x, float), max_iter, tol=TOL), linearize,
-                     residuals)
+    res = _minimised(gl.size, free, x, max_iter, linearize, residuals, sh.segments, lo.size)
     x_new = res.x.copy()
     if prob.with_att:  # each segment's attitude correction taken into its reference attitude
         for s in range(sh.segments):
             at = gl.size + s * lo.size + 3
-            q = quat_mul(q_refs[s], quat_exp(x_new[at:at + 3]))
-            q_refs[s] = q / np.linalg.norm(q)
+            q_refs[s] = _folded(q_refs[s], x_new[at:at + 3])
             x_new[at:at + 3] = 0.0
     whole, lin = sh.evaluate(x_new, q_refs, True)
     cov = None
@@ -402,16 +418,10 @@ def solve(prob: Problem, p, q_ref, prior: Prior | None = None, max_iter: int = S
         return solver.Linearization(np.r_[ev.r, prior_rows @ (x - prior.mean)[free]],
                                     np.vstack([ev.jac[:, idx], prior_rows]))
 
-    max_step = np.full(prob.n_params, np.inf)
-    max_step[:6] = MAX_PHI_STEP
-    project, face = _inertia_limits(prob.n_params)
-    spec = solver.Problem(n_global=prob.n_params, free=free, project=project, face=face, max_step=max_step)
-    res = solver.run(solver.levenberg_marquardt(spec, np.asarray(p, float), max_iter, tol=TOL), linearize,
-                     residuals)
+    res = _minimised(prob.n_params, free, p, max_iter, linearize, residuals)
     p_new = res.x.copy()
     if prob.with_att:  # the attitude correction taken into the reference attitude
-        q_ref = quat_mul(q_ref, quat_exp(p_new[9:12]))
-        q_ref = q_ref / np.linalg.norm(q_ref)
+        q_ref = _folded(q_ref, p_new[9:12])
         p_new[9:12] = 0.0
     return _Stage(p_new, q_ref, evaluate(prob, p_new, q_ref, True), res.iterations, res.converged)
 
