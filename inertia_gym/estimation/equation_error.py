@@ -25,6 +25,7 @@ import dataclasses
 import numpy as np
 
 from inertia_gym.dynamics import skew
+from inertia_gym.estimation.inertia_param import nearest_realizable
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.sensors import estimate_white_noise
 
@@ -68,6 +69,9 @@ MIN_WINDOW_SAMPLES = 32
 WINDOW_TURN = 1.0
 #: Windows start every 1/WINDOW_HOP of a window's length.
 WINDOW_HOP = 4
+#: Least principal moment of an equation-error estimate, as a share of its largest: a body that
+#: thin (a rod) has no finite log-Cholesky parameters, and no record here resolves a thinner one.
+MOMENT_FLOOR = 0.01
 #: Fewest windows an equation-error estimate rests on when windows holding unusable samples
 #: are left out (fewer: all are used).
 MIN_WINDOWS = 3
@@ -177,8 +181,9 @@ def _solve_normal(gram, rhs, forced: bool, trace: float) -> np.ndarray:
 
 
 def valid_theta(theta, trace=None) -> np.ndarray:
-    """The nearest physically valid inertia to theta (6,): principal moments clipped to at least
-    1 % of the largest and to the triangle inequality (each at most the sum of the others).
+    """The nearest inertia a body can have to theta (6,) (inertia_param.nearest_realizable: each
+    principal moment at most the sum of the other two), its moments kept at least MOMENT_FLOOR of
+    the largest so that its log-Cholesky parameters, the output error's start, are finite.
     trace: rescale to this trace afterwards (None keeps the scale).
     """
     t = np.asarray(theta, dtype=float)
@@ -186,11 +191,10 @@ def valid_theta(theta, trace=None) -> np.ndarray:
     vals, vecs = np.linalg.eigh(j)
     if vals[-1] <= 0:
         vals = np.abs(vals) + 1e-300
-    top = max(vals[-1], 1e-300)
-    vals = np.clip(vals, 0.01 * top, None)
-    for _ in range(3):
-        total = vals.sum()
-        vals = np.minimum(vals, 0.98 * (total - vals))
+    vals = np.clip(vals, MOMENT_FLOOR * max(vals[-1], 1e-300), None)
+    # raising the least moment never breaks the triangle inequality, so the floor holds after it
+    vals, vecs = np.linalg.eigh(nearest_realizable((vecs * vals) @ vecs.T))
+    vals = np.clip(vals, MOMENT_FLOOR * max(vals[-1], 1e-300), None)
     j = (vecs * vals) @ vecs.T
     out = np.array([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
     if trace is not None:

@@ -52,6 +52,22 @@ def test_valid_theta_is_positive_definite_and_meets_the_triangle_inequality(thet
     assert moments.max() <= moments.sum() - moments.max() + 1e-12
 
 
+def test_valid_theta_is_the_inertia_itself_where_a_body_has_it_and_else_the_nearest_one():
+    """Inside the realizable set (moments 3, 2, 1.5) theta comes back as it is; beyond the flat
+    plate's limit (1, 0.45, 0.05: the largest over the sum of the others) it is the least-squares
+    projection with the axes kept, nearest_realizable's (5/6, 37/60, 13/60)."""
+    axes = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+
+    def theta_of(moments):
+        j = (axes * moments) @ axes.T
+        return np.array([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
+
+    inside = theta_of([3.0, 2.0, 1.5])
+    np.testing.assert_allclose(valid_theta(inside), inside, rtol=0, atol=1e-12)
+    beyond = valid_theta(theta_of([1.0, 0.45, 0.05]))
+    np.testing.assert_allclose(beyond, theta_of([5 / 6, 37 / 60, 13 / 60]), rtol=0, atol=1e-12)
+
+
 
 
 @pytest.mark.parametrize("forced, sigma", [(True, 0.001), (True, 0.003), (False, 0.01), (False, 0.03)])
