@@ -23,7 +23,7 @@ from inertia_gym.estimation.equation_error import (
     omega_matrix,
     valid_theta,
 )
-from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia
+from inertia_gym.estimation.inertia_param import interior, nearest_realizable, phi_from_inertia
 from inertia_gym.information import inertia_from_theta
 
 #: Records of fewer segments than SHORT_SEGMENTS choose between starts cut into that many.
@@ -56,12 +56,13 @@ def initial_rates(d: Data) -> np.ndarray:
 
 def equation_error_phi(d: Data) -> np.ndarray:
     """The phi (6,) of the linear equation-error estimate of the inertia (the nearest body that
-    exists; its trace pinned to d.trace0 where the scale is not seen), from the kept samples.
+    exists, moved strictly inside: inertia_param.interior; its trace pinned to d.trace0 where the
+    scale is not seen), from the kept samples.
     """
     kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
     theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
                                  None if d.h is None else d.h[kept], trace=d.trace0)
-    return phi_from_inertia(nearest_realizable(inertia_from_theta(theta)))
+    return phi_from_inertia(interior(nearest_realizable(inertia_from_theta(theta))))
 
 
 def _inertia_starts(d: Data) -> list[np.ndarray]:
@@ -346,8 +347,8 @@ class Probe:
         def result(sol, u=None):
             tail = sol[6 if fit_j else 0:]
             hk = tail.reshape(knots, 3) if u is None else np.outer(tail, u)
-            inertia = inertia_from_theta(valid_theta(sol[:6], d.trace0 if d.scale_fixed else None)) \
-                if fit_j else base.inertia
+            trace = d.trace0 if d.scale_fixed else None
+            inertia = interior(inertia_from_theta(valid_theta(sol[:6], trace))) if fit_j else base.inertia
             return tk, hk, inertia
 
         if axes is None:

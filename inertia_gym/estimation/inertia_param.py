@@ -135,6 +135,20 @@ def nearest_realizable(inertia) -> np.ndarray:
     return (axes * (pairs @ second)) @ axes.T
 
 
+#: Share of the isotropic inertia of the same trace mixed into a start (interior).
+INTERIOR_SHARE = 0.02
+
+
+def interior(inertia, share: float = INTERIOR_SHARE) -> np.ndarray:
+    """A start strictly inside the inertias a body has: (1 - share) inertia + share trace/3 I.
+    A convex mix of two bodies' inertias is a body's, and the mix keeps each moment below the
+    sum of the other two by share trace / 3, so a fit projected onto realizable inertias
+    (realizable_phi, realizable_face) does not begin held on the flat plate's face.
+    """
+    j = np.asarray(inertia, dtype=float)
+    return (1.0 - share) * j + share * np.trace(j) / 3.0 * np.eye(3)
+
+
 def realizable_phi(phi, keep_scale: bool = False) -> np.ndarray:
     """Phi (6,) of nearest_realizable(J(phi)): phi itself where J(phi) is a body's inertia (or
     not finite: the fit's own checks refuse that). keep_scale: phi[0], the pure scale coordinate,
