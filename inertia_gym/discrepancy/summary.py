@@ -58,18 +58,6 @@ def _fitted(value, ci: dict) -> _Fitted:
     return _Fitted(value, lo, hi, bool(np.all(lo == hi)), value.size > LISTED_NUMBERS)
 
 
-def _param_words(name: str, value, ci: dict) -> str:
-    """One fitted parameter in words: its value and 95 % interval (_fitted: a held value without
-    one, a long one by its count, range and widest interval).
-    """
-    f = _fitted(value, ci)
-    if f.counted:
-        text = f"{name}: {f.value.size} values from {f.value.min():.4g} to {f.value.max():.4g}"
-        return text + ("" if f.held else f" (95 % half-widths up to {np.max(f.hi - f.lo) / 2:.4g})")
-    text = f"{name} = {_significant(f.value)}"
-    return text + ("" if f.held else f" [{_significant(f.lo)}, {_significant(f.hi)}]")
-
-
 #: A slow mode and a momentum read together as one rotor (_rotor_reading): the most their axes
 #: may differ (deg), and the least share of the record the mode's period spans.
 ROTOR_READING = (10.0, 0.5)
@@ -127,12 +115,9 @@ def _explanation_words(report: dict) -> str:
     if not expl:
         text = "**Explanation:** no effect improves the fit significantly; the nominal model stands."
     else:
-        parts = []
-        for e in expl:
-            params = ", ".join(_param_words(k, v, e["ci95"][k]) for k, v in e["params"].items())
-            parts.append(f"{_label(e)} (adds delta BIC {e['delta_bic']:.1f}; {params})")
+        parts = [f"{_label(e)} (adds delta BIC {e['delta_bic']:.1f})" for e in expl]
         text = ("**Explanation:** the nominal model leaves out " + "; then ".join(parts)
-                + ". Brackets are 95 % intervals.")
+                + ". Its fitted parameters, with 95 % intervals, are in the table below.")
         for e in expl:
             cmp = e.get("inertia_vs_nominal")
             if cmp is not None:

@@ -272,9 +272,8 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
               "ambiguous": [{"effects": ["internal_momentum", "external torque"], "reason": "same"},
                             {"effects": ["internal_momentum", "aero_drag"], "reason": "close BIC"}]}
     text = _explanation_words(report)
-    assert "h = [0.1, 0.0, 0.0] [[0.0, -0.1, -0.1], [0.2, 0.1, 0.1]]" in text
-    assert "profile_t: 20 values from 0 to 1," in text
-    assert "profile: 20 values from -0.2 to 0.3 (95 % half-widths up to 0.06)" in text
+    assert "(adds delta BIC 50.0). Its fitted parameters, with 95 % intervals, are in the table below." in text
+    assert "[0.2, 0.1, 0.1]" not in text and "20 values" not in text  # the parameters: in the table
     assert "internal_momentum is confounded with external torque" in text
     page = markdown({"recording": "r", "samples": 1, "duration_s": 1.0, "gyro_sigma": [0.1] * 3,
                      "gyro_sigma_source": "given", "mismatch_detected": True,
@@ -283,6 +282,9 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
                      "locations": [], "invariants": {}, "sparse_terms": [],
                      "gyro_frame_mirrored": None, **report}, [])
     assert page.count("cannot be told apart") == 1 and "internal_momentum, aero_drag: close BIC" in page
+    assert "| internal_momentum | h | [0.1, 0.0, 0.0] | [0.0, -0.1, -0.1] to [0.2, 0.1, 0.1] |" in page
+    assert "| internal_momentum | profile_t | 20 values, 0 to 1 |  |" in page  # held: no interval
+    assert "| internal_momentum | profile | 20 values, -0.2 to 0.3 | ± up to 0.06 |" in page
 
 
 def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
@@ -293,8 +295,6 @@ def test_summary_keeps_a_small_body_s_numbers_to_four_significant_digits():
               "ci95": {"torque": {"lo": [1.1e-6, -3.0e-7, -1e-8], "hi": [1.3e-6, -2.0e-7, 1e-8]}},
               "confounded_with": []}
     report = {"explanation": [torque], "left_out": {}, "scale_identified": True, "ambiguous": []}
-    assert "torque = [1.235e-06, -2.5e-07, 0.0] [[1.1e-06, -3e-07, -1e-08], [1.3e-06, -2e-07, 1e-08]]" \
-        in _explanation_words(report)
     noise = [2.04e-5, 3.33e-5, 2e-5]
     page = markdown({"recording": "r", "samples": 1, "duration_s": 1.0, "gyro_sigma": noise,
                      "gyro_sigma_source": "sidecar", "mismatch_detected": True, "best_effect": None,
