@@ -272,7 +272,7 @@ def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
               "ambiguous": [{"effects": ["internal_momentum", "external torque"], "reason": "same"},
                             {"effects": ["internal_momentum", "aero_drag"], "reason": "close BIC"}]}
     text = _explanation_words(report)
-    assert "(adds delta BIC 50.0). Its fitted parameters, with 95 % intervals, are in the table below." in text
+    assert "(adds delta BIC 50.0). Its fitted parameters, with 95 % intervals, are in the table" in text
     assert "[0.2, 0.1, 0.1]" not in text and "20 values" not in text  # the parameters: in the table
     assert "internal_momentum is confounded with external torque" in text
     page = markdown({"recording": "r", "samples": 1, "duration_s": 1.0, "gyro_sigma": [0.1] * 3,
