@@ -9,8 +9,10 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# A CPU build of torch lies on disk here; an unpinned torch would pull a multi-GB CUDA build.
-	# --no-compile: Python writes the bytecode of the modules it imports on first import, rather
-	# than pip compiling all ~16,000 files of the environment at install (about 40 s here).
+	# --no-compile, then compileall on every core: pip compiles the environment's ~16,000 files one
+	# at a time (about 40 s here), and where PYTHONDONTWRITEBYTECODE is set nothing writes them later,
+	# so every process would compile torch again on import. compileall's exit status is ignored as
+	# pip ignores a file that does not compile (test data of other packages).
 	$(BIN)/pip install -q --no-compile torch==2.13.0
 	$(BIN)/pip install -q --no-compile -e '.[optimize,rl,dev,ray,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins
@@ -18,6 +20,7 @@ $(STAMP): pyproject.toml
 	# had, its tests skip.
 	$(BIN)/pip install -q --no-compile --no-deps bsk==2.12.1 colorama==0.4.6 pooch==1.9.0 \
 		|| echo "bsk not installed: the Basilisk tests will skip"
+	-$(BIN)/python -m compileall -q -q -j 0 $(VENV)/lib
 	touch $(STAMP)
 
 run: $(STAMP)
