@@ -41,12 +41,7 @@ from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingErr
 from inertia_gym.estimation import ml, output_error
 from inertia_gym.estimation.equation_error import EquationError, equation_error
 from inertia_gym.estimation.filters import run_over_recording
-from inertia_gym.estimation.inertia_param import (
-    nearest_realizable,
-    phi_from_inertia,
-    start_phi,
-    theta_from_phi,
-)
+from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia, theta_from_phi
 from inertia_gym.estimation.integrator import substeps
 from inertia_gym.estimation.uncertainty import (
     SCALE_SIGMA_IDENTIFIED,
@@ -198,7 +193,7 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
     """
     q0 = None if prep.rec.q is None else prep.rec.q[0]
     stated = prep.sigma is not None
-    ee_phi = start_phi(reference.inertia)
+    ee_phi = phi_from_inertia(nearest_realizable(reference.inertia))
     guess = GUESS_SIGMA ** 2 * np.eye(6)
 
     def one(phi, final_iter: int = output_error.FINAL_ITER) -> tuple[output_error.Problem, output_error.Fit]:

@@ -27,7 +27,7 @@ from scipy import stats
 from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingError
 from inertia_gym.estimation import output_error
 from inertia_gym.estimation.equation_error import pooled, system_of
-from inertia_gym.estimation.inertia_param import start_phi
+from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia
 from inertia_gym.estimation.uncertainty import (
     TEST_LEVEL,
     InertiaEstimate,
@@ -105,7 +105,7 @@ def _joint_output_error(preps, singles, trace_ref) -> tuple[InertiaEstimate, flo
         mean = mean * trace_ref / np.trace(mean)
     lo = output_error.local_indices(joint)
     states = [np.r_[pr.z_w[0], np.zeros(lo.size - 3)] for pr in probs]
-    x = np.r_[start_phi(mean), np.concatenate(states)]
+    x = np.r_[phi_from_inertia(nearest_realizable(mean)), np.concatenate(states)]
     q_refs = np.array([pr.z_q[0] if pr.z_q is not None else [1.0, 0, 0, 0] for pr in probs])
     stage = output_error.solve_shooting(output_error.Shooting(joint, seg), x, q_refs, None,
                                         output_error.FINAL_ITER)

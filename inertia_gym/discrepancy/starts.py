@@ -23,7 +23,7 @@ from inertia_gym.estimation.equation_error import (
     omega_matrix,
     valid_theta,
 )
-from inertia_gym.estimation.inertia_param import interior, phi_from_inertia, start_phi
+from inertia_gym.estimation.inertia_param import interior, nearest_realizable, phi_from_inertia
 from inertia_gym.information import inertia_from_theta
 
 #: Records of fewer segments than SHORT_SEGMENTS choose between starts cut into that many.
@@ -62,7 +62,7 @@ def equation_error_phi(d: Data) -> np.ndarray:
     kept = d.row >= 0  # clipped samples and trimmed impulses left out here too
     theta = equation_error_theta(d.t[kept], d.w[kept], d.tau[kept] if d.has_torque else None,
                                  None if d.h is None else d.h[kept], trace=d.trace0)
-    return start_phi(inertia_from_theta(theta))
+    return phi_from_inertia(interior(nearest_realizable(inertia_from_theta(theta))))
 
 
 def _inertia_starts(d: Data) -> list[np.ndarray]:

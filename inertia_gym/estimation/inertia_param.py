@@ -149,13 +149,6 @@ def interior(inertia, share: float = INTERIOR_SHARE) -> np.ndarray:
     return (1.0 - share) * j + share * np.trace(j) / 3.0 * np.eye(3)
 
 
-def start_phi(inertia) -> np.ndarray:
-    """Phi (6,) a projected fit starts from, given an estimate of the inertia (3, 3): the nearest
-    inertia a body has (nearest_realizable), moved strictly inside (interior).
-    """
-    return phi_from_inertia(interior(nearest_realizable(inertia)))
-
-
 def realizable_phi(phi, keep_scale: bool = False) -> np.ndarray:
     """Phi (6,) of nearest_realizable(J(phi)): phi itself where J(phi) is a body's inertia (or
     not finite: the fit's own checks refuse that). keep_scale: phi[0], the pure scale coordinate,
