@@ -192,8 +192,9 @@ def valid_theta(theta, trace=None) -> np.ndarray:
     if vals[-1] <= 0:
         vals = np.abs(vals) + 1e-300
     vals = np.clip(vals, MOMENT_FLOOR * max(vals[-1], 1e-300), None)
-    # raising the least moment never breaks the triangle inequality, so the floor holds after it
     vals, vecs = np.linalg.eigh(nearest_realizable((vecs * vals) @ vecs.T))
+    # the projection may leave a rod's zero moment; raising the least moment to the floor keeps
+    # the triangle inequality (the largest moment stays at most the sum of the other two)
     vals = np.clip(vals, MOMENT_FLOOR * max(vals[-1], 1e-300), None)
     j = (vecs * vals) @ vecs.T
     out = np.array([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
