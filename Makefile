@@ -4,15 +4,17 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
+# Python writes the bytecode of what it imports, once: where PYTHONDONTWRITEBYTECODE is set, every
+# process of a run would compile torch and the rest again on import.
+unexport PYTHONDONTWRITEBYTECODE
+
 .PHONY: run test check-science docs lint bench results clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# A CPU build of torch lies on disk here; an unpinned torch would pull a multi-GB CUDA build.
-	# --no-compile, then compileall on every core: pip compiles the environment's ~16,000 files one
-	# at a time (about 40 s here), and where PYTHONDONTWRITEBYTECODE is set nothing writes them later,
-	# so every process would compile torch again on import. compileall's exit status is ignored as
-	# pip ignores a file that does not compile (test data of other packages).
+	# --no-compile: pip would compile all ~16,000 files of the environment one at a time; Python
+	# compiles the modules a command imports on first use instead (see unexport below).
 	$(BIN)/pip install -q --no-compile torch==2.13.0
 	$(BIN)/pip install -q --no-compile -e '.[optimize,rl,dev,ray,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins
@@ -20,7 +22,6 @@ $(STAMP): pyproject.toml
 	# had, its tests skip.
 	$(BIN)/pip install -q --no-compile --no-deps bsk==2.12.1 colorama==0.4.6 pooch==1.9.0 \
 		|| echo "bsk not installed: the Basilisk tests will skip"
-	-$(BIN)/python -m compileall -q -q -j 0 $(VENV)/lib
 	touch $(STAMP)
 
 run: $(STAMP)

@@ -38,7 +38,7 @@ def run_cli(out: Path, *extra: str) -> dict:
     return json.loads((out / "benchmark.json").read_text())
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # built once per worker, not again when xdist switches modules
 def sequential(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("bench") / "sequential"
     run_cli(out, "--workers", "1")

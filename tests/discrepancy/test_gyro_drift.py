@@ -88,7 +88,7 @@ def test_the_drift_is_fitted_only_where_the_record_holds_4_knots_30_s_25_rows_an
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [3, 4])
+@pytest.mark.parametrize("seed", [3, pytest.param(4, marks=pytest.mark.science)])
 def test_a_bias_random_walk_is_read_as_a_drifting_gyro_bias_and_a_constant_one_as_constant(seed):
     duration, sample_dt = 300.0, 0.5
     sigma = SLOW.gyro_sigma

@@ -65,7 +65,7 @@ def test_without_a_change_the_knots_stay_nearly_even():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_a_short_spin_up_in_a_long_record_is_the_varying_momentum_alone(seed):
     rec, truth = spinning_up(seed)
     report, _ = diagnose(rec)
