@@ -143,14 +143,15 @@ def problem_from(prep: Prepared, sigma_w=None, fit_bias: bool = False,
 def lack_of_fit(refinement: ml.Refinement, level: np.ndarray, prob: output_error.Problem) -> float:
     """The p-value of the fit's residuals against the noise level (3,) rad/s: their whitened sum
     of squares against a chi-square on the residuals' degrees of freedom (fewer where they are
-    correlated: each run of correlated lags counts once). A record no single trajectory follows
-    fails (the rigid model holds one).
+    correlated: each run of correlated lags counts once). A fit in several segments is tested the
+    same way, each segment's own initial state counted among the fitted parameters: a long tumble
+    that no single trajectory follows numerically (its sensitivity to the inertia grows without
+    bound) is still one rigid body wherever its segments leave residuals at the noise.
     """
     fit = refinement.fit
-    if fit.segments > 1:
-        return 0.0
     z = fit.evaluation.e_w / level
-    dof = max(z.size - prob.n_params, 1) / (1 + refinement.noise.hac_lags)
+    states = (fit.segments - 1) * (6 if prob.with_att else 3)
+    dof = max(z.size - prob.n_params - states, 1) / (1 + refinement.noise.hac_lags)
     return float(stats.chi2.sf(float(np.sum(z ** 2)) / (1 + refinement.noise.hac_lags), dof))
 
 
@@ -242,12 +243,15 @@ def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
         biased = ml.statistics(biased_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
     except (EstimatorDivergedError, ConfigError):
         return prob, plain, None
-    if lack_of_fit(biased, prep.level, biased_prob) < 1 - TEST_LEVEL:
+    if (biased.fit.segments > plain.fit.segments
+            or lack_of_fit(biased, prep.level, biased_prob) < 1 - TEST_LEVEL):
         return prob, plain, None
     lags = 1 + plain.noise.hac_lags
     gain = (np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)
             - np.sum((biased.fit.evaluation.e_w / prep.level) ** 2))
-    if plain.fit.segments == 1 and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
+    # nested fits in as many segments: the likelihood-ratio test; a bias that lets fewer
+    # trajectories follow the record is evidence of its own
+    if plain.fit.segments == biased.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
         return prob, plain, None
     bias = biased.fit.p[-3:]
     return biased_prob, biased, (f"a constant gyro bias {np.array2string(bias, precision=3)} rad/s was "
