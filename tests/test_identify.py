@@ -291,7 +291,8 @@ def test_the_lack_of_fit_test_holds_a_segmented_fit_to_the_noise_like_a_single_o
     def p_value(e_w, segments):
         evaluation = dataclasses.make_dataclass("Evaluation", ["e_w"])(e_w)
         fit = dataclasses.make_dataclass("Fit", ["segments", "evaluation"])(segments, evaluation)
-        return lack_of_fit(dataclasses.make_dataclass("Refinement", ["fit", "noise"])(fit, noise), level, prob)
+        refinement = dataclasses.make_dataclass("Refinement", ["fit", "noise"])(fit, noise)
+        return lack_of_fit(refinement, level, prob)
 
     for segments in (1, 5):
         draws = [np.random.default_rng(seed).normal(size=(3000, 3)) * level for seed in range(20)]
