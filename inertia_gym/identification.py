@@ -484,7 +484,8 @@ def _result(prep: Prepared, method: str, estimator: str, est: InertiaEstimate,
             f"comes out {_nominal_factor(est, nominal):.3g} times the nominal's: it does not explain this "
             "recording (check its units and columns, or run diagnose on it)" + clip_hint(rec))
     if not converged:
-        notes.append("the output-error fit stopped at its iteration limit before converging")
+        notes.append("the output-error fit stopped at its iteration limit before converging: its "
+                     "intervals, from the curvature where it stopped, may be far too narrow")
     if prep.sigma is not None:
         said = stated_noise_note(rec.w[prep.usable], prep.sigma, rms)
         notes += [said] if said else []
