@@ -108,7 +108,9 @@ def test_a_fast_toss_at_100_hz_is_fitted_to_its_noise(w0):
 
 
 @pytest.mark.parametrize("w0, drag", [((12.0, 0.5, 0.3), False), ((0.3, 10.0, 0.2), False),
-                                      ((12.0, 0.5, 0.3), True)])  # near the major, the middle axis
+                                      pytest.param((12.0, 0.5, 0.3), True, marks=pytest.mark.science)])
+# near the major, the middle axis; with the air's drag fitted too on demand (the drag fit is
+# guarded in make test by tests/discrepancy/test_flight_air.py)
 def test_a_short_flight_is_fitted_to_its_valleys_floor_and_its_shape_intervals_cover(w0, drag):
     """1 s of the racquet's flight at 100 Hz, gyro noise 2e-3 rad/s (given), 8 seeds, torque-free
     or with drag: the fits crawl along a curved valley. Stopped where a step gains under 1 in
