@@ -388,9 +388,8 @@ def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) 
     whole, lin = sh.evaluate(x_new, q_refs, True)
     cov = None
     if lin is not None:
-        blocks = solver.NormalBlocks.of(lin, sh.segments, True)
         cov = np.zeros((gl.size, gl.size))
-        cov[np.ix_(free, free)] = blocks.global_covariance()
+        cov[np.ix_(free, free)] = solver.global_covariance(lin, sh.segments)
     return _Stage(sh.p_of(x_new, 0), q_refs[0], whole, res.iterations, res.converged, x_new, q_refs, cov)
 
 

@@ -96,6 +96,30 @@ class Result:
     converged: bool
 
 
+def global_covariance(lin: Linearization, segments: int) -> np.ndarray:
+    """(P, P) the globals' block of (J^T J)^-1 of a linearization over `segments` segments, each
+    segment's locals eliminated by projecting the global columns off the span of that segment's
+    local columns, then inverting through a QR factor of what is left. The normal equations'
+    Schur complement (A - B D^-1 B^T) squares the Jacobian's condition number: over long segments,
+    whose sensitivities grow by orders of magnitude, it loses the globals' information to rounding
+    and can come out indefinite.
+    """
+    norm = np.linalg.norm(lin.g, axis=0)
+    col = np.where(norm > 0, norm, np.inf)
+    gsc = lin.g / col
+    parts = [gsc[lin.seg_of < 0]] if lin.js is not None else [gsc]
+    for seg in range(segments if lin.js is not None else 0):
+        rows = lin.seg_of == seg
+        if not np.any(rows):
+            continue
+        u, sv, _ = np.linalg.svd(lin.js[rows], full_matrices=False)
+        u = u[:, sv > 1e-12 * max(float(sv.max(initial=0.0)), 1e-300)]
+        parts.append(gsc[rows] - u @ (u.T @ gsc[rows]))
+    r = np.linalg.qr(np.vstack(parts), mode="r")
+    r_inv = np.linalg.pinv(r)
+    return (r_inv @ r_inv.T) / np.outer(col, col)
+
+
 @dataclasses.dataclass(frozen=True)
 class NormalBlocks:
     """The damping-free pieces of one Jacobian's step, formed once and reused for every damping.
@@ -145,14 +169,6 @@ class NormalBlocks:
         """The damped step (dg (P,), ds (S, L)). A system that is not finite gives a zero step."""
         dg_sc, ds = self._scaled(lam)
         return dg_sc / self.col, ds
-
-    def global_covariance(self) -> np.ndarray:
-        """(P, P) the globals' block of (J^T J)^-1, the locals eliminated (their Schur complement)."""
-        a = self.a if self.qr_r is None else self.qr_r.T @ self.qr_r
-        if self.dmat is not None:
-            d_inv = np.linalg.pinv(self.dmat, hermitian=True)
-            a = a - np.einsum("spi,sij,sqj->pq", self.bmat, d_inv, self.bmat)
-        return np.linalg.pinv(a, hermitian=True) / np.outer(self.col, self.col)
 
     def decrement(self) -> float:
         """The cost's fall (|r|^2 units) that the undamped step predicts: what is left to gain."""

@@ -209,3 +209,44 @@ def test_solves_driven_side_by_side_reach_what_each_reaches_alone():
     for i, res in enumerate(alone):
         np.testing.assert_array_equal(done[i].x, res.x)
     assert solver.SPECULATE >= 1
+
+
+def _segmented(rng, rows, locals_, segments, globals_):
+    """A Linearization of `segments` segments of `rows` rows each: js (N, L), g (N, P)."""
+    js = rng.normal(size=(rows * segments, locals_))
+    g = rng.normal(size=(rows * segments, globals_))
+    seg_of = np.repeat(np.arange(segments), rows)
+    return solver.Linearization(rng.normal(size=rows * segments), g, js, seg_of)
+
+
+def test_the_globals_covariance_is_the_global_block_of_the_inverse_normal_matrix():
+    """global_covariance by its definition: the globals' block of (J^T J)^-1 of the whole
+    Jacobian, whose local columns belong to their own segment's rows."""
+    rng = np.random.default_rng(2)
+    lin = _segmented(rng, 40, 3, 4, 5)
+    full = np.zeros((lin.g.shape[0], 5 + 3 * 4))
+    full[:, :5] = lin.g
+    for s in range(4):
+        rows = lin.seg_of == s
+        full[np.ix_(rows, 5 + 3 * s + np.arange(3))] = lin.js[rows]
+    np.testing.assert_allclose(solver.global_covariance(lin, 4),
+                               np.linalg.inv(full.T @ full)[:5, :5], rtol=1e-9, atol=1e-14)
+
+
+def test_the_globals_covariance_keeps_what_a_segments_large_sensitivities_nearly_hide():
+    """A global column that is a segment's local column, 1e4 in size, plus 1e-6 of a direction no
+    local column has: its variance is 1 / (1e-6 |n|)^2. Formed from the normal equations, the
+    Schur complement subtracts two numbers of 1e8 to find one of 1e-12 and loses it to rounding;
+    the projection keeps it to 1e-6."""
+    rng = np.random.default_rng(3)
+    lin = _segmented(rng, 50, 3, 2, 1)
+    js = lin.js * 1e4
+    rows = lin.seg_of == 0
+    n = rng.normal(size=int(rows.sum()))
+    basis = np.linalg.qr(js[rows])[0]
+    n -= basis @ (basis.T @ n)  # off every local column of its segment
+    g = np.zeros((lin.g.shape[0], 1))
+    g[rows, 0] = js[rows, 0] + 1e-6 * n
+    g[~rows, 0] = js[~rows, 0]  # the other segment's local column: no information left there
+    cov = solver.global_covariance(solver.Linearization(lin.r, g, js, lin.seg_of), 2)
+    np.testing.assert_allclose(cov[0, 0], 1.0 / (1e-6 * np.linalg.norm(n)) ** 2, rtol=1e-6)
