@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# A CPU build of torch lies on disk here; an unpinned torch would pull a multi-GB CUDA build.
 	# --no-compile: pip would compile all ~16,000 files of the environment one at a time; Python
-	# compiles the modules a command imports on first use instead (see unexport below).
+	# compiles the modules a command imports on first use instead (see unexport above).
 	$(BIN)/pip install -q --no-compile torch==2.13.0
 	$(BIN)/pip install -q --no-compile -e '.[optimize,rl,dev,ray,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins

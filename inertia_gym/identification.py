@@ -150,7 +150,7 @@ def lack_of_fit(refinement: ml.Refinement, level: np.ndarray, prob: output_error
     """
     fit = refinement.fit
     z = fit.evaluation.e_w / level
-    states = (fit.segments - 1) * (6 if prob.with_att else 3)
+    states = (fit.segments - 1) * output_error.local_indices(prob).size
     dof = max(z.size - prob.n_params - states, 1) / (1 + refinement.noise.hac_lags)
     return float(stats.chi2.sf(float(np.sum(z ** 2)) / (1 + refinement.noise.hac_lags), dof))
 
@@ -178,7 +178,7 @@ def _penalised_cost(fit: output_error.Fit, prob: output_error.Problem, level) ->
     the same record from different starts compared by likelihood, more trajectories paying for
     the parameters they add (the likelihood-ratio test of the nested model).
     """
-    extra = (fit.segments - 1) * (6 if prob.with_att else 3)
+    extra = (fit.segments - 1) * output_error.local_indices(prob).size
     penalty = stats.chi2.ppf(TEST_LEVEL, extra) if extra else 0.0
     return float(np.sum((fit.evaluation.e_w / level) ** 2)) + penalty
 

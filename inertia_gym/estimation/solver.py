@@ -107,14 +107,20 @@ def global_covariance(lin: Linearization, segments: int) -> np.ndarray:
     norm = np.linalg.norm(lin.g, axis=0)
     col = np.where(norm > 0, norm, np.inf)
     gsc = lin.g / col
-    parts = [gsc[lin.seg_of < 0]] if lin.js is not None else [gsc]
-    for seg in range(segments if lin.js is not None else 0):
-        rows = lin.seg_of == seg
-        if not np.any(rows):
-            continue
-        u, sv, _ = np.linalg.svd(lin.js[rows], full_matrices=False)
-        u = u[:, sv > 1e-12 * max(float(sv.max(initial=0.0)), 1e-300)]
-        parts.append(gsc[rows] - u @ (u.T @ gsc[rows]))
+    if lin.js is None or not segments:
+        parts = [gsc]
+    else:
+        # each segment's rows together (they may come in several runs: gyro rows, attitude rows)
+        order = np.argsort(lin.seg_of, kind="stable")
+        ends = np.searchsorted(lin.seg_of[order], np.arange(-1, segments), side="right")
+        parts = [gsc[order[:ends[0]]]]  # rows of no segment (a prior's)
+        for a, b in zip(ends[:-1], ends[1:]):
+            rows = order[a:b]
+            if rows.size == 0:
+                continue
+            u, sv, _ = np.linalg.svd(lin.js[rows], full_matrices=False)
+            u = u[:, sv > 1e-12 * max(float(sv.max()), 1e-300)]
+            parts.append(gsc[rows] - u @ (u.T @ gsc[rows]))
     r = np.linalg.qr(np.vstack(parts), mode="r")
     r_inv = np.linalg.pinv(r)
     return (r_inv @ r_inv.T) / np.outer(col, col)

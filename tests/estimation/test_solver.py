@@ -231,6 +231,11 @@ def test_the_globals_covariance_is_the_global_block_of_the_inverse_normal_matrix
         full[np.ix_(rows, 5 + 3 * s + np.arange(3))] = lin.js[rows]
     np.testing.assert_allclose(solver.global_covariance(lin, 4),
                                np.linalg.inv(full.T @ full)[:5, :5], rtol=1e-9, atol=1e-14)
+    # a segment's rows may come in several runs (its gyro rows, then its attitude rows)
+    mixed = rng.permutation(lin.seg_of.size)
+    shuffled = solver.Linearization(lin.r[mixed], lin.g[mixed], lin.js[mixed], lin.seg_of[mixed])
+    np.testing.assert_allclose(solver.global_covariance(shuffled, 4), solver.global_covariance(lin, 4),
+                               rtol=1e-9, atol=1e-14)
 
 
 def test_the_globals_covariance_keeps_what_a_segments_large_sensitivities_nearly_hide():
