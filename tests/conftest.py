@@ -5,9 +5,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from inertia_gym.recordings import PHYPHOX_COLUMNS, Recording, read_recordings
 from inertia_gym.scenario import Scenario
+
+# The suite draws the same examples on every run (a test passes or fails on the code, not on the
+# draw) and prints the blob that reproduces a failure; `pytest --hypothesis-profile explore` draws
+# new ones, as a study.
+settings.register_profile("suite", derandomize=True, database=None, print_blob=True)
+settings.register_profile("explore", print_blob=True)
+settings.load_profile("suite")
 
 # the suite's xdist workers already fill the cores: diagnose's fits run without helper processes
 # (tests/test_executors.py switches them on where it tests them)

@@ -1,10 +1,11 @@
 """The statistics of a fit: its information, covariance and intervals, and the share of its
 residual rows that are independent.
 
-information is the Schur complement of the segments' rates in the Gauss-Newton matrix;
-covariance is its pseudo-inverse, widened by the misfit and, on a coarsely read gyro, by the
-lattice's spread (lattice.py); intervals carries it to every effect's named parameters by the
-delta method; effective_share is the share the BICs and the covariance count the rows with.
+information is the Gauss-Newton information of the global entries with the segments' rates
+eliminated, covariance its inverse (estimation.solver: global_information, global_covariance),
+widened by the misfit and, on a coarsely read gyro, by the lattice's spread (lattice.py);
+intervals carries it to every effect's named parameters by the delta method; effective_share is
+the share the BICs and the covariance count the rows with.
 """
 
 from __future__ import annotations
@@ -18,45 +19,54 @@ from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import EffectModel
 from inertia_gym.discrepancy.lattice import lattice_spread
 from inertia_gym.discrepancy.objective import Fit, _free, _steps, jacobian, named_params
+from inertia_gym.estimation import solver
 from inertia_gym.estimation.longrun import correlation_lags
 
 
-def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
-    """The information of the free global entries of fit.x (the Schur complement of the
-    segments' rates in J^T J, central differences), their indices, and the factor the model
-    error widens the covariance by: the whitened residual's mean square where it exceeds 1,
-    over the share of its rows that are independent (effective_share). Rows correlated over tau
-    of them carry the information of 1/tau as many: the same count the BICs are recounted with.
-    Without it, on a 1-s racquet toss with AR(1) gyro noise (coefficient 0.9 per row, stated
-    level given) the shape's 95 % intervals cover the truth on 8 of 20 seeds; with it on 13
-    (tests/discrepancy/test_fit.py), and white noise (a share of 1) gives the same intervals as
-    without it.
+def _linearization(fit: Fit, d: Data) -> tuple[solver.Linearization, np.ndarray]:
+    """The fit's residual linearized in its free global entries and its segments' rates (central
+    differences), and the free global entries' indices.
     """
     layout = fit.layout
     free = _free(layout, d)
     r, g, js = jacobian(fit.x, free, layout, d, central=True)
     seg_of = np.full(r.size, -1)
     seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
-    info = g.T @ g
-    has = seg_of >= 0
-    starts = np.flatnonzero(np.r_[True, np.diff(seg_of[has]) != 0])
-    jss, gs = js[has], g[has]
-    dmat = np.add.reduceat(jss[:, :, None] * jss[:, None, :], starts, axis=0)
-    bmat = np.add.reduceat(gs[:, :, None] * jss[:, None, :], starts, axis=0)
-    dinv = np.linalg.pinv(dmat)
-    info = info - np.einsum("spi,sij,sqj->pq", bmat, dinv, bmat)
+    return solver.Linearization(r, g, js, seg_of), np.flatnonzero(free[:layout.n_global])
+
+
+def _widening(fit: Fit, d: Data) -> float:
+    """The factor the model error widens the covariance by: the whitened residual's mean square
+    where it exceeds 1, over the share of its rows that are independent (effective_share). Rows
+    correlated over tau of them carry the information of 1/tau as many: the same count the BICs
+    are recounted with. Without it, on a 1-s racquet toss with AR(1) gyro noise (coefficient 0.9
+    per row, stated level given) the shape's 95 % intervals cover the truth on 8 of 20 seeds;
+    with it on 13 (tests/discrepancy/test_fit.py), and white noise (a share of 1) gives the
+    same intervals as without it.
+    """
     mse = float(np.mean(fit.z ** 2)) if np.all(np.isfinite(fit.z)) else 1.0
-    return info, np.flatnonzero(free[:layout.n_global]), max(1.0, mse) / effective_share(d, fit)
+    return max(1.0, mse) / effective_share(d, fit)
+
+
+def information(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray, float]:
+    """The information of the free global entries of fit.x with the segments' rates eliminated
+    (solver.global_information), their indices, and the factor the model error widens the
+    covariance by (_widening).
+    """
+    lin, idx = _linearization(fit, d)
+    return solver.global_information(lin, d.segments), idx, _widening(fit, d)
 
 
 def covariance(fit: Fit, d: Data) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance of the free global entries of fit.x and their indices: the pseudo-inverse of
-    information(), widened by its model-error factor, plus, on a gyro read coarser than its
-    motion and noise move it, the spread of fit's refits on its prediction read on the lattice
+    """Covariance of the free global entries of fit.x and their indices: the globals' block of
+    the inverse information with the segments' rates eliminated (solver.global_covariance),
+    widened by the model-error factor (_widening), plus, on a gyro read coarser than its motion
+    and noise move it, the spread of fit's refits on its prediction read on the lattice
     (lattice_spread).
     """
-    info, idx, widen = information(fit, d)
-    return np.linalg.pinv(info) * widen + lattice_spread(fit, d, idx), idx
+    lin, idx = _linearization(fit, d)
+    cov = solver.global_covariance(lin, d.segments) * _widening(fit, d)
+    return cov + lattice_spread(fit, d, idx), idx
 
 
 def _flat_params(model: EffectModel, p, d: Data) -> np.ndarray:

@@ -96,13 +96,13 @@ class Result:
     converged: bool
 
 
-def global_covariance(lin: Linearization, segments: int) -> np.ndarray:
-    """(P, P) the globals' block of (J^T J)^-1 of a linearization over `segments` segments, each
-    segment's locals eliminated by projecting the global columns off the span of that segment's
-    local columns, then inverting through a QR factor of what is left. The normal equations'
-    Schur complement (A - B D^-1 B^T) squares the Jacobian's condition number: over long segments,
-    whose sensitivities grow by orders of magnitude, it loses the globals' information to rounding
-    and can come out indefinite.
+def _projected_factor(lin: Linearization, segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """(R (P, P), col (P,)): the triangular factor of the global columns, scaled by their norms
+    col (inf for a column the residual does not see), after each segment's rows are projected off
+    the span of that segment's local columns. R^T R is the globals' information with the locals
+    eliminated, without forming the normal equations: their Schur complement (A - B D^-1 B^T)
+    squares the Jacobian's condition number and, over long segments whose sensitivities grow by
+    orders of magnitude, loses the globals' information to rounding and can come out indefinite.
     """
     norm = np.linalg.norm(lin.g, axis=0)
     col = np.where(norm > 0, norm, np.inf)
@@ -121,9 +121,26 @@ def global_covariance(lin: Linearization, segments: int) -> np.ndarray:
             u, sv, _ = np.linalg.svd(lin.js[rows], full_matrices=False)
             u = u[:, sv > 1e-12 * max(float(sv.max()), 1e-300)]
             parts.append(gsc[rows] - u @ (u.T @ gsc[rows]))
-    r = np.linalg.qr(np.vstack(parts), mode="r")
+    return np.linalg.qr(np.vstack(parts), mode="r"), col
+
+
+def global_covariance(lin: Linearization, segments: int) -> np.ndarray:
+    """(P, P) the globals' block of (J^T J)^-1 of a linearization over `segments` segments: the
+    pseudo-inverse through the projected factor R (_projected_factor), never through R^T R.
+    """
+    r, col = _projected_factor(lin, segments)
     r_inv = np.linalg.pinv(r)
     return (r_inv @ r_inv.T) / np.outer(col, col)
+
+
+def global_information(lin: Linearization, segments: int) -> np.ndarray:
+    """(P, P) the globals' information with each segment's locals eliminated: R^T R of the
+    projected factor (_projected_factor), positive semi-definite by construction; zero rows and
+    columns for a global the residual does not see.
+    """
+    r, col = _projected_factor(lin, segments)
+    seen = np.where(np.isfinite(col), col, 0.0)
+    return (r.T @ r) * np.outer(seen, seen)
 
 
 @dataclasses.dataclass(frozen=True)
