@@ -148,20 +148,26 @@ class NormalBlocks:
     """The damping-free pieces of one Jacobian's step, formed once and reused for every damping.
 
     col (P,): the global columns' norms (inf for a column the residual does not see: it takes no
-    step); rhs (P,): -g_scaled^T r. Without locals: qr_r (P, P), qr_b (P,) the triangular factor
-    of the scaled Jacobian and Q^T (-r). With locals: a (P, P) the scaled normal matrix, dmat
-    (S, L, L), bmat (S, P, L), bvec (S, L): each segment's block, its coupling with the globals
-    and its right side.
+    step); rhs (P,): -g_scaled^T r. qr_r (P, P), qr_b (P,): the triangular factor of the scaled
+    global columns and Q^T r, their rows first projected, segment by segment, off the span of
+    that segment's local columns where the locals are free. With free locals, each segment's
+    thin factor js = Q0 r0 (S, L, L), cmat = Q0^T g_scaled (S, L, P), cvec = Q0^T r (S, L) and
+    dscale (S, L) the locals' damping scale (their columns' squared norms, floored).
+
+    The locals are eliminated by orthogonal projection, not by the normal equations' Schur
+    complement: over a long segment the sensitivities span many orders, and the complement
+    (squaring the Jacobian's condition number) loses the globals' step to rounding.
     """
 
     col: np.ndarray
     rhs: np.ndarray
-    qr_r: np.ndarray | None = None
-    qr_b: np.ndarray | None = None
-    a: np.ndarray | None = None
-    dmat: np.ndarray | None = None
-    bmat: np.ndarray | None = None
-    bvec: np.ndarray | None = None
+    qr_r: np.ndarray
+    qr_b: np.ndarray
+    r0: np.ndarray | None = None
+    cmat: np.ndarray | None = None
+    cvec: np.ndarray | None = None
+    dscale: np.ndarray | None = None
+    dfloor: float = 0.0
 
     @staticmethod
     def of(lin: Linearization, segments: int, locals_free: bool) -> "NormalBlocks":
@@ -172,21 +178,32 @@ class NormalBlocks:
         rhs = -(gsc.T @ lin.r)
         if not (locals_free and segments and lin.js is not None):
             return NormalBlocks(col, rhs, *_triangular(gsc, lin.r))
-        has = lin.seg_of >= 0
-        gs, jss, rs, so = gsc[has], lin.js[has], lin.r[has], lin.seg_of[has]
-        size = jss.shape[1]
-        starts = np.flatnonzero(np.r_[True, np.diff(so) != 0])
-        ids = so[starts]
-        # a segment's rows may come in several runs (its gyro rows, then its attitude rows)
-        dmat = np.zeros((segments, size, size))
-        bmat = np.zeros((segments, gsc.shape[1], size))
-        bvec = np.zeros((segments, size))
-        for seg, a, b in zip(ids, starts, np.r_[starts[1:], so.size]):
-            js_run = jss[a:b]
-            dmat[seg] += js_run.T @ js_run
-            bmat[seg] += gs[a:b].T @ js_run
-            bvec[seg] += js_run.T @ rs[a:b]
-        return NormalBlocks(col, rhs, a=gsc.T @ gsc, dmat=dmat, bmat=bmat, bvec=bvec)
+        size, p = lin.js.shape[1], gsc.shape[1]
+        r0 = np.zeros((segments, size, size))
+        cmat = np.zeros((segments, size, p))
+        cvec = np.zeros((segments, size))
+        g_perp, r_perp = gsc.copy(), np.asarray(lin.r, float).copy()
+        # each segment's rows together (they may come in several runs: gyro rows, attitude rows)
+        order = np.argsort(lin.seg_of, kind="stable")
+        ends = np.searchsorted(lin.seg_of[order], np.arange(-1, segments), side="right")
+        finite = np.all(np.isfinite(lin.js)) and np.all(np.isfinite(gsc)) and np.all(np.isfinite(lin.r))
+        if finite:
+            for seg, (a, b) in enumerate(zip(ends[:-1], ends[1:])):
+                rows = order[a:b]
+                if rows.size == 0:
+                    continue
+                q0, r0_s = np.linalg.qr(lin.js[rows])
+                k = r0_s.shape[0]  # fewer rows than locals: a short factor
+                r0[seg, :k] = r0_s
+                cmat[seg, :k] = q0.T @ gsc[rows]
+                cvec[seg, :k] = q0.T @ lin.r[rows]
+                g_perp[rows] -= q0 @ cmat[seg, :k]
+                r_perp[rows] -= q0 @ cvec[seg, :k]
+        diag = np.einsum("sij,sij->sj", r0, r0)  # the local columns' squared norms
+        floor = 1e-12 * max(float(diag.max()), 1e-300)
+        qr_r, qr_b = _triangular(g_perp, r_perp, gram=False)
+        return NormalBlocks(col, rhs, qr_r, qr_b, r0=r0, cmat=cmat, cvec=cvec,
+                            dscale=np.maximum(diag, floor), dfloor=floor)
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """The damped step (dg (P,), ds (S, L)). A system that is not finite gives a zero step."""
@@ -197,31 +214,49 @@ class NormalBlocks:
         """The cost's fall (|r|^2 units) that the undamped step predicts: what is left to gain."""
         dg_sc, ds = self._scaled(0.0)
         gain = float(self.rhs @ dg_sc)
-        if self.bvec is not None:
-            gain -= float(np.sum(self.bvec * ds))
+        if self.r0 is not None:
+            gain -= float(np.einsum("sji,sj,si->", self.r0, self.cvec, ds))  # (js^T r) . ds
         return gain
 
     def _scaled(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """The damped step on the scaled columns: min |J d + r|^2 + lam (|dg|^2 + ds^T D ds), D
+        each local column's squared norm (Marquardt's diagonal), by least squares on factors.
+        """
         p = self.col.size
-        if self.qr_r is not None:  # no locals: damped least squares on the triangular factor
-            lhs = np.vstack([self.qr_r, math.sqrt(lam) * np.eye(p)]) if lam > 0 else self.qr_r
+        seen = np.isfinite(self.col).astype(float)  # an unseen column's diagonal: 0, floored
+        damp = math.sqrt(lam) * np.diag(np.sqrt(np.maximum(seen, 1e-12)))
+        if self.r0 is None:
+            lhs = np.vstack([self.qr_r, damp]) if lam > 0 else self.qr_r
             rhs = np.r_[self.qr_b, np.zeros(p)] if lam > 0 else self.qr_b
             if not (np.all(np.isfinite(lhs)) and np.all(np.isfinite(rhs))):
                 return np.zeros(p), np.zeros((0, 3))
-            return np.linalg.lstsq(lhs, rhs, rcond=None)[0], np.zeros((0, 3))
-        a = self.a + lam * np.diag(np.maximum(np.diag(self.a), 1e-12))
-        rhs = self.rhs
-        diag = np.einsum("sii->si", self.dmat)
-        floor = 1e-12 * max(float(diag.max()), 1e-300)
-        eye = np.eye(self.dmat.shape[1])
-        damped = self.dmat + lam * np.einsum("si,ij->sij", np.maximum(diag, floor), eye) + floor * eye
-        dinv = np.linalg.inv(damped)
-        a = a - np.einsum("spi,sij,sqj->pq", self.bmat, dinv, self.bmat)
-        rhs = rhs + np.einsum("spi,sij,sj->p", self.bmat, dinv, self.bvec)
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
-            return np.zeros(p), np.zeros(self.bvec.shape)
-        dg_sc = np.linalg.pinv(a, rcond=1e-13, hermitian=True) @ rhs if p else np.zeros(0)
-        ds = -np.einsum("sij,sj->si", dinv, self.bvec + np.einsum("spi,p->si", self.bmat, dg_sc))
+            return -np.linalg.lstsq(lhs, rhs, rcond=None)[0], np.zeros((0, 3))
+        segments, size = self.cvec.shape
+        zero = np.zeros((segments, size))
+        if not all(np.all(np.isfinite(v)) for v in (self.qr_r, self.qr_b, self.cmat, self.cvec)):
+            return np.zeros(p), zero
+        # each segment's locals, damped: [r0; sqrt(lam D + floor)] = Q1 R1 (2L rows, L columns);
+        # its globals' rows [cmat; 0] and right side [cvec; 0] are projected off Q1's span
+        sq = np.sqrt(lam * self.dscale + self.dfloor)
+        local = np.concatenate([self.r0, sq[:, :, None] * np.eye(size)], axis=1)
+        q1, r1 = np.linalg.qr(local)
+        e = np.concatenate([self.cmat, np.zeros_like(self.cmat)], axis=1)
+        v = np.concatenate([self.cvec, zero], axis=1)
+        qe = np.einsum("sji,sjp->sip", q1, e)
+        qv = np.einsum("sji,sj->si", q1, v)
+        w = e - np.einsum("sij,sjp->sip", q1, qe)
+        wv = v - np.einsum("sij,sj->si", q1, qv)
+        dg_sc = np.zeros(p)
+        if p:
+            lhs = np.vstack([self.qr_r, w.reshape(-1, p), damp])
+            rhs = np.r_[self.qr_b, wv.ravel(), np.zeros(p)]
+            if not (np.all(np.isfinite(lhs)) and np.all(np.isfinite(rhs))):
+                return np.zeros(p), zero
+            dg_sc = -np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        # ds = -R1^-1 Q1^T ([cmat; 0] dg + [cvec; 0])
+        ds = -np.linalg.solve(r1, (np.einsum("sip,p->si", qe, dg_sc) + qv)[:, :, None])[:, :, 0]
+        if not np.all(np.isfinite(ds)):
+            return np.zeros(p), zero
         return dg_sc, ds
 
 
@@ -231,17 +266,24 @@ class NormalBlocks:
 GRAM_CONDITION = 1e10
 
 
-def _triangular(gsc: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """R (P, P) upper triangular with R^T R = gsc^T gsc, and R^-T gsc^T (-r) (= Q^T (-r))."""
+def _triangular(gsc: np.ndarray, r: np.ndarray, gram: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """R (P, P) upper triangular with R^T R = gsc^T gsc, and b = R^-T gsc^T r (= Q^T r), so that
+    |gsc d + r|^2 = |R d + b|^2 + const. From the Cholesky factor of the normal matrix where
+    gram and it is well conditioned, else from a QR factor of [gsc, r].
+    """
     p = gsc.shape[1]
-    gram = gsc.T @ gsc
-    rhs = -(gsc.T @ r)
-    if p and np.all(np.isfinite(gram)):
-        vals = np.linalg.eigvalsh(gram)
-        if vals[0] > vals[-1] / GRAM_CONDITION:
-            upper = np.linalg.cholesky(gram).T
-            return upper, np.linalg.solve(upper.T, rhs)
-    r_aug = np.linalg.qr(np.column_stack([gsc, -r]), mode="r")
+    if gram and p:
+        normal = gsc.T @ gsc
+        if np.all(np.isfinite(normal)):
+            vals = np.linalg.eigvalsh(normal)
+            if vals[0] > vals[-1] / GRAM_CONDITION:
+                upper = np.linalg.cholesky(normal).T
+                return upper, np.linalg.solve(upper.T, gsc.T @ r)
+    if not (np.all(np.isfinite(gsc)) and np.all(np.isfinite(r))):
+        return np.full((p, p), np.nan), np.full(p, np.nan)
+    r_aug = np.linalg.qr(np.column_stack([gsc, r]), mode="r")
+    if r_aug.shape[0] < p + 1:  # fewer rows than columns: pad the factor with zero rows
+        r_aug = np.vstack([r_aug, np.zeros((p + 1 - r_aug.shape[0], p + 1))])
     return r_aug[:p, :p], r_aug[:p, p]
 
 

@@ -279,3 +279,40 @@ def test_the_globals_information_is_the_inverse_of_their_covariance_and_never_in
     info = solver.global_information(solver.Linearization(lin.r, g, js, lin.seg_of), 2)
     np.testing.assert_allclose(info[0, 0], (1e-6 * np.linalg.norm(n)) ** 2, rtol=1e-6)
     assert np.all(info[1] == 0) and np.all(info[:, 1] == 0)
+
+
+def test_with_every_global_held_the_step_is_the_segments_own_least_squares():
+    """No free global: each segment's rates take their own damped least squares step."""
+    n_seg = 3
+    seg_of, _, js, r = _arrow_problem(4, n_seg, 20, [1.0])
+    lam = 0.1
+    dg, ds = NormalBlocks.of(Linearization(r, np.zeros((r.size, 0)), js, seg_of), n_seg, True).step(lam)
+    assert dg.size == 0
+    for s in range(n_seg):
+        a = js[seg_of == s].T @ js[seg_of == s]
+        ref = np.linalg.solve(a + lam * np.diag(np.diag(a)), -js[seg_of == s].T @ r[seg_of == s])
+        np.testing.assert_allclose(ds[s], ref, rtol=1e-6)
+
+
+def test_the_step_keeps_its_digits_where_the_segments_sensitivities_span_eight_orders():
+    """Rate columns of 1, 1e4 and 1e8 (a long segment's sensitivities) and a global column nearly
+    in their span: the step equals the dense damped least squares solved by QR to 1e-6, where
+    eliminating the rates through the normal equations keeps only about four digits."""
+    rng = np.random.default_rng(5)
+    rows, n_seg, lam = 60, 2, 1e-12
+    seg_of = np.repeat(np.arange(n_seg), rows)
+    js = rng.normal(size=(rows * n_seg, 3)) * np.array([1.0, 1e4, 1e8])
+    n = rng.normal(size=rows * n_seg)
+    for s in range(n_seg):
+        basis = np.linalg.qr(js[seg_of == s])[0]
+        n[seg_of == s] -= basis @ (basis.T @ n[seg_of == s])
+    g = np.column_stack([js @ np.ones(3) + 1e2 * n, rng.normal(size=rows * n_seg)])
+    r = rng.normal(size=rows * n_seg) + 3 * n
+    dg, ds = NormalBlocks.of(Linearization(r, g, js, seg_of), n_seg, True).step(lam)
+    dense = _dense(g, js, seg_of, n_seg)
+    diag = np.sum(dense ** 2, axis=0)
+    floor = 1e-12 * diag[2:].max()
+    damp = np.sqrt(lam * np.r_[diag[:2], np.maximum(diag[2:], floor)] + np.r_[0.0, 0.0, np.full(6, floor)])
+    ref = np.linalg.lstsq(np.vstack([dense, np.diag(damp)]), -np.r_[r, np.zeros(8)], rcond=None)[0]
+    np.testing.assert_allclose(dg, ref[:2], rtol=1e-6)
+    np.testing.assert_allclose(ds.ravel(), ref[2:], rtol=1e-6, atol=1e-12)
