@@ -12,7 +12,7 @@ long record is cut into segments (each at most MAX_TURN rad of rotation) that re
 own fitted initial rates. Those rates are nuisance parameters of every model; an effect is
 judged by what it explains inside the segments. The solver is Levenberg-Marquardt on the
 arrow-shaped Jacobian (global parameters dense, each segment's three rates touching only its
-own rows), eliminated segment by segment (Schur complement); the Jacobian is taken by finite
+own rows), eliminated segment by segment (estimation.solver); the Jacobian is taken by finite
 differences, all columns of one iteration integrated in one batched call (the three rate
 columns of all segments at once, since segments do not share rows).
 

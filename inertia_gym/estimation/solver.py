@@ -4,10 +4,11 @@ Every fit of the project minimises a sum of squares 0.5 |r(x)|^2 over x = [g (gl
 inertia, effect and sensor parameters), s_1 .. s_S (locals: each segment's initial state, in a
 multiply shot record)]. A residual row belongs to at most one segment, so the Jacobian is
 arrow-shaped: dense in the globals, block-diagonal in the locals. The step eliminates the
-locals segment by segment (Schur complement) and solves for the globals; with no locals it is
-the least-squares solution of the column-scaled Jacobian from its triangular factor: Cholesky of
-the scaled normal matrix where that is well conditioned, else QR (over a long tumble the
-sensitivities span eight orders and J^T J would square that condition number).
+locals segment by segment, projecting the global columns off the span of the segment's damped
+local columns, and solves for the globals from the triangular factor of what is left; with no
+locals it is the least-squares solution of the column-scaled Jacobian from its triangular
+factor: Cholesky of the scaled normal matrix where that is well conditioned, else QR (over a
+long tumble the sensitivities span eight orders and J^T J would square that condition number).
 
 Marquardt's damping lam (on the scaled columns' unit diagonal) falls fourfold after a step that
 lowers the cost and grows sixfold after one that does not. A step may be refused before it is
