@@ -188,21 +188,23 @@ class NormalBlocks:
         order = np.argsort(lin.seg_of, kind="stable")
         ends = np.searchsorted(lin.seg_of[order], np.arange(-1, segments), side="right")
         finite = np.all(np.isfinite(lin.js)) and np.all(np.isfinite(gsc)) and np.all(np.isfinite(lin.r))
-        if finite:
-            for seg, (a, b) in enumerate(zip(ends[:-1], ends[1:])):
-                rows = order[a:b]
-                if rows.size == 0:
-                    continue
-                q0, r0_s = np.linalg.qr(lin.js[rows])
-                k = r0_s.shape[0]  # fewer rows than locals: a short factor
-                r0[seg, :k] = r0_s
-                cmat[seg, :k] = q0.T @ gsc[rows]
-                cvec[seg, :k] = q0.T @ lin.r[rows]
-                g_perp[rows] -= q0 @ cmat[seg, :k]
-                r_perp[rows] -= q0 @ cvec[seg, :k]
+        counts = np.diff(ends)
+        for n in np.unique(counts[counts > 0]) if finite else ():
+            # the segments of n rows each, factored together: js = Q0 r0
+            segs = np.flatnonzero(counts == n)
+            rows = order[ends[segs][:, None] + np.arange(n)]  # (k, n)
+            q0, r0_k = np.linalg.qr(lin.js[rows])
+            k = r0_k.shape[1]  # fewer rows than locals: a short factor
+            r0[segs, :k] = r0_k
+            both = np.concatenate([gsc[rows], lin.r[rows][:, :, None]], axis=2)  # (k, n, P + 1)
+            coef = np.swapaxes(q0, 1, 2) @ both
+            cmat[segs, :k], cvec[segs, :k] = coef[:, :, :p], coef[:, :, p]
+            left = both - q0 @ coef
+            g_perp[rows], r_perp[rows] = left[:, :, :p], left[:, :, p]
         diag = np.einsum("sij,sij->sj", r0, r0)  # the local columns' squared norms
         floor = 1e-12 * max(float(diag.max()), 1e-300)
-        qr_r, qr_b = _triangular(g_perp, r_perp, gram=False)
+        # what is left is the globals' own conditioning: factored like a fit without locals
+        qr_r, qr_b = _triangular(g_perp, r_perp)
         return NormalBlocks(col, rhs, qr_r, qr_b, r0=r0, cmat=cmat, cvec=cvec,
                             dscale=np.maximum(diag, floor), dfloor=floor)
 
