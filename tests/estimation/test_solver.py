@@ -238,11 +238,10 @@ def test_the_globals_covariance_is_the_global_block_of_the_inverse_normal_matrix
                                rtol=1e-9, atol=1e-14)
 
 
-def test_the_globals_covariance_keeps_what_a_segments_large_sensitivities_nearly_hide():
-    """A global column that is a segment's local column, 1e4 in size, plus 1e-6 of a direction no
-    local column has: its variance is 1 / (1e-6 |n|)^2. Formed from the normal equations, the
-    Schur complement subtracts two numbers of 1e8 to find one of 1e-12 and loses it to rounding;
-    the projection keeps it to 1e-6."""
+def _nearly_hidden(globals_: int) -> tuple[solver.Linearization, float]:
+    """Two segments whose rate columns are 1e4 in size, and a first global column that is the
+    first rate column plus, in segment 0 only, 1e-6 n with n off every rate column there (the
+    other globals zero): the Linearization and 1e-6 |n|, the column's only information."""
     rng = np.random.default_rng(3)
     lin = _segmented(rng, 50, 3, 2, 1)
     js = lin.js * 1e4
@@ -250,34 +249,32 @@ def test_the_globals_covariance_keeps_what_a_segments_large_sensitivities_nearly
     n = rng.normal(size=int(rows.sum()))
     basis = np.linalg.qr(js[rows])[0]
     n -= basis @ (basis.T @ n)  # off every local column of its segment
-    g = np.zeros((lin.g.shape[0], 1))
+    g = np.zeros((lin.g.shape[0], globals_))
     g[rows, 0] = js[rows, 0] + 1e-6 * n
     g[~rows, 0] = js[~rows, 0]  # the other segment's local column: no information left there
-    cov = solver.global_covariance(solver.Linearization(lin.r, g, js, lin.seg_of), 2)
-    np.testing.assert_allclose(cov[0, 0], 1.0 / (1e-6 * np.linalg.norm(n)) ** 2, rtol=1e-6)
+    return solver.Linearization(lin.r, g, js, lin.seg_of), 1e-6 * float(np.linalg.norm(n))
+
+
+def test_the_globals_covariance_keeps_what_a_segments_large_sensitivities_nearly_hide():
+    """The nearly-hidden column (_nearly_hidden): its variance is 1 / (1e-6 |n|)^2. Formed from
+    the normal equations, the Schur complement subtracts two numbers of 1e8 to find one of 1e-12
+    and loses it to rounding; the projection keeps it to 1e-6."""
+    lin, seen = _nearly_hidden(1)
+    np.testing.assert_allclose(solver.global_covariance(lin, 2)[0, 0], 1.0 / seen ** 2, rtol=1e-6)
 
 
 def test_the_globals_information_is_the_inverse_of_their_covariance_and_never_indefinite():
     """global_information by its definition: the inverse of the globals' block of (J^T J)^-1
-    (the Schur complement of the locals). On the nearly-hidden column of the test above it stays
-    positive at 1e-12 |n|^2, where the normal equations' complement is rounding noise; a global
-    the residual does not see gets a zero row and column."""
+    (the Schur complement of the locals). On the nearly-hidden column it stays positive at
+    (1e-6 |n|)^2, where the normal equations' complement is rounding noise; a global the
+    residual does not see gets a zero row and column."""
     rng = np.random.default_rng(2)
     lin = _segmented(rng, 40, 3, 4, 5)
     np.testing.assert_allclose(solver.global_information(lin, 4),
                                np.linalg.inv(solver.global_covariance(lin, 4)), rtol=1e-9, atol=1e-9)
-    rng = np.random.default_rng(3)
-    lin = _segmented(rng, 50, 3, 2, 1)
-    js = lin.js * 1e4
-    rows = lin.seg_of == 0
-    n = rng.normal(size=int(rows.sum()))
-    basis = np.linalg.qr(js[rows])[0]
-    n -= basis @ (basis.T @ n)
-    g = np.zeros((lin.g.shape[0], 2))
-    g[rows, 0] = js[rows, 0] + 1e-6 * n
-    g[~rows, 0] = js[~rows, 0]
-    info = solver.global_information(solver.Linearization(lin.r, g, js, lin.seg_of), 2)
-    np.testing.assert_allclose(info[0, 0], (1e-6 * np.linalg.norm(n)) ** 2, rtol=1e-6)
+    lin, seen = _nearly_hidden(2)
+    info = solver.global_information(lin, 2)
+    np.testing.assert_allclose(info[0, 0], seen ** 2, rtol=1e-6)
     assert np.all(info[1] == 0) and np.all(info[:, 1] == 0)
 
 
