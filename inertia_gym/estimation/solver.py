@@ -97,6 +97,15 @@ class Result:
     converged: bool
 
 
+def _segment_rows(seg_of: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """(order, ends): the rows sorted by segment (a segment's rows may come in several runs: its
+    gyro rows, then its attitude rows) and where each group ends in that order: the rows of no
+    segment (-1) are order[:ends[0]], segment s's order[ends[s]:ends[s + 1]].
+    """
+    order = np.argsort(seg_of, kind="stable")
+    return order, np.searchsorted(seg_of[order], np.arange(-1, segments), side="right")
+
+
 def _projected_factor(lin: Linearization, segments: int) -> tuple[np.ndarray, np.ndarray]:
     """(R (P, P), col (P,)): the triangular factor of the global columns, scaled by their norms
     col (inf for a column the residual does not see), after each segment's rows are projected off
@@ -111,9 +120,7 @@ def _projected_factor(lin: Linearization, segments: int) -> tuple[np.ndarray, np
     if lin.js is None or not segments:
         parts = [gsc]
     else:
-        # each segment's rows together (they may come in several runs: gyro rows, attitude rows)
-        order = np.argsort(lin.seg_of, kind="stable")
-        ends = np.searchsorted(lin.seg_of[order], np.arange(-1, segments), side="right")
+        order, ends = _segment_rows(lin.seg_of, segments)
         parts = [gsc[order[:ends[0]]]]  # rows of no segment (a prior's)
         for a, b in zip(ends[:-1], ends[1:]):
             rows = order[a:b]
@@ -184,9 +191,7 @@ class NormalBlocks:
         cmat = np.zeros((segments, size, p))
         cvec = np.zeros((segments, size))
         g_perp, r_perp = gsc.copy(), np.asarray(lin.r, float).copy()
-        # each segment's rows together (they may come in several runs: gyro rows, attitude rows)
-        order = np.argsort(lin.seg_of, kind="stable")
-        ends = np.searchsorted(lin.seg_of[order], np.arange(-1, segments), side="right")
+        order, ends = _segment_rows(lin.seg_of, segments)
         finite = np.all(np.isfinite(lin.js)) and np.all(np.isfinite(gsc)) and np.all(np.isfinite(lin.r))
         counts = np.diff(ends)
         for n in np.unique(counts[counts > 0]) if finite else ():
