@@ -98,9 +98,9 @@ def main() -> None:
     out = {"helpers": helpers}
     print(json.dumps(out), flush=True)
     for name, rec, limit in (("600s_10hz", long_recording(), 10.0), ("toss_1s_100hz", racquet_flip(), 5.0)):
-        wall, (report, _) = timed(lambda r=rec: diagnose(r), args.repeat)
-        threaded, (threaded_report, _) = timed(lambda r=rec: diagnose.__wrapped__(r), args.repeat)
-        alone, (alone_report, _) = without_helpers(lambda r=rec: timed(lambda: diagnose(r), args.repeat))
+        wall, report = timed(lambda r=rec: diagnose(r).report, args.repeat)
+        threaded, threaded_report = timed(lambda r=rec: diagnose.__wrapped__(r).report, args.repeat)
+        alone, alone_report = without_helpers(lambda r=rec: timed(lambda: diagnose(r).report, args.repeat))
         d = F.prepare(rec)
         own, nominal = timed(lambda d=d: F.fit_nominal(d), args.repeat)
         peer, peer_cost = peer_nominal(d)
@@ -122,10 +122,10 @@ def main() -> None:
         for raw in tosses:
             for rec in read_recordings(raw.parent):
                 t0 = time.perf_counter()
-                report, _ = diagnose(rec)
+                report = diagnose(rec).report
                 walls.append(time.perf_counter() - t0)
                 t0 = time.perf_counter()
-                alone_report, _ = without_helpers(lambda r=rec: diagnose(r))
+                alone_report = without_helpers(lambda r=rec: diagnose(r).report)
                 alone.append(time.perf_counter() - t0)
                 same += json.dumps(report, sort_keys=True, default=str) == json.dumps(
                     alone_report, sort_keys=True, default=str)

@@ -94,7 +94,7 @@ def run_case(case: Case, duration: float, tau_max: float) -> dict:
                       {k: v for k, v in rec.meta.items() if k not in ("effect", "effects", "rotor")},
                       rec.name, h=rec.h)
     t0 = time.perf_counter()
-    report, _ = diagnose(blind)
+    report = diagnose(blind).report
     wall = time.perf_counter() - t0
     explained = [e["name"] for e in report.get("explanation", [])]
     top = report["best_effect"] or "none"

@@ -77,8 +77,9 @@ def _diagnose_each(recs, round_name: str, out: Path, reports: list) -> list[dict
     for rec in recs:
         sub = out / re.sub(r"[^\w.-]+", "_", f"{round_name}_{rec.name}")
         sub.mkdir(parents=True, exist_ok=True)
-        report, arrays = diagnose(rec)
-        plots = write_plots(sub, report, arrays)
+        diagnosis = diagnose(rec)
+        report = diagnosis.report
+        plots = write_plots(sub, diagnosis)
         write_json(sub / "report.json", report)
         (sub / "summary.md").write_text(markdown(report, plots))
         reports.append((sub.name, report))
@@ -127,11 +128,11 @@ def rotor(args) -> None:
         (rec,) = read_recordings(csv)
         axis = truth[csv.stem]["flywheel_axis"]
         t0 = time.perf_counter()
-        withheld, _ = diagnose(dataclasses.replace(rec, h=None))
+        withheld = diagnose(dataclasses.replace(rec, h=None)).report
         t1 = time.perf_counter()
-        given, _ = diagnose(rec)
+        given = diagnose(rec).report
         t2 = time.perf_counter()
-        denied, _ = diagnose(dataclasses.replace(rec, h=None, meta=rec.meta | {"body": {"rotor": False}}))
+        denied = diagnose(dataclasses.replace(rec, h=None, meta=rec.meta | {"body": {"rotor": False}})).report
         (out / csv.stem).mkdir(parents=True, exist_ok=True)
         write_json(out / csv.stem / "withheld.json", withheld)
         write_json(out / csv.stem / "given.json", given)

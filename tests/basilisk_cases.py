@@ -308,8 +308,7 @@ def run_case(case: SpacecraftCase, folder: Path, stamp_scatter: float = 0.0, gyr
     path = folder / f"{case.name}.csv"
     write_recording(path, rec, run.sidecar)
     (rec,) = read_recordings(path)
-    out = diagnose(rec)
-    report = out[0] if isinstance(out, tuple) else out
+    report = diagnose(rec).report
     row = score(case, report)
     nominal = np.asarray(run.sidecar["inertia_nominal"])
     truth = np.asarray(run.sidecar[TRUTH_KEY]["inertia_equilibrium"])

@@ -45,7 +45,7 @@ def test_a_constant_known_momentum_sees_the_scale_and_changes_no_invariant():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_diagnose_names_nothing_and_fits_the_scale(seed):
-    report, _ = diagnose(momentum_biased(seed))
+    report = diagnose(momentum_biased(seed)).report
     assert report["scale_identified"] and not report["explanation"] and report["best_effect"] is None
     assert max(report["fit_before"]["rms_over_noise"]) < 1.2
     fitted = np.array(report["fit_before"]["inertia"])
@@ -92,7 +92,7 @@ def test_a_wheel_too_small_for_the_scale_leaves_it_uncertain_in_diagnose_and_ide
     momentum acts, so both commands keep the scale as a quantity, and both say its sigma is far
     over 5 %: the ratios are what the record fixes."""
     small = momentum_biased(0, wheel=1e-4 * WHEEL)
-    report, _ = diagnose(small)
+    report = diagnose(small).report
     assert report["scale_seen_by_inputs"] and report["scale_identified"]
     assert report["scale_sigma"] > 0.05 and report["best_effect"] is None
     assert "fixes the inertia's scale only loosely" in markdown(report, [])
@@ -101,4 +101,4 @@ def test_a_wheel_too_small_for_the_scale_leaves_it_uncertain_in_diagnose_and_ide
     found = identify(small)
     assert found.estimate.scale_identified and found.estimate.scale_sigma() > 0.05
     assert any("the scale is poorly determined" in n for n in found.notes)
-    assert diagnose(momentum_biased(0))[0]["scale_sigma"] < 0.05  # the wheel above: fixed
+    assert diagnose(momentum_biased(0)).report["scale_sigma"] < 0.05  # the wheel above: fixed

@@ -17,7 +17,7 @@ def audited(path: Path, truth: dict) -> dict:
     """diagnose's reading of the toss at path: its explanation, whether the fit is valid, the
     worst-axis rms over the noise before and after, the error of its principal ratios against
     the simulator's truth, whether the ratios' intervals hold the fit's own ratios."""
-    report, _ = diagnose(read_recordings(path)[0])
+    report = diagnose(read_recordings(path)[0]).report
     before, after = report["fit_before"], report["fit_after"]
     ratios, ci = np.array(after["principal_ratios"]), after["principal_ratios_ci95"]
     inside = ci is not None and bool(np.all((np.array(ci)[:, 0] <= ratios) & (ratios <= np.array(ci)[:, 1])))

@@ -200,10 +200,10 @@ def test_diagnose_reports_the_same_with_helpers(helpers, monkeypatch):
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, ["gyro_bias", "actuator_misalignment"], seed=7)
     rec = dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k not in ("effect", "effects")})
     sent = executors._Helpers.sent
-    with_helpers = json.dumps(report.diagnose(rec)[0], sort_keys=True, default=str)
+    with_helpers = json.dumps(report.diagnose(rec).report, sort_keys=True, default=str)
     assert executors._Helpers.sent > sent  # the helper took fits
     monkeypatch.setenv(executors.HELPERS_VARIABLE, "0")
-    alone = json.dumps(report.diagnose(rec)[0], sort_keys=True, default=str)
+    alone = json.dumps(report.diagnose(rec).report, sort_keys=True, default=str)
     assert with_helpers == alone
     assert len(json.loads(alone)["explanation"]) >= 2
 
@@ -222,7 +222,7 @@ def test_an_effect_registered_at_run_time_is_fitted_here(helpers, monkeypatch):
     rec, _ = simulate_recording(Scenario(tau_max=50.0), 5.0, ["gyro_bias"], seed=3)
     rec = dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k not in ("effect", "effects")})
     sent = executors._Helpers.sent
-    result, _ = report.diagnose(rec)
+    result = report.diagnose(rec).report
     assert executors._Helpers.sent == sent
     fitted = {e["name"]: e["delta_bic"] for e in result["effects"]}
     assert fitted[_BiasOfTheUser.name] == pytest.approx(fitted["gyro_bias"], abs=1e-6)

@@ -44,7 +44,7 @@ assert main(["example", "thrown-rotor", "--out", "ex"]) == 0
 assert main(["identify", "ex/thrown-rotor.csv", "--out", "id"]) == 0
 from inertia_gym.discrepancy.report import diagnose
 from inertia_gym.recordings import read_recordings
-report, _ = diagnose(read_recordings("ex/thrown-rotor.csv")[0])
+report = diagnose(read_recordings("ex/thrown-rotor.csv")[0]).report
 env = gym.make("InertiaGym/Excitation-v0")
 env.reset(seed=0)
 env.step(np.zeros(3))

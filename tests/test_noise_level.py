@@ -80,7 +80,7 @@ def test_the_report_says_where_the_noise_level_read_from_the_data_reads_high(eve
     much between samples for the differences to read its noise (they read it 2.3-3.3x high), and
     the fit leaves well under that level: the report says so. At 100 Hz the level is right, and a
     sidecar's level is never flagged."""
-    report, _ = diagnose(racquet_flip(every, sidecar))
+    report = diagnose(racquet_flip(every, sidecar)).report
     assert report["fit_after"]["valid"]
     assert report["noise"]["read_high"] is expected
     assert ("reads high" in markdown(report, [])) is expected
@@ -114,11 +114,11 @@ def test_diagnose_and_identify_say_a_sidecar_level_3x_too_small():
 
     rec = racquet_flip()
     low = dataclasses.replace(rec, meta={**rec.meta, "gyro_sigma": 5e-3 / 3})
-    report, _ = diagnose(low)
+    report = diagnose(low).report
     assert "leave it out" in report["noise"]["sidecar_disagrees"]
     assert "the sidecar's noise level disagrees with the data's" in markdown(report, [])
     assert any("high-frequency scatter" in n for n in identify(low).notes)
-    assert diagnose(rec)[0]["noise"]["sidecar_disagrees"] is None
+    assert diagnose(rec).report["noise"]["sidecar_disagrees"] is None
     assert not any("high-frequency scatter" in n for n in identify(rec).notes)
 
 
@@ -206,7 +206,7 @@ def test_a_gyro_quantised_in_steps_of_10_sigma_is_diagnosed_and_identified_at_it
     rec, _ = simulate_recording(sc, 300.0, None, seed=2, sample_dt=0.1)
     rec = dataclasses.replace(rec, q=None, meta={k: v for k, v in rec.meta.items() if k != "effect"})
     coarse = dataclasses.replace(rec, w=np.round(rec.w / 1e-3) * 1e-3)
-    report, _ = diagnose(coarse)
+    report = diagnose(coarse).report
     assert not report["mismatch_detected"] and not report["explanation"]
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15
     assert "quantised in steps of (0.001, 0.001, 0.001)" in report["noise"]["quantisation"]
@@ -232,7 +232,7 @@ def test_a_gyro_read_coarser_than_its_noise_names_no_effect_on_a_clean_record(se
     rotor's momentum): none is claimed, and the report and its summary say why."""
     from inertia_gym.discrepancy.fit import ROUNDING_RUNS
 
-    report, _ = diagnose(slow_tumble_read_coarsely(seed, None))
+    report = diagnose(slow_tumble_read_coarsely(seed, None)).report
     noise = report["noise"]
     assert max(noise["rounding_runs"]) >= ROUNDING_RUNS
     assert noise["rounding_floor"] and min(noise["rounding_floor"].values()) >= 0.0
@@ -251,7 +251,7 @@ def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
     they hold it (measured 0.48-0.69 of the half-width), and the summary says so."""
     rec = slow_tumble_read_coarsely(seed, None)
     truth = np.sort(np.linalg.eigvalsh(rec.inertia_nominal))[::-1]
-    report, _ = diagnose(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items()
+    report = diagnose(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items().report
                                                         if k != "inertia_nominal"}))
     ci = np.array(report["fit_after"]["principal_ratios_ci95"])
     assert np.all((ci[1:, 0] <= truth[1:] / truth[0]) & (truth[1:] / truth[0] <= ci[1:, 1])), ci
@@ -264,7 +264,7 @@ def test_the_summary_says_the_intervals_count_the_rounding_only_where_refits_are
     """The line follows noise.lattice_refits (how many refits on the lattice the intervals
     count), not the runs of equal samples alone: where every refit blows up, nothing is added.
     The bench's toss, written in full, counts none."""
-    report, _ = diagnose(racquet_flip(10, True))
+    report = diagnose(racquet_flip(10, True)).report
     assert report["noise"]["lattice_refits"] == 0
     assert "count the rounding" not in markdown(report, [])
     runs_without_refits = {**report, "noise": {**report["noise"], "rounding_runs": [3.0, 3.0, 3.0]}}
@@ -278,7 +278,7 @@ def test_a_momentum_under_a_coarse_rounding_is_still_named():
     """The same body with a wheel's momentum concealed (seed 2): the momentum is named, alone (a
     mode beside it would trace the rounding: none is claimed), and fits to the rounding's
     level."""
-    report, _ = diagnose(slow_tumble_read_coarsely(2, "internal_momentum"))
+    report = diagnose(slow_tumble_read_coarsely(2, "internal_momentum")).report
     assert [e["name"] for e in report["explanation"]] == ["internal_momentum"]
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15
 
@@ -308,7 +308,7 @@ def test_a_gyro_read_coarsely_with_noise_of_a_quarter_step_reads_the_level_its_s
     rec = slow_tumble_read_coarsely(0, None, noise=2.5e-3)
     truth = slow_tumble_read_coarsely(0, None, noise=1e-12, step=0.0).w  # the same body's rates
     error = np.sqrt(np.mean((rec.w - truth) ** 2, axis=0))
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     np.testing.assert_allclose(report["noise"]["sigma"], error, rtol=0.1)
     assert "simulating the rounding" in report["noise"]["source"]
     assert not report["mismatch_detected"] and not report["unexplained_residual"]

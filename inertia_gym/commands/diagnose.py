@@ -42,9 +42,10 @@ def _diagnose_one(rec, sub, no_plots: bool) -> dict:
     """Diagnose one recording into the folder sub (report.json, summary.md, summary.html with the
     plots inlined, plots); its report.
     """
-    report, arrays = diagnose(rec)
+    diagnosis = diagnose(rec)
+    report = diagnosis.report
     check_physical_inertia(report["fit_after"]["inertia"], rec.name)
-    plots = [] if no_plots else write_plots(sub, report, arrays)
+    plots = [] if no_plots else write_plots(sub, diagnosis)
     write_json(sub / "report.json", report)
     page = markdown(report, plots)
     (sub / "summary.md").write_text(page)

@@ -91,6 +91,7 @@ __all__ = [
     "RECOUNT_BELOW",
     "ROTOR_READING",
     "SCALE_RCOND",
+    "Diagnosis",
     "check_enough_rows",
     "diagnose",
     "inertia_comparison",
@@ -231,10 +232,34 @@ def _impulses_left(d: Data, expl, attempt: int) -> tuple[int, int]:
     return impulses(d, expl.fit) if expl.fit is not None and attempt == 0 else (0, 0)
 
 
+@dataclasses.dataclass(frozen=True)
+class Diagnosis:
+    """What :func:`diagnose` finds in one recording.
+
+    report: the JSON-ready document written to report.json (docs/contracts.md keys, and more).
+    The series its plots draw, on the residual rows (times t_rows, s): residual_before and
+    residual_after (rows, 3) rad/s, of the nominal rigid fit and of the explanation's fit;
+    frequency (Hz) and power (frequency, 3), the nominal residual's spectrum; invariants, the
+    momentum and energy check with its series over data.t. data: the prepared rows the fits read;
+    nominal and best: the rigid fit and the explanation's (best is nominal when nothing is added).
+    """
+
+    report: dict
+    t_rows: np.ndarray
+    residual_before: np.ndarray
+    residual_after: np.ndarray
+    frequency: np.ndarray
+    power: np.ndarray
+    invariants: dict
+    data: Data
+    nominal: Fit
+    best: Fit
+
+
 @kernels_own_the_cores
-def diagnose(rec: Recording) -> tuple[dict, dict]:
-    """The full diagnosis of one recording as a JSON-ready dict (docs/contracts.md keys, and more)
-    and the arrays its plots need.
+def diagnose(rec: Recording) -> Diagnosis:
+    """The full diagnosis of one recording (:class:`Diagnosis`): its report and the series of its
+    plots.
     """
     check_input_gaps(rec)
     rec = retimed(rec)
@@ -322,9 +347,7 @@ def diagnose(rec: Recording) -> tuple[dict, dict]:
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
         "gyro_frame_mirrored": frame,
     }
-    arrays = {"t_mid": t_row, "r_before": nominal.r, "r_after": best.r, "f": f, "p": p,
-              "inv": inv, "d": d, "best": best, "nominal": nominal}
-    return report, arrays
+    return Diagnosis(report, t_row, nominal.r, best.r, f, p, inv, d, nominal, best)
 
 
 def _live_ambiguities(name: str, form: str, skipped: dict) -> list[tuple[str, str]]:

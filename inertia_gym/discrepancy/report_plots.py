@@ -6,24 +6,31 @@ invariants over the record, each written as a PNG into the folder given.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from inertia_gym.discrepancy.report import Diagnosis
 
-def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[str]:
-    """residuals.png (located windows shaded), overlay.png, spectrum.png, invariants.png."""
+
+def write_plots(out: Path, diagnosis: Diagnosis, stem: str = "") -> list[str]:
+    """The plots of one diagnosis into the folder out: residuals.png (located windows shaded),
+    overlay.png, spectrum.png and, where the invariants apply, invariants.png; their paths.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     files = []
-    t = arrays["t_mid"]
+    report = diagnosis.report
+    t = diagnosis.t_rows
     fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
     added = " + ".join(e["name"] for e in report["explanation"]) or "nothing"
     for i, ax in enumerate(axs):
-        ax.plot(t, arrays["r_before"][:, i], lw=0.7, label="nominal")
-        ax.plot(t, arrays["r_after"][:, i], lw=0.7, label=f"+ {added}")
+        ax.plot(t, diagnosis.residual_before[:, i], lw=0.7, label="nominal")
+        ax.plot(t, diagnosis.residual_after[:, i], lw=0.7, label=f"+ {added}")
         for loc in report["locations"]:
             if "xyz"[i] in loc["axes"]:
                 ax.axvspan(loc["t_start"], loc["t_end"], color="red", alpha=0.15)
@@ -32,11 +39,11 @@ def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[s
     axs[-1].set_xlabel("t (s)")
     fig.suptitle("interval-prediction residuals (shaded: located mismatch)")
     files.append(_save(fig, out / f"{stem}residuals.png"))
-    d = arrays["d"]
+    d = diagnosis.data
     fig, axs = plt.subplots(3, 1, sharex=True, figsize=(9, 6))
     for i, ax in enumerate(axs):
-        ax.plot(t, np.cumsum(arrays["r_before"][:, i]), label="nominal, accumulated miss")
-        ax.plot(t, np.cumsum(arrays["r_after"][:, i]), label="after fit, accumulated miss")
+        ax.plot(t, np.cumsum(diagnosis.residual_before[:, i]), label="nominal, accumulated miss")
+        ax.plot(t, np.cumsum(diagnosis.residual_after[:, i]), label="after fit, accumulated miss")
         ax.set_ylabel(f"{'xyz'[i]} (rad/s)")
     axs[0].legend(fontsize=8)
     axs[-1].set_xlabel("t (s)")
@@ -44,12 +51,12 @@ def write_plots(out: Path, report: dict, arrays: dict, stem: str = "") -> list[s
     files.append(_save(fig, out / f"{stem}overlay.png"))
     fig, ax = plt.subplots(figsize=(7, 4))
     for i in range(3):
-        ax.semilogy(arrays["f"], arrays["p"][:, i] + 1e-30, label="xyz"[i])
+        ax.semilogy(diagnosis.frequency, diagnosis.power[:, i] + 1e-30, label="xyz"[i])
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("PSD of nominal residual")
     ax.legend()
     files.append(_save(fig, out / f"{stem}spectrum.png"))
-    inv = arrays["inv"]
+    inv = diagnosis.invariants
     if inv.get("applicable"):
         fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
         for ax, key in zip(axs, ("momentum", "energy")):

@@ -228,8 +228,7 @@ def test_diagnose_never_reads_the_concealed_truth(subset_rows):
     assert TRUTH_KEY in rec.meta
     blind = Recording(rec.t, rec.w, rec.q, rec.tau, {k: v for k, v in rec.meta.items() if k != TRUTH_KEY},
                       rec.name, h=rec.h)
-    out = diagnose(blind)
-    report = out[0] if isinstance(out, tuple) else out
+    report = diagnose(blind).report
     timing = ("simulate_s", "diagnose_s", "samples", "nominal_error")
     row = {k: v for k, v in subset_rows[0][name].items() if k not in timing}
     assert row["delta_bic"] and harness.score(_case(name), report) == row
@@ -297,7 +296,7 @@ def test_a_bias_that_drifts_in_basilisk_s_reading_is_read_as_one_and_a_long_cont
     row = harness.run_case(_case(name), tmp_path)
     assert row["correct"], row["named"]
     (rec,) = read_recordings(tmp_path / f"{name}.csv")
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     assert ((report["explanation"][0]["name"], report["explanation"][0]["form"]) if report["explanation"]
             else None) == lead
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15

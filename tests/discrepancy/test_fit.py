@@ -126,7 +126,7 @@ def test_a_short_flight_is_fitted_to_its_valleys_floor_and_its_shape_intervals_c
     effects = Effect("viscous_damping", {"c": c_true.tolist()}) if drag else ()
     covered = named = 0
     for seed in range(8):
-        report, _ = diagnose(_toss(w0, sigma=2e-3, seed=seed, effects=effects))
+        report = diagnose(_toss(w0, sigma=2e-3, seed=seed, effects=effects)).report
         lo, hi = np.array(report["fit_after"]["principal_ratios_ci95"]).T
         covered += bool(np.all((lo <= truth) & (truth <= hi)))
         named += [e["name"] for e in report["explanation"]] == (["viscous_damping"] if drag else [])
@@ -256,14 +256,14 @@ def test_impulses_at_the_ends_are_trimmed_and_a_drift_is_not():
     hit = rec.w.copy()
     hit[-3:] += np.array([0.5, -0.4, 0.3])  # a catch
     hit[:4] += np.outer([0.6, -0.5, 0.4, -0.3], [1.0, 1.0, -1.0])  # the hand letting go
-    report, _ = diagnose(dataclasses.replace(rec, w=hit))
+    report = diagnose(dataclasses.replace(rec, w=hit)).report
     trimmed = {e["where"]: e["samples"] for e in report["trimmed"]}
     assert 3 <= trimmed.get("start", 0) <= 8 and 2 <= trimmed.get("end", 0) <= 6
     assert max(report["fit_after"]["rms_over_noise"]) < 1.5
     # a constant torque makes a drift growing to the end: it is explained, not trimmed
     drift, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, "constant_body_torque", seed=2)
     drift = dataclasses.replace(drift, meta={k: v for k, v in drift.meta.items() if k != "effect"})
-    report, _ = diagnose(drift)
+    report = diagnose(drift).report
     assert report["trimmed"] == [] and report["best_effect"] == "constant_body_torque"
 
 
@@ -283,7 +283,7 @@ def test_an_impulse_the_first_searchs_explanation_uncovers_is_trimmed_before_the
                         lambda d, fit: found.append((fit.names, impulses(d, fit))) or found[-1][1])
     monkeypatch.setattr(report_module, "select",
                         lambda d, *args, **kw: selected.append(d.n_rows) or select(d, *args, **kw))
-    report, _ = diagnose(dataclasses.replace(rec, w=hit))
+    report = diagnose(dataclasses.replace(rec, w=hit)).report
     assert found[0] == ((), (0, 0))  # the nominal fit does not show it
     assert found[1][0] and found[1][1][1] == 2  # the first search's explanation does
     assert [(e["where"], e["samples"]) for e in report["trimmed"]] == [("end", 2)]
@@ -322,7 +322,7 @@ def test_a_momentum_beside_a_gyro_bias_is_found_from_its_own_start():
     and an inertia offset stands in for it (1801 in BIC where the momentum adds 1845): its own
     start on top of the bias is tried too (restarts_on_base)."""
     rec, truth = slow_tumble(["internal_momentum", "gyro_bias"], 0, 300)
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     named = {e["name"]: e for e in report["explanation"]}
     assert set(named) == {"gyro_bias", "internal_momentum"}
     assert named["internal_momentum"]["form"] == "constant"
@@ -337,7 +337,7 @@ def test_a_start_takes_each_segments_rates_from_its_first_sample_where_they_fit_
     (a gain of 821 in BIC where the truth gains 93324); with each segment's first sample's rates,
     where they fit that segment better, the fit reaches the truth."""
     rec, h = _slow_tumble_with_momentum()
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     first, = report["explanation"]
     assert (first["name"], first["form"]) == ("internal_momentum", "constant")
     assert np.linalg.norm(np.asarray(first["params"]["h"]) - h) < 0.03 * np.linalg.norm(h)
@@ -372,7 +372,7 @@ def test_a_rotor_withheld_is_named_with_its_axis_and_not_claimed_when_logged():
     the explanation reads it so, the mode is that slow and says it is confounded with the
     momentum (a spin-up that is no cosine: tests/discrepancy/test_spin_up*.py)."""
     rec, axis = _rotor_recording()
-    report, _ = diagnose(dataclasses.replace(rec, h=None))
+    report = diagnose(dataclasses.replace(rec, h=None)).report
     named = {e["name"]: e for e in report["explanation"]}
     assert "internal_momentum" in named and set(named) <= {"internal_momentum", "flexible_mode"}
     momentum = named["internal_momentum"]
@@ -386,7 +386,7 @@ def test_a_rotor_withheld_is_named_with_its_axis_and_not_claimed_when_logged():
     for fitted in map(np.asarray, along):
         assert np.degrees(np.arccos(min(1.0, abs(fitted @ axis) / np.linalg.norm(fitted)))) < 10.0
     assert max(report["fit_after"]["rms_over_noise"]) < 1.5 < min(report["fit_before"]["rms_over_noise"])
-    logged, _ = diagnose(rec)
+    logged = diagnose(rec).report
     assert "internal_momentum" in logged["skipped_effects"] and logged["explanation"] == []
     assert max(logged["fit_after"]["rms_over_noise"]) < 1.2
 
@@ -399,7 +399,7 @@ def test_a_rotated_rotor_axis_is_momentum_misalignment():
                                     seed=6, torque=False, sample_dt=0.02, rotor_h_max=60.0)
     bent = dataclasses.replace(bent, meta={k: v for k, v in bent.meta.items()
                                            if k not in ("rotor", "inertia_nominal", "effect")})
-    report, _ = diagnose(bent)
+    report = diagnose(bent).report
     assert report["explanation"][0]["name"] == "momentum_misalignment"
     # one rotor keeps its direction: the turn about it is not seen, the rotor's axis is
     axis = np.asarray(side["rotor"]["axis"])
@@ -515,13 +515,14 @@ def test_diagnose_says_an_axis_held_at_its_extreme_at_both_ends():
     w = np.stack([3.0 * np.cos(1.25 * t), -3.0 * np.sin(1.25 * t), np.full(t.size, 2.5)], 1)
     read = np.round((w + np.random.default_rng(1).normal(0.0, 0.002, w.shape)) / 0.004) * 0.004
     read[:, 0] = np.minimum(read[:, 0], 2.7)
-    report, _ = diagnose(Recording(t, read, meta={"inertia_nominal": np.diag([2e-3, 2e-3, 1e-3]).tolist()}))
+    nominal = np.diag([2e-3, 2e-3, 1e-3]).tolist()
+    report = diagnose(Recording(t, read, meta={"inertia_nominal": nominal})).report
     ends = [phrase.split(" in its ")[1].split()[0] for phrase in report["clipped_at_ends"]]
     assert ends == ["first", "last"]
     assert all(p.startswith("the x axis reads 2.7 rad/s") for p in report["clipped_at_ends"])
     assert report["saturated_samples"] == 0
     assert "gyro_full_scale_rad_s" in markdown(report, [])
-    given, _ = diagnose(Recording(t, read, meta={"gyro_full_scale_rad_s": 2.7}))
+    given = diagnose(Recording(t, read, meta={"gyro_full_scale_rad_s": 2.7})).report
     assert given["clipped_at_ends"] == [] and given["saturated_samples"] > 0
     assert "gyro_full_scale_rad_s" not in markdown(given, [])
 
@@ -586,7 +587,7 @@ def test_a_clean_thin_body_is_fitted_to_the_noise_and_nothing_is_named(tmp_path,
     truth = np.linalg.eigvalsh(inertia)
     fitted = np.linalg.eigvalsh(nominal.inertia)
     np.testing.assert_allclose(fitted / fitted[-1], truth / truth[-1], atol=2e-3)
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     assert report["explanation"] == []
 
 
@@ -597,11 +598,11 @@ def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path)
     _, seed, moments, duration, rate, middle = next(c for c in cases() if c[0] == "s0.01_e0.0_d1.2_seed0")
     path = tmp_path / "mirrored.csv"
     thin_body_record(path, seed, moments, duration, rate, middle, mirrored=True)
-    report, _ = diagnose(read_csv_recording(path))
+    report = diagnose(read_csv_recording(path)).report
     frame = report["gyro_frame_mirrored"]
     assert frame is not None and max(frame["rms_over_noise"]) < 1.3 and frame["delta_bic"] > 10
     np.testing.assert_allclose(frame["principal_ratios"], [1.0, 0.99, 0.01], atol=2e-3)
     assert "the gyro's frame reads left-handed" in markdown(report, [])
     plain, _ = thin_body(tmp_path, "s0.01_e0.0_d1.2_seed0")
-    report, _ = diagnose(plain)
+    report = diagnose(plain).report
     assert report["gyro_frame_mirrored"] is None and report["explanation"] == []

@@ -133,7 +133,7 @@ def test_a_thrown_plate_is_read_as_the_air_of_its_flight(tmp_path, seed):
     the fit reaches the noise, and the plate's normal comes out within 5 deg."""
     path = tmp_path / "toss.csv"
     normal = thrown_plate(path, seed)
-    report, _ = diagnose(list(read_recordings(path))[0])
+    report = diagnose(list(read_recordings(path))[0]).report
     lead = report["explanation"][0]
     assert (lead["name"], lead["form"], lead["family"]) == ("aero_drag", "flight", "drag")
     assert max(report["fit_before"]["rms_over_noise"]) > 50
@@ -151,6 +151,6 @@ def test_a_thrown_plate_is_read_as_the_air_of_its_flight(tmp_path, seed):
 def test_the_same_throw_without_air_names_nothing(tmp_path, seed):
     path = tmp_path / "toss.csv"
     thrown_plate(path, seed, air=False)
-    report, _ = diagnose(list(read_recordings(path))[0])
+    report = diagnose(list(read_recordings(path))[0]).report
     assert report["explanation"] == []
     assert max(report["fit_after"]["rms_over_noise"]) < 1.3

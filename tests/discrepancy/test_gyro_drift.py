@@ -94,14 +94,14 @@ def test_a_bias_random_walk_is_read_as_a_drifting_gyro_bias_and_a_constant_one_a
     sigma = SLOW.gyro_sigma
     walk = 4.0 * sigma / np.sqrt(duration)  # about 4 sigma of drift over the record per axis
     drifting = _record(duration, sample_dt, seed, walk=walk, bias=(3 * sigma, -2 * sigma, 0.0))
-    report, _ = diagnose(drifting)
+    report = diagnose(drifting).report
     lead = report["explanation"][0]
     assert (lead["name"], lead["form"]) == ("gyro_bias", "varying")
     assert max(report["fit_after"]["rms_over_noise"]) < 1.15
     assert not report["beyond_catalogue"]
     # the same body with a bias that does not drift: the constant form, nothing else
     steady = _record(duration, sample_dt, seed, bias=(5 * sigma, -4 * sigma, 3 * sigma))
-    report, _ = diagnose(steady)
+    report = diagnose(steady).report
     assert [(e["name"], e["form"]) for e in report["explanation"]] == [("gyro_bias", None)]
 
 
@@ -141,7 +141,7 @@ def test_a_scale_drifting_linearly_is_read_as_a_drifting_gyro_scale():
     end = np.array([0.015, -0.01, 0.02])
     drift = (rec.t - rec.t[0])[:, None] / (rec.t[-1] - rec.t[0]) * end
     meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects", "inertia_nominal")}
-    report, _ = diagnose(Recording(rec.t, rec.w * (1.0 + drift), None, rec.tau, meta, "scale drift"))
+    report = diagnose(Recording(rec.t, rec.w * (1.0 + drift), None, rec.tau, meta, "scale drift")).report
     lead = report["explanation"][0]
     assert (lead["name"], lead["form"]) == ("gyro_scale", "varying")
     assert max(report["fit_after"]["rms_over_noise"]) < 1.1

@@ -22,7 +22,7 @@ def _read(effects=(), omega0=FLIP) -> dict:
                           np.zeros((steps, 3)), 1e-3, effects)
     idx = np.arange(0, steps + 1, 10)
     noisy = w[idx] + np.random.default_rng(7).normal(0, 0.005, (idx.size, 3))
-    report, _ = diagnose(Recording(idx * 1e-3, noisy, None, None, {"gyro_sigma": 0.005}, "toss"))
+    report = diagnose(Recording(idx * 1e-3, noisy, None, None, {"gyro_sigma": 0.005}, "toss")).report
     return report["invariants"]
 
 

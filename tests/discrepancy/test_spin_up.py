@@ -30,7 +30,7 @@ def spinning_up(seed: int) -> Recording:
 
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_an_exponential_spin_up_is_the_varying_momentum_alone(seed):
-    report, _ = diagnose(spinning_up(seed))
+    report = diagnose(spinning_up(seed)).report
     assert [(e["name"], e["form"]) for e in report["explanation"]] == [("internal_momentum", "varying")]
     axis = np.asarray(report["explanation"][0]["params"]["axis"])
     assert np.degrees(np.arccos(min(1.0, abs(axis @ ROTOR_AXIS)))) < 5.0

@@ -68,7 +68,7 @@ def test_without_a_change_the_knots_stay_nearly_even():
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_a_short_spin_up_in_a_long_record_is_the_varying_momentum_alone(seed):
     rec, truth = spinning_up(seed)
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     assert [(e["name"], e["form"]) for e in report["explanation"]] == [("internal_momentum", "varying")]
     axis = np.asarray(report["explanation"][0]["params"]["axis"])
     assert np.degrees(np.arccos(min(1.0, abs(axis @ truth["axis"])))) < 5.0
@@ -86,7 +86,7 @@ def test_a_large_wheel_s_spin_up_is_drawn_through_its_corners(seed):
     1.09x the noise; 4 of 8 such cases have a second effect); with three quarters (2.6 s apart)
     the momentum explains them alone at 1.04x and 1.0x (6 of 8 alone, all within 1.2x)."""
     rec, truth = spinning_up(seed, share=0.15, spin_up=5.0, sample_dt=0.1)
-    report, _ = diagnose(rec)
+    report = diagnose(rec).report
     assert [(e["name"], e["form"]) for e in report["explanation"]] == [("internal_momentum", "varying")]
     axis = np.asarray(report["explanation"][0]["params"]["axis"])
     assert np.degrees(np.arccos(min(1.0, abs(axis @ truth["axis"])))) < 5.0

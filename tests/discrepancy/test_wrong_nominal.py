@@ -55,7 +55,7 @@ def cubesat(seed: int) -> Recording:
 
 
 def test_a_wrong_middle_moment_is_the_inertia_offset():
-    report, _ = diagnose(cubesat(3))
+    report = diagnose(cubesat(3)).report
     assert report["effects"][0]["name"] == "inertia_offset"
     assert [e["name"] for e in report["explanation"]] == ["inertia_offset"]
     change = report["inertia_vs_nominal"]["percent_change"]
@@ -73,7 +73,7 @@ def test_a_torque_free_offset_s_intervals_hold_its_estimate_and_the_truth(seed):
     Measured: the truth at the nominal's trace within 1.15 and 0.81 half-widths."""
     rec, side = simulate_recording(Scenario(), 60.0, "inertia_offset", seed=seed, torque=False, sample_dt=0.1)
     meta = {k: v for k, v in rec.meta.items() if k not in ("effect", "effects")}
-    report, _ = diagnose(dataclasses.replace(rec, meta=meta))
+    report = diagnose(dataclasses.replace(rec, meta=meta)).report
     assert report["scale_identified"] is False
     entry = report["explanation"][0]
     assert entry["name"] == "inertia_offset"
