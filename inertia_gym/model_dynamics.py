@@ -3,8 +3,8 @@ with the momentum J w kept across it, internal dissipation, a viscous damping th
 and a known internal momentum, integrated by compiled RK4 for diagnose's model:
 :func:`propagate_model_batch` advances many trajectories on one grid of sample times and
 sub-steps, one RK4 step per grid interval, in segments (multiple shooting) run in parallel, and is
-both the truth simulator of the effect catalogue and the model that diagnose fits. The rates build
-on dynamics.py's body_rate_with and its packed Disturbance vector.
+both the truth simulator of the effect catalogue and the model that diagnose fits. Its step is
+dynamics.py's rk4_augmented, the one RK4 step of the rigid body and its effect states.
 """
 
 from __future__ import annotations
@@ -18,103 +18,14 @@ from inertia_gym.dynamics import (
     _D_C0,
     _D_C1,
     _D_DELTA,
-    _D_DISS,
     _D_ETA0,
     _D_ETAD0,
-    _D_OMEGA,
-    _D_ZETA,
-    body_rate_with,
     disturbance_entries,
     inv3,
     mat3_entries,
+    modal_coupling,
+    rk4_augmented,
 )
-
-
-@nb.njit(cache=True, forceinline=True)
-def _augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz,
-                    hx, hy, hz, dist):
-    """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): body_rate with the momentum
-    (hx, hy, hz) + delta eta_dot added to its hook's and the torque (tx, ty, tz) (N·m, known h_dot
-    already subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta
-    eta_ddot = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot
-    in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). Scalars in and out: j and
-    j_inv row-major 9-tuples, dist the packed disturbance as a tuple (disturbance_entries).
-    """
-    cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
-    sx = dist[3] + hx + cx * etad
-    sy = dist[4] + hy + cy * etad
-    sz = dist[5] + hz + cz * etad
-    diss = dist[_D_DISS]
-    if diss != 0.0:
-        lx = j[0] * w0 + j[1] * w1 + j[2] * w2 + sx
-        ly = j[3] * w0 + j[4] * w1 + j[5] * w2 + sy
-        lz = j[6] * w0 + j[7] * w1 + j[8] * w2 + sz
-        nl = math.sqrt(lx * lx + ly * ly + lz * lz)
-        if nl > 0.0:
-            ux, uy, uz = lx / nl, ly / nl, lz / nl
-            uw = ux * w0 + uy * w1 + uz * w2
-            tx -= diss * (w0 - ux * uw)
-            ty -= diss * (w1 - uy * uw)
-            tz -= diss * (w2 - uz * uw)
-    r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, j, j_inv, tx, ty, tz, sx, sy, sz, dist)
-    ax, ay, az = r[4], r[5], r[6]
-    eta_dd = 0.0
-    if cx != 0.0 or cy != 0.0 or cz != 0.0:
-        om = dist[_D_OMEGA]
-        eta_dd = (-2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
-        ax -= jd0 * eta_dd
-        ay -= jd1 * eta_dd
-        az -= jd2 * eta_dd
-    return r[0], r[1], r[2], r[3], ax, ay, az, etad, eta_dd
-
-
-@nb.njit(cache=True, forceinline=True)
-def _modal_coupling(j_inv, dist):
-    """(J^-1 delta (3 scalars), 1 - delta . J^-1 delta) of j_inv (9-tuple) and dist (tuple)."""
-    cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
-    jd0 = j_inv[0] * cx + j_inv[1] * cy + j_inv[2] * cz
-    jd1 = j_inv[3] * cx + j_inv[4] * cy + j_inv[5] * cz
-    jd2 = j_inv[6] * cx + j_inv[7] * cy + j_inv[8] * cz
-    return jd0, jd1, jd2, 1.0 - (cx * jd0 + cy * jd1 + cz * jd2)
-
-
-@nb.njit(cache=True, forceinline=True)
-def _augmented_rk4(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, ha0, ha1, ha2, hb0, hb1, hb2,
-                   dist):
-    """One RK4 step of y (9-tuple) over dt, the known momentum linear from (ha) to (hb) and
-    the torque (tx, ty, tz) (its rate already subtracted) held; returns the new 9-tuple with
-    the quaternion renormalised. The state stays in registers: carried in an array, every
-    store to it could alias the inputs and forced their loads again (2.2x slower).
-    """
-    hdt = 0.5 * dt
-    hm0, hm1, hm2 = 0.5 * (ha0 + hb0), 0.5 * (ha1 + hb1), 0.5 * (ha2 + hb2)
-    y0, y1, y2, y3, y4, y5, y6, y7, y8 = y
-    k1 = _augmented_rate(y0, y1, y2, y3, y4, y5, y6, y7, y8, j, j_inv, jd0, jd1, jd2, denom,
-                         tx, ty, tz, ha0, ha1, ha2, dist)
-    k2 = _augmented_rate(y0 + hdt * k1[0], y1 + hdt * k1[1], y2 + hdt * k1[2], y3 + hdt * k1[3],
-                         y4 + hdt * k1[4], y5 + hdt * k1[5], y6 + hdt * k1[6], y7 + hdt * k1[7],
-                         y8 + hdt * k1[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hm0, hm1, hm2,
-                         dist)
-    k3 = _augmented_rate(y0 + hdt * k2[0], y1 + hdt * k2[1], y2 + hdt * k2[2], y3 + hdt * k2[3],
-                         y4 + hdt * k2[4], y5 + hdt * k2[5], y6 + hdt * k2[6], y7 + hdt * k2[7],
-                         y8 + hdt * k2[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hm0, hm1, hm2,
-                         dist)
-    k4 = _augmented_rate(y0 + dt * k3[0], y1 + dt * k3[1], y2 + dt * k3[2], y3 + dt * k3[3],
-                         y4 + dt * k3[4], y5 + dt * k3[5], y6 + dt * k3[6], y7 + dt * k3[7],
-                         y8 + dt * k3[8], j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hb0, hb1, hb2,
-                         dist)
-    c6 = dt / 6.0
-    o0 = y0 + c6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-    o1 = y1 + c6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-    o2 = y2 + c6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
-    o3 = y3 + c6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-    s = 1.0 / math.sqrt(o0 ** 2 + o1 ** 2 + o2 ** 2 + o3 ** 2)
-    return (o0 * s, o1 * s, o2 * s, o3 * s,
-            y4 + c6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
-            y5 + c6 * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),
-            y6 + c6 * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]),
-            y7 + c6 * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]),
-            y8 + c6 * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]))
 
 
 @nb.njit(cache=True, forceinline=True)
@@ -161,7 +72,7 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     j_after, j_after_inv = mat3_entries(inertia_after), mat3_entries(inv3(inertia_after))
     j, j_inv = (j_after, j_after_inv) if changed else (mat3_entries(inertia), mat3_entries(inv3(inertia)))
     entries = disturbance_entries(dist)
-    jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
+    jd0, jd1, jd2, denom = modal_coupling(j_inv, entries)
     s = 1.0 / math.sqrt(y0[0] ** 2 + y0[1] ** 2 + y0[2] ** 2 + y0[3] ** 2)
     y = (y0[0] * s, y0[1] * s, y0[2] * s, y0[3] * s, y0[4], y0[5], y0[6], eta, etad)
     for k in range(a, b + 1):
@@ -177,7 +88,7 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
         if not changed and t0 >= change_t:
             y = _momentum_kept(y, j, j_after_inv)
             j, j_inv = j_after, j_after_inv
-            jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
+            jd0, jd1, jd2, denom = modal_coupling(j_inv, entries)
             changed = True
         # h linear over the step: its rate is the step's slope, subtracted from the torque
         r0 = (h[k + 1, 0] - h[k, 0]) / dt
@@ -187,16 +98,16 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
         if not changed and t1 > change_t:  # the change falls inside this step: split it
             f = change_t - t0
             hc0, hc1, hc2 = h[k, 0] + f * r0, h[k, 1] + f * r1, h[k, 2] + f * r2
-            y = _augmented_rk4(y, f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
+            y = rk4_augmented(y, f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
                                h[k, 2], hc0, hc1, hc2, step_dist)
             y = _momentum_kept(y, j, j_after_inv)
             j, j_inv = j_after, j_after_inv
-            jd0, jd1, jd2, denom = _modal_coupling(j_inv, entries)
+            jd0, jd1, jd2, denom = modal_coupling(j_inv, entries)
             changed = True
-            y = _augmented_rk4(y, dt - f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hc0, hc1, hc2,
+            y = rk4_augmented(y, dt - f, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, hc0, hc1, hc2,
                                h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
         else:
-            y = _augmented_rk4(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
+            y = rk4_augmented(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, h[k, 0], h[k, 1],
                                h[k, 2], h[k + 1, 0], h[k + 1, 1], h[k + 1, 2], step_dist)
     return y[7], y[8]
 

@@ -21,6 +21,7 @@ from inertia_gym import sensors
 from inertia_gym.dynamics import (
     DISTURBANCE_SIZE,
     NO_DISTURBANCE,
+    check_rigid_steps,
     disturbance_entries,
     euler_to_quat,
     inv3,
@@ -638,6 +639,7 @@ def run_segment(
     if dist.shape != (DISTURBANCE_SIZE,):
         raise ConfigError(f"disturbance must be a packed ({DISTURBANCE_SIZE},) vector "
                           f"(dynamics.Disturbance.pack()), got shape {dist.shape}")
+    check_rigid_steps(dist)
     args = (
         Truth(y_true, sc.inertia_true_array, dist),
         Estimator(x, P, phi_top, sigma),

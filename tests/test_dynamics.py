@@ -95,6 +95,32 @@ def test_disturbance_hook_matches_reference():
     assert np.allclose(w[-1], ref[4:], atol=1e-6)
 
 
+def test_an_internal_dissipation_matches_its_torque_and_keeps_the_momentum():
+    """The rigid-body RK4 applies the dissipation torque -d (w - u (u . w)), u along J w: the
+    trajectory is the reference's, |J w| stays and the energy falls."""
+    d = 50.0
+
+    def torque(q, w):
+        u = J @ w / np.linalg.norm(J @ w)
+        return -d * (w - u * (u @ w))
+
+    q0, w0 = euler_to_quat([20, 10, -30]), np.array([1.0, 3.0, -2.0])
+    q, w = propagate(q0, w0, J, np.zeros((300, 3)), 0.01, Disturbance(dissipation=d))
+    np.testing.assert_allclose(w[-1], _reference(q0, w0, J, np.zeros(3), 3.0, torque)[4:], atol=1e-6)
+    momentum = np.linalg.norm(w @ J, axis=1)
+    energy = np.einsum("ni,ij,nj->n", w, J, w)
+    assert np.ptp(momentum) < 1e-6 * momentum[0]
+    assert energy[-1] < 0.98 * energy[0] and np.all(np.diff(energy) <= 0.0)
+
+
+@pytest.mark.parametrize("method, dist, words", [
+    ("rk4", Disturbance(flex_omega=3.0, flex_coupling=(0.1, 0.0, 0.0)), "flexible mode"),
+    ("gauss", Disturbance(dissipation=1.0), "dissipation")])
+def test_the_rigid_body_steps_refuse_what_they_cannot_integrate(method, dist, words):
+    with pytest.raises(ConfigError, match=words):
+        propagate(euler_to_quat([0, 0, 0]), np.ones(3), J, np.zeros((5, 3)), 0.01, dist, method)
+
+
 def test_batch_equals_single_runs(rng):
     q0 = np.array([euler_to_quat(a) for a in rng.uniform(-90, 90, (3, 3))])
     w0 = rng.standard_normal((3, 3))
