@@ -455,6 +455,45 @@ def profile_cost(prob: Problem, phi, q_ref=None, max_iter: int = STAGE_ITER) -> 
     return float(np.sum(profile_losses(prob, phi, q_ref, max_iter)))
 
 
+def _row_losses(ev: Evaluation, m: int) -> np.ndarray:
+    """(M,) each measurement's whitened squared residual, gyro and attitude summed (inf where
+    the trajectory did not stay finite).
+    """
+    return np.sum(ev.r.reshape(-1, m, 3) ** 2, axis=(0, 2)) if ev.ok else np.full(m, np.inf)
+
+
+def _kept_after_joining(prob: Problem, seg, stage: _Stage) -> np.ndarray:
+    """Indices of the stage's segments that start a segment of the next stage.
+
+    A cut is dropped where the trajectory of the segment before it, at the stage's estimate,
+    follows the rows of the segment after it within SLIP_FACTOR of the stage's own rms over the
+    rows of both: the joined problem then starts in its basin, while a cut that the trajectory
+    cannot cross (its phase lost over the next segment) stays. Both pairings (0 with 1, 2 with
+    3, ... and 1 with 2, 3 with 4, ...) are tested, two integrations of the record; of the
+    crossable cuts, no two adjacent ones are dropped (a joined segment spans at most two of the
+    stage's, the join that was tested).
+    """
+    m = prob.meas_idx.size
+    gl, lo = global_indices(prob), local_indices(prob)
+    count = seg.size - 1
+    states = stage.x[gl.size:].reshape(count, lo.size)
+    held = np.add.reduceat(_row_losses(stage.evaluation, m), seg[:-1])
+    crossable = np.zeros(count - 1, dtype=bool)
+    for offset in (0, 1):
+        firsts = np.arange(offset, count - 1, 2)  # segment s carried over segment s + 1
+        starts = np.setdiff1d(np.arange(count), firsts + 1)
+        joined = np.r_[seg[starts], m]
+        x = np.r_[stage.x[:gl.size], states[starts].ravel()]
+        whole, _ = Shooting(prob, joined).evaluate(x, stage.q_refs[starts], False)
+        carried = np.add.reduceat(_row_losses(whole, m), seg[:-1])
+        crossable[firsts] = (carried[firsts] + carried[firsts + 1]
+                             <= SLIP_FACTOR ** 2 * (held[firsts] + held[firsts + 1]))
+    drop = np.zeros(count, dtype=bool)  # drop[s]: segment s joins segment s - 1
+    for s in range(1, count):
+        drop[s] = crossable[s - 1] and not drop[s - 1]
+    return np.flatnonzero(~drop)
+
+
 def _cuts(m: int, count: int) -> np.ndarray:
     """(count+1,) measurement indices cutting m measurements into count equal segments."""
     return np.unique(np.round(np.linspace(0, m, count + 1)).astype(int))
@@ -469,12 +508,14 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
     (default: all). Multiple shooting with continuation: the record is cut into segments of at
     most first_horizon measurements, each from its own initial state (the measured rate and
     attitude at its start), and solved; then, where the first segment's trajectory does not
-    yet follow the whole record within SLIP_FACTOR of the segments' rms, every other cut is
-    dropped, the kept segments' states carried over, and solved again, until one trajectory
-    spans the record (solved without the prior for up to final_iter iterations). A merge whose
-    residual rms exceeds the last stage's by SLIP_FACTOR has lost the trajectory (near a
-    separatrix the sensitivities grow exponentially): the fit then keeps the last stage's
-    segments.
+    yet follow the whole record within SLIP_FACTOR of the segments' rms, the cuts its
+    neighbours' trajectories already cross are dropped (:func:`_kept_after_joining`: at most
+    every other one), the kept segments' states carried over, and solved again, until one
+    trajectory spans the record (solved without the prior for up to final_iter iterations) or
+    no trajectory crosses a cut (near a separatrix, or over a tumble longer than the
+    sensitivities' growth allows): the fit then rests on that stage's segments. A merge whose
+    residual rms still exceeds the last stage's by SLIP_FACTOR has lost the trajectory, and the
+    fit keeps the last stage's segments.
     """
     m = prob.meas_idx.size
     horizon = m if first_horizon is None else int(np.clip(first_horizon, 1, m))
@@ -503,7 +544,9 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
                 x = np.r_[stage.x[:gl.size], stage.x[gl.size:gl.size + lo.size]]
                 q_refs, seg = stage.q_refs[:1], np.array([0, m])
                 break
-            keep = np.arange(0, seg.size - 1, 2)
+            keep = _kept_after_joining(prob, seg, stage)
+            if keep.size == seg.size - 1:
+                break  # no trajectory crosses a cut: the segments are the fit
             seg = np.r_[seg[:-1][keep], m]
             x = np.r_[stage.x[:gl.size], stage.x[gl.size:].reshape(-1, lo.size)[keep].ravel()]
             q_refs = stage.q_refs[keep]

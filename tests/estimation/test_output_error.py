@@ -87,3 +87,26 @@ def test_profile_cost_is_the_residual_sum_minimised_over_the_initial_state_at_a_
     assert output_error.profile_cost(prob, phi_from_inertia(J_TRUE * [1.02, 1.0, 1.0]), Q0) > 3 * meas.size
     fixed = dataclasses.replace(prob, fixed_inertia=True)
     assert not fixed.free()[:6].any() and fixed.free()[6:].all()
+
+
+def test_a_cut_no_trajectory_crosses_is_kept_while_the_crossable_ones_are_joined():
+    """A kick the torque log does not hold, at a cut: the trajectory before it cannot follow the
+    rows after it, so that cut stays; of the others, no two adjacent ones are dropped."""
+    t, tau, h = grid(n=3000)
+    meas, jump = np.arange(0, t.size, 5), 300
+    phi = phi_from_inertia(J_TRUE)
+    w_a, q_a = model(t, tau, h, meas, phi, W0, Q0)
+    g = meas[jump]
+    w_b, q_b = model(t[g:], tau[g:], h[g:], meas[jump:] - g, phi, w_a[jump] + [0.5, -0.4, 0.3], q_a[jump])
+    w_true, q_true = np.r_[w_a[:jump], w_b], np.r_[q_a[:jump], q_b]
+    rng = np.random.default_rng(0)
+    prob = output_error.Problem(t, tau, h, np.ones(t.size, dtype=np.int64), meas,
+                                w_true + 0.03 * rng.standard_normal(w_true.shape), q_true,
+                                np.full(3, 0.03), 0.02, fit_bias=True, fix_scale=False)
+    seg = np.arange(0, meas.size + 1, 100)
+    x = np.r_[phi, np.zeros(3), np.concatenate([np.r_[w_true[a], np.zeros(3)] for a in seg[:-1]])]
+    shooting = output_error.Shooting(prob, seg)
+    held, _ = shooting.evaluate(x, q_true[seg[:-1]], False)
+    stage = output_error._Stage(phi, q_true[0], held, 0, True, x, q_true[seg[:-1]])
+    kept = output_error._kept_after_joining(prob, seg, stage)
+    np.testing.assert_array_equal(kept, [0, 2, 3, 5])  # cuts at 100 and 400 dropped, 300 kept
