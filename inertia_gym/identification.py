@@ -246,7 +246,10 @@ def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
     if (biased.fit.segments > plain.fit.segments
             or lack_of_fit(biased, prep.level, biased_prob) < 1 - TEST_LEVEL):
         return prob, plain, None
-    lags = 1 + plain.noise.hac_lags
+    # the rows' correlation that discounts the gain is read from the fit with the bias: under no
+    # bias both fits' residuals are the noise, but under a bias only this one's are (the plain
+    # fit's misfit is the bias itself, correlated over the whole record)
+    lags = 1 + biased.noise.hac_lags
     gain = (np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)
             - np.sum((biased.fit.evaluation.e_w / prep.level) ** 2))
     # nested fits in as many segments: the likelihood-ratio test; a bias that lets fewer
@@ -254,7 +257,8 @@ def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
     if plain.fit.segments == biased.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
         return prob, plain, None
     bias = biased.fit.p[-3:]
-    return biased_prob, biased, (f"a constant gyro bias {np.array2string(bias, precision=3)} rad/s was "
+    shown = np.array2string(bias, formatter={"float_kind": lambda v: f"{v:.3g}"})  # 3 significant digits
+    return biased_prob, biased, (f"a constant gyro bias {shown} rad/s was "
                                  "fitted: no attitude pins it, but the likelihood-ratio test finds it and "
                                  "with it the residuals are at the noise")
 
