@@ -246,10 +246,11 @@ def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
     if (biased.fit.segments > plain.fit.segments
             or lack_of_fit(biased, prep.level, biased_prob) < 1 - TEST_LEVEL):
         return prob, plain, None
-    # the rows' correlation that discounts the gain is read from the fit with the bias: under no
-    # bias both fits' residuals are the noise, but under a bias only this one's are (the plain
-    # fit's misfit is the bias itself, correlated over the whole record)
-    lags = 1 + biased.noise.hac_lags
+    # the gain's discount for correlated rows: where the bias leaves white residuals, the noise is
+    # white and the gain a chi-square on 3 degrees of freedom (the plain fit's correlation is then
+    # the bias's own misfit, not noise); where correlation remains, model error beyond a bias is
+    # in both fits, and the longer of their correlations discounts it
+    lags = 1 + (0 if biased.noise.hac_lags == 0 else max(plain.noise.hac_lags, biased.noise.hac_lags))
     gain = (np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)
             - np.sum((biased.fit.evaluation.e_w / prep.level) ** 2))
     # nested fits in as many segments: the likelihood-ratio test; a bias that lets fewer

@@ -671,13 +671,11 @@ def _dragged_throw(seed):
 
 
 def test_an_unmodelled_drag_that_the_residuals_hide_widens_the_output_error_past_the_equation_error():
-    """A drag that identify does not model bends the fitted trajectory: over these 8 seeds the
-    output error lands about five times further from the truth than the equation error (medians
-    1.2 % and 0.2 %), mostly with residuals the lack-of-fit test accepts. Their colour widens
-    the output error's covariance past the equation error's, so the equation error is reported
-    on at least 4 of 8 seeds, its reason in the notes, and the reported estimate's median error
-    stays under 0.55 % (0.22 % on these seeds, the equation error on 6 of 8; reporting the
-    output error wherever the residuals pass the lack-of-fit test gives 0.73 %)."""
+    """A drag that identify does not model bends the fitted trajectory. On a gyro-only throw a
+    constant bias absorbs part of it; where the misfit left stays coloured, its colour widens the
+    output error's covariance past the equation error's and the equation error is reported, its
+    reason in the notes (on at least 2 of these 8 seeds), and the reported estimate's median error
+    stays under 0.55 %."""
     reported = []
     for seed in range(8):
         rec, inertia = _dragged_throw(seed)
@@ -685,7 +683,7 @@ def test_an_unmodelled_drag_that_the_residuals_hide_widens_the_output_error_past
         if res.estimator == "equation error":
             assert any("reported is the equation error" in n or "lack-of-fit" in n for n in res.notes)
         reported.append((_rel(res.estimate.inertia, inertia), res.estimator))
-    assert sum(e == "equation error" for _, e in reported) >= 4
+    assert sum(e == "equation error" for _, e in reported) >= 2
     assert np.median([e for e, _ in reported]) < 0.0055
 
 
