@@ -251,8 +251,8 @@ def test_diagnose_counts_a_coarse_lattice_in_its_ratio_intervals(seed):
     they hold it (measured 0.48-0.69 of the half-width), and the summary says so."""
     rec = slow_tumble_read_coarsely(seed, None)
     truth = np.sort(np.linalg.eigvalsh(rec.inertia_nominal))[::-1]
-    report = diagnose(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items().report
-                                                        if k != "inertia_nominal"}))
+    report = diagnose(dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items()
+                                                     if k != "inertia_nominal"})).report
     ci = np.array(report["fit_after"]["principal_ratios_ci95"])
     assert np.all((ci[1:, 0] <= truth[1:] / truth[0]) & (truth[1:] / truth[0] <= ci[1:, 1])), ci
     assert report["noise"]["lattice_refits"] >= LATTICE_REPLAYS - 1  # at most one refit left out
