@@ -274,13 +274,13 @@ class NormalBlocks:
 GRAM_CONDITION = 1e10
 
 
-def _triangular(gsc: np.ndarray, r: np.ndarray, gram: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def _triangular(gsc: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """R (P, P) upper triangular with R^T R = gsc^T gsc, and b = R^-T gsc^T r (= Q^T r), so that
-    |gsc d + r|^2 = |R d + b|^2 + const. From the Cholesky factor of the normal matrix where
-    gram and it is well conditioned, else from a QR factor of [gsc, r].
+    |gsc d + r|^2 = |R d + b|^2 + const. From the Cholesky factor of the normal matrix where it
+    is well conditioned, else from a QR factor of [gsc, r].
     """
     p = gsc.shape[1]
-    if gram and p:
+    if p:
         normal = gsc.T @ gsc
         if np.all(np.isfinite(normal)):
             vals = np.linalg.eigvalsh(normal)
