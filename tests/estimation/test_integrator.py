@@ -1,11 +1,13 @@
-"""The output-error integrator (estimation/integrator.py): its trajectory against the rigid-body
-integrator, the drag term's closed form, and the invariant a changing internal momentum keeps."""
+"""The output-error model's trajectories and sensitivities (estimation/integrator.py): against the
+rigid-body integrator, the drag term's closed form, the invariant a changing internal momentum
+keeps, and an axisymmetric body's closed-form derivatives."""
 
 import numpy as np
 from rigid_records import J_TRUE, Q0, W0, grid, model
 
 from inertia_gym.dynamics import propagate, quat_to_rotation
 from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.estimation.integrator import trajectory
 
 
 def test_trajectory_without_momentum_equals_the_rigid_body_integrator():
@@ -42,3 +44,26 @@ def test_trajectory_with_changing_momentum_keeps_inertial_angular_momentum():
     assert np.abs(free_w - out_w).max() > 0.1
 
 
+
+
+def test_sensitivities_are_the_derivatives_of_an_axisymmetric_bodys_closed_form():
+    # J = diag(a, a, c), torque-free from w0 = (u, 0, v): w1 = u cos(l t), w2 = u sin(l t), w3 = v,
+    # l = (c - a) v / a. phi = (log a, 0, 0, 0, 0, log sqrt(c / a)): dc/dphi_5 = 2 c, and the
+    # scale phi_0 moves a and c together, which leaves l unchanged.
+    a, c, u, v = 2.0, 3.0, 0.7, 1.3
+    t = np.arange(4001) * 0.001
+    zero = np.zeros((t.size, 3))
+    meas = np.arange(0, t.size, 50)
+    out_w, out_sw = np.zeros((meas.size, 3)), np.zeros((meas.size, 3, 12))
+    phi = phi_from_inertia(np.diag([a, a, c]))
+    assert trajectory(t, zero, zero, np.ones(t.size, dtype=np.int64), meas, phi, np.array([u, 0.0, v]), Q0,
+                      True, False, out_w, out_sw, np.zeros((1, 4)), np.zeros((1, 3, 12)))
+    tm, lam = t[meas], (c - a) * v / a
+    np.testing.assert_allclose(out_w, np.c_[u * np.cos(lam * tm), u * np.sin(lam * tm), np.full(tm.size, v)],
+                               atol=1e-9)
+    dlam = {5: 2.0 * c * v / a, 8: (c - a) / a}  # dl/dphi_5 and dl/dw0_3
+    for col, dl in dlam.items():
+        np.testing.assert_allclose(out_sw[:, 0, col], -u * np.sin(lam * tm) * tm * dl, atol=1e-6)
+        np.testing.assert_allclose(out_sw[:, 1, col], u * np.cos(lam * tm) * tm * dl, atol=1e-6)
+    np.testing.assert_allclose(out_sw[:, :2, 6], np.c_[np.cos(lam * tm), np.sin(lam * tm)], atol=1e-6)
+    assert np.abs(out_sw[:, :, 0]).max() < 1e-6
