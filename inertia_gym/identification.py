@@ -42,7 +42,6 @@ from inertia_gym.estimation import ml, output_error
 from inertia_gym.estimation.equation_error import EquationError, equation_error
 from inertia_gym.estimation.filters import run_over_recording
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia, theta_from_phi
-from inertia_gym.estimation.integrator import substeps
 from inertia_gym.estimation.uncertainty import (
     SCALE_SIGMA_IDENTIFIED,
     TEST_LEVEL,
@@ -114,30 +113,6 @@ class Identification:
                 "converged": bool(self.converged), "n_samples": int(self.t.size),
                 "duration_s": float(self.t[-1] - self.t[0]), "notes": list(self.notes),
                 "wall_s": float(self.wall_s)}
-
-
-def problem_from(prep: Prepared, sigma_w=None, fit_bias: bool = False,
-                 fit_drag: bool = False) -> output_error.Problem:
-    """The output-error problem of a prepared record: grid = its rows, torque held per row, h
-    linear; the measurements are its usable rows (where the integration plans for twice a
-    clipped row's rate).
-    """
-    rec = prep.rec
-    t = rec.t - rec.t[0]
-    n = t.size
-    meas = np.flatnonzero(prep.usable)
-    sigma_w = prep.level if sigma_w is None else sigma_w
-    quat_sigma = float(rec.meta.get("quat_sigma", 0.0) or 0.0)
-    rate = np.linalg.norm(rec.w, axis=1)
-    rate[~prep.usable] *= 2.0
-    return output_error.Problem(
-        t_grid=t, tau_grid=np.asarray(rec.tau if rec.tau is not None else np.zeros((n, 3)), float),
-        h_grid=np.asarray(rec.h if rec.h is not None else np.zeros((n, 3)), float),
-        n_sub=substeps(t, rate), meas_idx=meas, z_w=np.asarray(rec.w[meas], float),
-        z_q=None if rec.q is None else np.asarray(rec.q[meas], float),
-        sigma_w=np.broadcast_to(np.asarray(sigma_w, float), (3,)).copy(),
-        sigma_att=2.0 * quat_sigma if quat_sigma > 0 else 0.02, fit_bias=bool(fit_bias or rec.q is not None),
-        fix_scale=not rec.sees_scale, fit_drag=bool(fit_drag))
 
 
 def lack_of_fit(refinement: ml.Refinement, level: np.ndarray, prob: output_error.Problem) -> float:
@@ -303,7 +278,7 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
     ee_phi = phi_from_inertia(nearest_realizable(reference.inertia))
-    prob = problem_from(prep, prep.sigma, bool(fit_bias), False)
+    prob = output_error.problem_from(prep, prep.sigma, bool(fit_bias), False)
     notes = [f"{n}'s start; the {method} uses them as read" if n.startswith("the gyro clipped") else n
              for n in notes]
     run = run_over_recording(rec, prob.t_grid, prob.tau_grid, prob.h_grid, ee_phi, prob.sigma_w, method,
@@ -337,7 +312,7 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref)
     """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
-    prob = problem_from(prep, prep.sigma, bool(fit_bias), fit_drag)
+    prob = output_error.problem_from(prep, prep.sigma, bool(fit_bias), fit_drag)
     oe = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref)
     said = None
     if fit_bias is None and prep.rec.q is None:
@@ -366,7 +341,7 @@ def held_out(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -
             part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
         except (EstimatorDivergedError, ConfigError, RecordingError):
             return None
-        held = problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
+        held = output_error.problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
         q0 = None if prep.rec.q is None else prep.rec.q[test[0]]
         phis = [phi_from_inertia(nearest_realizable(e.inertia)) for e in (part.oe.estimate, part.reference)]
         losses.append(tuple(output_error.profile_losses(held, phi, q0) for phi in phis))

@@ -35,11 +35,7 @@ from inertia_gym.estimation.uncertainty import (
     homogeneity,
     inertia_estimate,
 )
-from inertia_gym.identification import (
-    Identification,
-    identify_prepared,
-    problem_from,
-)
+from inertia_gym.identification import Identification, identify_prepared
 from inertia_gym.prepare import Prepared, prepared
 from inertia_gym.recordings import Recording
 
@@ -83,7 +79,7 @@ def _joint_output_error(preps, singles, trace_ref) -> tuple[InertiaEstimate, flo
     """(estimate, rms over the noise, passes the lack-of-fit test) of one inertia over every
     record, each from its own initial state (a segment per record), at its own noise level.
     """
-    probs = [problem_from(p, p.sigma) for p in preps]
+    probs = [output_error.problem_from(p, p.sigma) for p in preps]
     offset, grids, meas, t_end = 0, [], [], 0.0
     for pr in probs:
         t = pr.t_grid - pr.t_grid[0] + t_end

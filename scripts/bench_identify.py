@@ -54,7 +54,7 @@ from inertia_gym.errors import ConfigError, RecordingError  # noqa: E402
 from inertia_gym.estimation import output_error  # noqa: E402
 from inertia_gym.estimation.equation_error import equation_error_theta  # noqa: E402
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia  # noqa: E402
-from inertia_gym.identification import identify, problem_from  # noqa: E402
+from inertia_gym.identification import identify  # noqa: E402
 from inertia_gym.information import inertia_from_theta  # noqa: E402
 from inertia_gym.joint_identification import identify_joint  # noqa: E402
 from inertia_gym.prepare import prepared  # noqa: E402
@@ -86,7 +86,7 @@ def case_recording(name: str, duration_a: float):
 def start_and_problem(rec):
     """The problem and start identify() builds: (prob, p0 (n,), q_ref (4,))."""
     prep = prepared(rec)
-    prob = problem_from(prep, prep.sigma)
+    prob = output_error.problem_from(prep, prep.sigma)
     nominal = rec.inertia_nominal
     trace = float(np.trace(nominal)) if nominal is not None else 1.0
     theta0 = equation_error_theta(prob.t_grid, prob.z_w, prob.tau_grid, prob.h_grid, trace=trace)

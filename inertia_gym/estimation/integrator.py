@@ -41,20 +41,20 @@ def substeps(t_grid, w_scale) -> np.ndarray:
     return np.maximum(1, np.ceil(rot / MAX_ROTATION_PER_STEP)).astype(np.int64)
 
 
-def _refined(t_grid, tau_grid, h_grid, n_sub, g_end):
-    """(t (m+1,), tau (m, 3), h (m+1, 3), offset (g_end,)): the grid's first g_end points with
-    n_sub[g] equal sub-steps in interval g, tau held and h linear over each; offset[g] is grid
-    point g's index in the refined grid.
+def _refined(t_grid, tau_grid, h_grid, offset):
+    """(t (m+1,), tau (m, 3), h (m+1, 3)): the grid's first offset.size points refined into
+    equal sub-steps, offset[g] (0 first, increasing) the refined index of grid point g; tau held
+    and h linear over each interval.
     """
-    n = np.asarray(n_sub[:g_end - 1], np.int64)
-    offset = np.r_[0, np.cumsum(n)]
-    interval = np.repeat(np.arange(g_end - 1), n)
+    n = np.diff(offset)
+    interval = np.repeat(np.arange(n.size), n)
     frac = (np.arange(offset[-1]) - offset[interval]) / n[interval]
     t = np.asarray(t_grid, float)
     h = np.asarray(h_grid, float)
-    t_f = np.r_[t[interval] + frac * (t[interval + 1] - t[interval]), t[g_end - 1]]
-    h_f = np.concatenate([h[interval] + frac[:, None] * (h[interval + 1] - h[interval]), h[g_end - 1:g_end]])
-    return t_f, np.asarray(tau_grid, float)[interval], h_f, offset
+    last = offset.size - 1
+    t_f = np.r_[t[interval] + frac * (t[interval + 1] - t[interval]), t[last]]
+    h_f = np.concatenate([h[interval] + frac[:, None] * (h[interval + 1] - h[interval]), h[last:last + 1]])
+    return t_f, np.asarray(tau_grid, float)[interval], h_f
 
 
 def _dist(c) -> np.ndarray:
@@ -88,7 +88,8 @@ def trajectories(t_grid, tau_grid, h_grid, n_sub, meas_idx, seg, phi, w0s, q0s, 
     starts = seg[1:-1]
     if np.any(meas_idx[starts] == meas_idx[starts - 1]):
         raise ValueError("a shooting cut between two measurements at one grid point")
-    t_f, tau_f, h_f, offset = _refined(t_grid, tau_grid, h_grid, n_sub, int(meas_idx[-1]) + 1)
+    offset = np.r_[0, np.cumsum(np.asarray(n_sub, np.int64)[:meas_idx[-1]])]
+    t_f, tau_f, h_f = _refined(t_grid, tau_grid, h_grid, offset)
     sample_pos = offset[meas_idx]
     seg_pos = np.r_[offset[meas_idx[seg[:-1]]], offset[-1]]
     if first_grid is not None:

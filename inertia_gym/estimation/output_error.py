@@ -29,7 +29,8 @@ import numpy as np
 from inertia_gym.dynamics import quat_exp, quat_mul
 from inertia_gym.estimation import solver
 from inertia_gym.estimation.inertia_param import realizable_face, realizable_phi
-from inertia_gym.estimation.integrator import N_DYN, trajectories
+from inertia_gym.estimation.integrator import N_DYN, substeps, trajectories
+from inertia_gym.prepare import Prepared
 from inertia_gym.sensors import attitude_error
 
 #: Largest change of the inertia's log-Cholesky parameters in one step (the solver's trust
@@ -113,6 +114,30 @@ class Problem:
             self, t_grid=self.t_grid[:g_end], tau_grid=self.tau_grid[:g_end],
             h_grid=self.h_grid[:g_end], n_sub=self.n_sub[:g_end], meas_idx=self.meas_idx[:n_meas],
             z_w=self.z_w[:n_meas], z_q=None if self.z_q is None else self.z_q[:n_meas], sigma_w=sigma)
+
+
+def problem_from(prep: Prepared, sigma_w=None, fit_bias: bool = False,
+                 fit_drag: bool = False) -> Problem:
+    """The output-error problem of a prepared record: grid = its rows, torque held per row, h
+    linear; the measurements are its usable rows (where the integration plans for twice a
+    clipped row's rate).
+    """
+    rec = prep.rec
+    t = rec.t - rec.t[0]
+    n = t.size
+    meas = np.flatnonzero(prep.usable)
+    sigma_w = prep.level if sigma_w is None else sigma_w
+    quat_sigma = float(rec.meta.get("quat_sigma", 0.0) or 0.0)
+    rate = np.linalg.norm(rec.w, axis=1)
+    rate[~prep.usable] *= 2.0
+    return Problem(
+        t_grid=t, tau_grid=np.asarray(rec.tau if rec.tau is not None else np.zeros((n, 3)), float),
+        h_grid=np.asarray(rec.h if rec.h is not None else np.zeros((n, 3)), float),
+        n_sub=substeps(t, rate), meas_idx=meas, z_w=np.asarray(rec.w[meas], float),
+        z_q=None if rec.q is None else np.asarray(rec.q[meas], float),
+        sigma_w=np.broadcast_to(np.asarray(sigma_w, float), (3,)).copy(),
+        sigma_att=2.0 * quat_sigma if quat_sigma > 0 else 0.02, fit_bias=bool(fit_bias or rec.q is not None),
+        fix_scale=not rec.sees_scale, fit_drag=bool(fit_drag))
 
 
 @dataclasses.dataclass(frozen=True)
