@@ -10,10 +10,9 @@ b. a 0.5-s, 4-kHz throw of a 5e-4 kg·m² body, gyro only, torque-free, with a r
 c. eleven such throws (seeds 0-10) of one body fitted together (identify_joint): its wall time
    against the eleven identify() calls it makes inside, and its error against theirs' mean.
 
-identify() (batched central-difference sensitivities, Levenberg-Marquardt over a progressive
-horizon) is timed as the median of --repeats calls after one warm-up call on a short recording
-that compiles the numba kernels. The peer solves the same problem
-(``output_error.evaluate(prob, p, q_ref, False).r``, the
+identify() (compiled sensitivities, Levenberg-Marquardt over a progressive horizon) is timed as
+the median of --repeats calls after one warm-up call on a short recording that compiles the
+numba kernels. The peer solves the same problem (``output_error.evaluate(prob, p, q_ref, False).r``, the
 same weights, all free parameters) with ``scipy.optimize.least_squares`` (method 'trf',
 default 2-point finite-difference Jacobian) over the whole record at once (no progressive
 horizon), from the same equation-error start; it runs once, capped by max_nfev so that it ends

@@ -1,6 +1,6 @@
-"""The output-error model's trajectories and sensitivities (estimation/integrator.py): against the
-rigid-body integrator, the drag term's closed form, the invariant a changing internal momentum
-keeps, and an axisymmetric body's closed-form derivatives."""
+"""The output-error integrator (estimation/integrator.py): its trajectory against the rigid-body
+integrator, the drag term's closed form, the invariant a changing internal momentum keeps, and
+its sensitivities against an axisymmetric body's closed-form derivatives."""
 
 import numpy as np
 from rigid_records import J_TRUE, Q0, W0, grid, model
