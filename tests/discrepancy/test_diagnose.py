@@ -108,7 +108,7 @@ def _param_error(name, truth, fitted):
 @pytest.mark.parametrize("seed", [11, pytest.param(12, marks=pytest.mark.science),
                                   pytest.param(13, marks=pytest.mark.science)])
 @pytest.mark.parametrize("name", ["actuator_scale", "gravity_gradient", "flexible_mode"])
-def test_formerly_missed_effects_are_found_blind(name, seed):
+def test_effects_weak_beside_their_neighbours_are_found_blind(name, seed):
     """Each found blind (the best effect, the fit within 1.2x the noise, its parameters within
     20 %): actuator_scale against gyro_scale (separable on a spinning body, and said so),
     gravity_gradient drawn to a size a fast tumble lets the gyro see, and flexible_mode."""
