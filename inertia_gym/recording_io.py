@@ -153,10 +153,10 @@ def _columns(path, header, data, names, required, label=None):
 #: record). Any other key is the user's provenance and passes untouched.
 SIDECAR_KEYS = ("inertia_nominal", "gyro_sigma", "quat_sigma", "gyro_scale_sigma", "gyro_full_scale_rad_s",
                 "gyro_bias_max", "body", "effect", "effects", "rotor", "seed", "basilisk_truth")
-#: The parts a sidecar's ``body`` object may say the body has (true) or lacks (false): a rotor or
-#: wheel, flexible appendages, liquid propellant. diagnose names an effect that needs one of
-#: them as that physics only where the body may carry it.
-BODY_PARTS = ("rotor", "appendages", "propellant")
+#: What a sidecar's ``body`` object may say the body has (true) or lacks (false): a rotor or
+#: wheel, flexible appendages, liquid propellant, and air about it (false in space or vacuum).
+#: diagnose names an effect that needs one of them as that physics only where the body may have it.
+BODY_PARTS = ("rotor", "appendages", "propellant", "air")
 #: An unknown key this similar to a known one (difflib's ratio 2M/T: one or two characters mistyped,
 #: dropped or swapped in a key of ten or more) is taken for a typo of it; the provenance keys of
 #: real sidecars (gyro_sigma_static, gyro_quantum_rad_s, sample_dt, ...) score under 0.75.

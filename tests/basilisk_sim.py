@@ -13,7 +13,8 @@ that drifts) and a per-axis scale error.
 
 The recording looks like a hardware log with a user's sidecar: ``inertia_nominal`` is the hub's
 inertia about its own centre of mass, what a user with a hub-only model would write (Basilisk's
-convention counts the wheels as part of the hub), so slosh and panel mass make it wrong. What
+convention counts the wheels as part of the hub), so slosh and panel mass make it wrong; its
+``body`` says there is no air (the vehicle flies in vacuum, as its user knows). What
 was concealed goes under the sidecar key ``basilisk_truth`` (TRUTH_KEY), which the diagnosis
 never reads. Basilisk is imported on first use: ``pip install 'inertia-gym[bsk]'``.
 
@@ -362,7 +363,8 @@ def simulate(case: SpacecraftCase) -> BasiliskRun:
         q_meas /= np.linalg.norm(q_meas, axis=1, keepdims=True)
         q_meas *= np.where(q_meas[:, :1] < 0, -1.0, 1.0)
     sidecar = {"inertia_nominal": np.asarray(case.hub_inertia, float).tolist(),
-               "gyro_sigma": case.gyro_sigma, "simulator": "Basilisk (bsk) " + _version(), "case": case.name}
+               "gyro_sigma": case.gyro_sigma, "body": {"air": False},
+               "simulator": "Basilisk (bsk) " + _version(), "case": case.name}
     if case.quat_sigma is not None:
         sidecar["quat_sigma"] = case.quat_sigma
     sidecar[TRUTH_KEY] = _truth(case, h_rel[0], w_true[0])

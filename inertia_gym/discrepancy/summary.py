@@ -356,10 +356,8 @@ def _label(e: dict) -> str:
         return f"`{e['name']}`" + (f" ({form[0]})" if form else "")
     what = model.as_fitted.get(e.get("form") or "", model.as_fitted[""])
     if said == "if_carried":
-        return (f"`{e['name']}` ({'; '.join(form + [f'if the body carries a {model.hardware_words}'])}; "
-                f"else {what})")
-    return f"{what} (`{e['name']}`{', ' + form[0] if form else ''}; the sidecar says the body carries no " \
-           f"{model.hardware_words})"
+        return f"`{e['name']}` ({'; '.join(form + [f'if {model.carried_words()}'])}; else {what})"
+    return f"{what} (`{e['name']}`{', ' + form[0] if form else ''}; the sidecar says {model.lacked_words()})"
 
 
 def _verdict(report: dict) -> str:

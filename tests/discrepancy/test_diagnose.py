@@ -719,6 +719,23 @@ def test_an_effect_that_needs_a_part_is_named_as_the_sidecar_allows(body, readin
         assert "rotor or wheel" in markdown(report, [])
 
 
+@pytest.mark.parametrize(("body", "reading", "words"), [
+    (None, "if_carried", "`aero_drag` (if the body moves through air; else an unmodelled torque"),
+    ({"air": False}, "unmodelled", "a quadratic drag (`aero_drag`; the sidecar says there is no air about "
+                                   "the body)"),
+    ({"air": True}, "physics", "`aero_drag` explains the record"),
+])
+def test_a_drag_is_the_air_s_only_where_the_body_may_move_through_air(body, reading, words):
+    """Air drag needs air: named where the sidecar says the body moves through air, worded
+    conditionally where it says nothing, and read as the torque it fits where it says there is
+    no air (a spacecraft in vacuum)."""
+    rec, _ = simulate_recording(Scenario(), 60.0, "aero_drag", seed=0, sample_dt=0.1, torque=False)
+    meta = _concealed(rec).meta | ({} if body is None else {"body": body})
+    report = diagnose(dataclasses.replace(rec, meta=meta)).report
+    assert [(e["name"], e["reading"]) for e in report["explanation"]] == [("aero_drag", reading)]
+    assert words in markdown(report, [])
+
+
 @pytest.mark.parametrize("bias_max", [None, 1.0])
 def test_a_gyro_bias_beyond_any_gyro_s_is_left_out_said_and_read_as_beyond_the_catalogue(bias_max):
     """A 0.3-rad/s offset of the rates read by a gyro of 1e-3 rad/s noise fits like a gyro bias,

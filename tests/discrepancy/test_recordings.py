@@ -206,10 +206,12 @@ def test_a_body_that_is_not_parts_said_true_or_false_is_refused(tmp_path, body):
 
 def test_what_the_body_carries_is_said_by_the_sidecar_or_by_a_logged_momentum(tmp_path):
     path = _write(tmp_path, GOOD)
-    (tmp_path / "rec.json").write_text(json.dumps({"body": {"rotor": False, "appendages": True}}))
+    body = {"rotor": False, "appendages": True, "air": False}
+    (tmp_path / "rec.json").write_text(json.dumps({"body": body}))
     (rec,) = read_recordings(path)
     assert rec.carries(("rotor",)) is False
     assert rec.carries(("appendages", "propellant")) is True
+    assert rec.carries(("air",)) is False
     assert rec.carries(("propellant",)) is None  # not said
     assert dataclasses.replace(rec, meta={}).carries(("rotor",)) is None
     spinning = dataclasses.replace(rec, meta={}, h=np.full((rec.t.size, 3), 0.01))

@@ -65,6 +65,13 @@ class AeroDrag(_Drag):
     """
 
     name = "aero_drag"
+    # air is what the body needs for this to be its physics: in space the same terms are only a
+    # torque that the record holds and the model does not
+    hardware, hardware_words = ("air",), "air"
+    as_fitted = {"": "an unmodelled torque against the rates that grows with their square, fitted as "
+                     "a quadratic drag",
+                 "flight": "an unmodelled torque that follows the attitude along a fitted flight path, "
+                           "fitted as the air on a flat plate"}
     units = {"c": "N·m·s²", "normal": "", "static": "kg", "arm": "kg", "arm_sided": "kg",
              "flow_damping": "kg·m", "launch_velocity": "m/s", "gravity_direction": ""}
     ambiguities = (("viscous_damping", "-C w and -|w| C w coincide while |w| stays nearly constant"),)
@@ -74,6 +81,14 @@ class AeroDrag(_Drag):
         ("internal_momentum", "a torque the flight sets about the body's axes has a time course of "
                               "its own, which a momentum changing along one body axis can follow"))
     FLIGHT_SIZE = 17
+
+    @override
+    def carried_words(self):
+        return "the body moves through air"
+
+    @override
+    def lacked_words(self):
+        return "there is no air about the body"
 
     @override
     def _scale(self, d):

@@ -123,6 +123,14 @@ class EffectModel:
     hardware_words: ClassVar[str] = ""
     as_fitted: ClassVar[dict] = {}
 
+    def carried_words(self) -> str:
+        """The condition under which the effect is its named physics, in words."""
+        return f"the body carries a {self.hardware_words}"
+
+    def lacked_words(self) -> str:
+        """What a sidecar that rules the effect's physics out says, in words."""
+        return f"the body carries no {self.hardware_words}"
+
     def implausible(self, params: dict, meta: dict, d) -> str | None:
         """Why the fitted `params` are beyond what such a body or sensor plausibly has (the
         range, in words), given the sidecar `meta` and the record's data d (its noise level);
