@@ -205,38 +205,56 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
     raise refused
 
 
-def _with_bias(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref) -> tuple:
-    """(problem, refinement, note): on a gyro-only record, the fit with a constant gyro bias where
-    the likelihood-ratio test finds the bias (chi-square on 3 degrees of freedom at TEST_LEVEL)
-    and the fit with it passes the lack-of-fit test (a bias that leaves a misfit is soaking up
-    other model error); else the plain fit.
+def _extended(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref, term: str):
+    """(problem, refinement, whitened residual sum) of the plain fit extended by `term` ("fit_bias"
+    or "fit_drag"), where the likelihood-ratio test finds it (chi-square on 3 degrees of freedom
+    at TEST_LEVEL) and the extended fit passes the lack-of-fit test (a term that leaves a misfit
+    is soaking up other model error); else None.
     """
-    biased_prob = dataclasses.replace(prob, fit_bias=True)
-    p0 = np.r_[plain.fit.p, np.zeros(3)]
+    extended_prob = dataclasses.replace(prob, **{term: True})
     try:
-        fit = output_error.fit(biased_prob, p0, plain.fit.q0)
-        biased = ml.statistics(biased_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
+        fit = output_error.fit(extended_prob, np.r_[plain.fit.p, np.zeros(3)], plain.fit.q0)
+        extended = ml.statistics(extended_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
     except (EstimatorDivergedError, ConfigError):
-        return prob, plain, None
-    if (biased.fit.segments > plain.fit.segments
-            or lack_of_fit(biased, prep.level, biased_prob) < 1 - TEST_LEVEL):
-        return prob, plain, None
-    # the gain's discount for correlated rows: where the bias leaves white residuals, the noise is
+        return None
+    if (extended.fit.segments > plain.fit.segments
+            or lack_of_fit(extended, prep.level, extended_prob) < 1 - TEST_LEVEL):
+        return None
+    # the gain's discount for correlated rows: where the term leaves white residuals, the noise is
     # white and the gain a chi-square on 3 degrees of freedom (the plain fit's correlation is then
-    # the bias's own misfit, not noise); where correlation remains, model error beyond a bias is
-    # in both fits, and the longer of their correlations discounts it
-    lags = 1 + (0 if biased.noise.hac_lags == 0 else max(plain.noise.hac_lags, biased.noise.hac_lags))
-    gain = (np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)
-            - np.sum((biased.fit.evaluation.e_w / prep.level) ** 2))
-    # nested fits in as many segments: the likelihood-ratio test; a bias that lets fewer
+    # the term's own misfit, not noise); where correlation remains, model error beyond the term
+    # is in both fits, and the longer of their correlations discounts it
+    lags = 1 + (0 if extended.noise.hac_lags == 0 else max(plain.noise.hac_lags, extended.noise.hac_lags))
+    cost = float(np.sum((extended.fit.evaluation.e_w / prep.level) ** 2))
+    gain = float(np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)) - cost
+    # nested fits in as many segments: the likelihood-ratio test; a term that lets fewer
     # trajectories follow the record is evidence of its own
-    if plain.fit.segments == biased.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
+    if plain.fit.segments == extended.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
+        return None
+    return extended_prob, extended, cost
+
+
+def _with_bias_or_drag(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref) -> tuple:
+    """(problem, refinement, note) on a gyro-only record: the plain fit extended by a constant
+    gyro bias or a body-axis air drag (_extended); where both pass, the one of larger likelihood
+    (both add three parameters: the smaller whitened residual sum). Both bend the rates slowly.
+    """
+    terms = ("fit_bias",) if prob.fit_drag else ("fit_bias", "fit_drag")
+    found = {t: got for t in terms if (got := _extended(prep, prob, plain, trace_ref, t)) is not None}
+    if not found:
         return prob, plain, None
-    bias = biased.fit.p[-3:]
-    shown = np.array2string(bias, formatter={"float_kind": lambda v: f"{v:.3g}"})  # 3 significant digits
-    return biased_prob, biased, (f"a constant gyro bias {shown} rad/s was "
-                                 "fitted: no attitude pins it, but the likelihood-ratio test finds it and "
-                                 "with it the residuals are at the noise")
+    term = min(found, key=lambda k: found[k][2])
+    chosen_prob, chosen, cost = found[term]
+    values = chosen.fit.p[-3:] if term == "fit_bias" else chosen.fit.p[chosen_prob.drag_slice]
+    shown = np.array2string(values, formatter={"float_kind": lambda v: f"{v:.3g}"})  # 3 significant digits
+    what = (f"a constant gyro bias {shown} rad/s" if term == "fit_bias" else
+            f"a body-axis air drag c = {shown} N·m·s² (torque -c_i |w| w_i)")
+    note = f"{what} was fitted: the likelihood-ratio test finds it and with it the residuals are at the noise"
+    if len(found) == 2:  # the other term's residual sum beside the kept one's
+        other, worse = ("a body-axis air drag", found["fit_drag"][2]) if term == "fit_bias" else \
+            ("a constant gyro bias", found["fit_bias"][2])
+        note += f"; {other} in its place fits too, less well (whitened residual sums {cost:.6g}, {worse:.6g})"
+    return chosen_prob, chosen, note
 
 
 def _equation_error_estimate(prep: Prepared, trace_ref, bias=None) -> EquationError:
@@ -256,8 +274,9 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     method: 'ml' (both estimates, one reported), or 'ekf' / 'ukf' (the paper's filter run once
     over the record, started from the equation error). fit_bias (ml only): estimate a constant
     gyro bias (default: where the attitude is recorded, which makes it identifiable; on a
-    gyro-only record, where the likelihood-ratio test finds one: _with_bias). fit_drag (ml
-    only): also estimate a body-axis aerodynamic damping (torque -c_i |w| w_i, c (3,) N·m·s²).
+    gyro-only record, where the likelihood-ratio test finds one: _with_bias_or_drag). fit_drag
+    (ml only): also estimate a body-axis aerodynamic damping (torque -c_i |w| w_i, c (3,)
+    N·m·s²; by default on a gyro-only record where it fits better than a bias would).
     """
     if method not in METHODS:
         raise RecordingError(f"method must be one of {METHODS}, got {method!r}")
@@ -296,7 +315,8 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
 @dataclasses.dataclass(frozen=True)
 class _Estimates:
     """Both estimates of one record: the equation error (ee; as an InertiaEstimate, reference),
-    the output-error problem (prob, with _with_bias's bias), its fit (oe), the bias's note.
+    the output-error problem (prob, with _with_bias_or_drag's bias or drag), its fit (oe), the
+    note on that term.
     """
 
     ee: EquationError
@@ -307,7 +327,8 @@ class _Estimates:
 
 
 def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
-    """The equation error, then the output error started from it (output_error_fit, _with_bias);
+    """The equation error, then the output error started from it (output_error_fit,
+    _with_bias_or_drag);
     where the output error fits a gyro bias, the equation error again from the rates less it.
     """
     ee = _equation_error_estimate(prep, trace_ref)
@@ -316,7 +337,7 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref)
     oe = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref)
     said = None
     if fit_bias is None and prep.rec.q is None:
-        prob, oe, said = _with_bias(prep, prob, oe, trace_ref)
+        prob, oe, said = _with_bias_or_drag(prep, prob, oe, trace_ref)
     if prob.fit_bias:  # a sensor offset enters the windows' regressors: both estimates without it
         ee = _equation_error_estimate(prep, trace_ref, oe.fit.p[-3:])
         reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
@@ -341,7 +362,7 @@ def held_out(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -
             part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
         except (EstimatorDivergedError, ConfigError, RecordingError):
             return None
-        held = output_error.problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, fit_drag)
+        held = output_error.problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, part.prob.fit_drag)
         q0 = None if prep.rec.q is None else prep.rec.q[test[0]]
         phis = [phi_from_inertia(nearest_realizable(e.inertia)) for e in (part.oe.estimate, part.reference)]
         losses.append(tuple(output_error.profile_losses(held, phi, q0) for phi in phis))

@@ -670,21 +670,23 @@ def _dragged_throw(seed):
     return dataclasses.replace(rec, q=None, meta=meta), inertia
 
 
-def test_an_unmodelled_drag_that_the_residuals_hide_widens_the_output_error_past_the_equation_error():
-    """A drag that identify does not model bends the fitted trajectory. On a gyro-only throw a
-    constant bias absorbs part of it; where the misfit left stays coloured, its colour widens the
-    output error's covariance past the equation error's and the equation error is reported, its
-    reason in the notes (on at least 2 of these 8 seeds), and the reported estimate's median error
-    stays under 0.55 %."""
-    reported = []
+def test_a_drag_on_a_gyro_only_throw_is_fitted_where_it_explains_the_misfit_better_than_a_bias():
+    """An air drag the recording does not log bends the rates; on a gyro-only throw a constant
+    gyro bias absorbs part of it too. Both are tried, each admitted by the likelihood-ratio and
+    lack-of-fit tests, and the one of larger likelihood is kept: the drag on most of these 8
+    throws, its note giving c and the bias's poorer fit, and the reported estimate's median
+    error falls under 0.1 % (a bias in the drag's place leaves it near 0.3 %)."""
+    reported, dragged = [], 0
     for seed in range(8):
         rec, inertia = _dragged_throw(seed)
         res = identify(rec)
-        if res.estimator == "equation error":
-            assert any("reported is the equation error" in n or "lack-of-fit" in n for n in res.notes)
-        reported.append((_rel(res.estimate.inertia, inertia), res.estimator))
-    assert sum(e == "equation error" for _, e in reported) >= 2
-    assert np.median([e for e, _ in reported]) < 0.0055
+        said = [n for n in res.notes if "air drag c = " in n]
+        dragged += bool(said)
+        if said:
+            assert "a constant gyro bias in its place fits too, less well" in said[0] or "bias" not in said[0]
+        reported.append(_rel(res.estimate.inertia, inertia))
+    assert dragged >= 6
+    assert np.median(reported) < 0.001
 
 
 def test_where_the_model_is_rejected_the_output_error_needs_significantly_better_predictions():
