@@ -328,14 +328,15 @@ class _Stage:
 
 
 def _minimised(n_global: int, free, x0, max_iter: int, linearize, residuals, segments: int = 0,
-               local_size: int = 3) -> solver.Result:
+               local_size: int = 3, drag=()) -> solver.Result:
     """The damped Gauss-Newton run of both solves: x (n_global globals, then `segments` blocks of
-    local_size locals) from x0 over the free globals, phi kept on the bodies that exist
-    (_inertia_limits) and moved at most MAX_PHI_STEP a step (its trust radius).
+    local_size locals) from x0 over the free globals, phi kept on the bodies that exist and the
+    drag coefficients x[drag] non-negative (_limits), phi moved at most MAX_PHI_STEP a step (its
+    trust radius).
     """
     max_step = np.full(n_global, np.inf)
     max_step[:6] = MAX_PHI_STEP
-    project, face = _inertia_limits(n_global)
+    project, face = _limits(n_global, np.asarray(drag, int))
     spec = solver.Problem(n_global=n_global, free=free, segments=segments, project=project, face=face,
                           max_step=max_step, local_size=local_size)
     return solver.run(solver.levenberg_marquardt(spec, np.asarray(x0, float), max_iter, tol=TOL), linearize,
@@ -350,19 +351,24 @@ def _folded(q_ref, dq) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def _inertia_limits(n: int):
+def _limits(n: int, drag: np.ndarray):
     """(project, face) keeping phi = x[:6] on the bodies that exist, its scale coordinate kept
-    (inertia_param.realizable_phi), and along the limit where it sits on it (realizable_face).
+    (inertia_param.realizable_phi), and the drag coefficients x[drag] at or above zero (air only
+    takes energy out of the rotation); along the limits where x sits on them (realizable_face,
+    and c_i = 0).
     """
     def project(x):
         out = x.copy()
         out[:6] = realizable_phi(x[:6], keep_scale=True)
+        out[drag] = np.maximum(out[drag], 0.0)
         return out
 
     def face(x):
         limit = realizable_face(x[:6])
-        rows = np.zeros((limit.shape[0], n))
-        rows[:, :6] = limit
+        at_zero = drag[x[drag] <= 0.0]
+        rows = np.zeros((limit.shape[0] + at_zero.size, n))
+        rows[:limit.shape[0], :6] = limit
+        rows[limit.shape[0] + np.arange(at_zero.size), at_zero] = 1.0
         return rows
 
     return project, face
@@ -403,7 +409,8 @@ def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) 
                                     np.vstack([lin.js, np.zeros((k, lo.size))]),
                                     np.r_[lin.seg_of, np.full(k, -1)])
 
-    res = _minimised(gl.size, free, x, max_iter, linearize, residuals, sh.segments, lo.size)
+    res = _minimised(gl.size, free, x, max_iter, linearize, residuals, sh.segments, lo.size,
+                     drag=np.arange(6, 6 + (3 if prob.fit_drag else 0)))
     x_new = res.x.copy()
     if prob.with_att:  # each segment's attitude correction taken into its reference attitude
         for s in range(sh.segments):
@@ -442,7 +449,8 @@ def solve(prob: Problem, p, q_ref, prior: Prior | None = None, max_iter: int = S
         return solver.Linearization(np.r_[ev.r, prior_rows @ (x - prior.mean)[free]],
                                     np.vstack([ev.jac[:, idx], prior_rows]))
 
-    res = _minimised(prob.n_params, free, p, max_iter, linearize, residuals)
+    res = _minimised(prob.n_params, free, p, max_iter, linearize, residuals,
+                     drag=np.arange(prob.n_params)[prob.drag_slice])
     p_new = res.x.copy()
     if prob.with_att:  # the attitude correction taken into the reference attitude
         q_ref = _folded(q_ref, p_new[9:12])

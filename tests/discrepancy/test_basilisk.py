@@ -233,7 +233,8 @@ def test_diagnose_never_reads_the_concealed_truth(subset_rows):
     row = {k: v for k, v in subset_rows[0][name].items() if k not in timing}
     assert row["delta_bic"] and harness.score(_case(name), report) == row
     side = json.loads((subset_rows[1] / f"{name}.json").read_text())
-    assert set(side) == {"inertia_nominal", "gyro_sigma", "quat_sigma", "body", "simulator", "case", TRUTH_KEY}
+    assert set(side) == {"inertia_nominal", "gyro_sigma", "quat_sigma", "body", "simulator", "case",
+                         TRUTH_KEY}
 
 
 @requires_bsk

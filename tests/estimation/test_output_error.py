@@ -114,3 +114,17 @@ def test_a_cut_no_trajectory_crosses_is_kept_while_the_crossable_ones_are_joined
     stage = output_error._Stage(phi, q_true[0], held, 0, True, x, q_true[seg[:-1]])
     kept = output_error._kept_after_joining(prob, seg, stage)
     np.testing.assert_array_equal(kept, [0, 2, 3, 5])  # cuts at 100 and 400 dropped, 300 kept
+
+
+def test_a_fitted_drag_never_feeds_the_rotation():
+    """Air only takes energy out of a rotation: on records without air, where the noise alone
+    would give a free drag coefficient either sign, every fitted c_i stays at or above zero."""
+    signs = []
+    for seed in range(4):
+        prob = dataclasses.replace(noisy_problem(seed, n=1500), fit_drag=True, z_q=None, fit_bias=False)
+        p0, _ = start(prob)
+        fit = output_error.fit(prob, p0)
+        c = fit.p[prob.drag_slice]
+        assert np.all(c >= 0.0), c
+        signs.append(c)
+    assert np.any(np.concatenate(signs) == 0.0)  # the limit binds where the noise pulls below it
