@@ -675,7 +675,7 @@ def test_a_drag_on_a_gyro_only_throw_is_fitted_where_it_explains_the_misfit_bett
     gyro bias absorbs part of it too. Both are tried, each admitted by the likelihood-ratio and
     lack-of-fit tests, and the one of larger likelihood is kept: the drag on most of these 8
     throws, its note giving c and the bias's poorer fit, and the reported estimate's median
-    error falls under 0.1 % (a bias in the drag's place leaves it near 0.3 %)."""
+    error falls under 0.1 % (a bias in the drag's place leaves it near 0.4 %)."""
     reported, dragged = [], 0
     for seed in range(8):
         rec, inertia = _dragged_throw(seed)
