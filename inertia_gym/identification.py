@@ -75,7 +75,8 @@ class Identification:
     agreement (Agreement of the two, None for the filters); crlb; rms (3,) rad/s post-fit gyro
     residual; rms_over_noise; noise (NoiseModel of the output-error fit); bias (3,) rad/s or
     None; t (M,) s; w_meas, w_fit (M, 3) rad/s; converged; wall_s; notes; reference_q N²·m²·s (the
-    intensity of a white unmodelled torque the equation error's residuals imply).
+    intensity of a white unmodelled torque the equation error's residuals imply); air_drag (3,)
+    N·m·s² the body-axis drag c of the output-error fit, or None.
     """
 
     name: str
@@ -96,6 +97,7 @@ class Identification:
     wall_s: float
     notes: tuple
     reference_q: float = 0.0
+    air_drag: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The JSON keys of identify.json (all finite numbers)."""
@@ -110,6 +112,7 @@ class Identification:
                 "rms_over_noise": float(self.rms_over_noise), "noise_model": self.noise.describe(),
                 "noise_kind": self.noise.kind, "disturbance_q": float(self.noise.disturbance_q),
                 "gyro_bias": None if self.bias is None else self.bias.tolist(),
+                "air_drag": None if self.air_drag is None else self.air_drag.tolist(),
                 "converged": bool(self.converged), "n_samples": int(self.t.size),
                 "duration_s": float(self.t[-1] - self.t[0]), "notes": list(self.notes),
                 "wall_s": float(self.wall_s)}
@@ -235,25 +238,22 @@ def _extended(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, 
 
 
 def _with_bias_or_drag(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref) -> tuple:
-    """(problem, refinement, note) on a gyro-only record: the plain fit extended by a constant
-    gyro bias or a body-axis air drag (_extended); where both pass, the one of larger likelihood
-    (both add three parameters: the smaller whitened residual sum). Both bend the rates slowly.
-    """
+    """(problem, refinement, note): the plain fit, or with a bias or a drag (_extended) by likelihood."""
     terms = ("fit_bias",) if prob.fit_drag else ("fit_bias", "fit_drag")
     found = {t: got for t in terms if (got := _extended(prep, prob, plain, trace_ref, t)) is not None}
     if not found:
         return prob, plain, None
-    term = min(found, key=lambda k: found[k][2])
+    term = min(found, key=lambda k: found[k][2])  # both add 3 parameters: the smaller sum, more likely
     chosen_prob, chosen, cost = found[term]
     values = chosen.fit.p[-3:] if term == "fit_bias" else chosen.fit.p[chosen_prob.drag_slice]
     shown = np.array2string(values, formatter={"float_kind": lambda v: f"{v:.3g}"})  # 3 significant digits
     what = (f"a constant gyro bias {shown} rad/s" if term == "fit_bias" else
             f"a body-axis air drag c = {shown} N·m·s² (torque -c_i |w| w_i)")
     note = f"{what} was fitted: the likelihood-ratio test finds it and with it the residuals are at the noise"
-    if len(found) == 2:  # the other term's residual sum beside the kept one's
-        other, worse = ("a body-axis air drag", found["fit_drag"][2]) if term == "fit_bias" else \
-            ("a constant gyro bias", found["fit_bias"][2])
-        note += f"; {other} in its place fits too, less well (whitened residual sums {cost:.6g}, {worse:.6g})"
+    for other in set(found) - {term}:  # the other term's residual sum beside the kept one's
+        words = {"fit_bias": "a constant gyro bias", "fit_drag": "a body-axis air drag"}[other]
+        note += (f"; {words} in its place fits too, less well (whitened residual sums {cost:.6g}, "
+                 f"{found[other][2]:.6g})")
     return chosen_prob, chosen, note
 
 
@@ -327,9 +327,8 @@ class _Estimates:
 
 
 def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
-    """The equation error, then the output error started from it (output_error_fit,
-    _with_bias_or_drag);
-    where the output error fits a gyro bias, the equation error again from the rates less it.
+    """The equation error, then the output error started from it (output_error_fit, and
+    _with_bias_or_drag); where that fits a gyro bias, the equation error again from the rates less it.
     """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
@@ -429,7 +428,8 @@ def _identify_ml(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_re
     result = _result(prep, "ml", estimator, est, reference, agree, oe.crlb, oe.fit.evaluation.e_w, oe.noise,
                      bias, oe.fit.converged, not explained and _off(_nominal_factor(est, nominal)), notes,
                      started)
-    return dataclasses.replace(result, reference_q=both.ee.torque_q)
+    return dataclasses.replace(result, reference_q=both.ee.torque_q,
+                               air_drag=oe.fit.p[prob.drag_slice].copy() if prob.fit_drag else None)
 
 
 def _nominal_factor(est: InertiaEstimate, nominal) -> float:

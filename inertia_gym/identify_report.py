@@ -41,6 +41,8 @@ def markdown(summary: dict, plots=()) -> str:
               f"converged: {summary['converged']}; {summary['wall_s']:.2f} s"]
     if summary.get("gyro_bias") is not None:
         lines.append(f"- gyro bias: {', '.join(f'{b:.3g}' for b in summary['gyro_bias'])} rad/s")
+    if summary.get("air_drag") is not None:
+        lines.append(f"- air drag c: {', '.join(f'{c:.3g}' for c in summary['air_drag'])} N·m·s²")
     lines += [f"- note: {n}" for n in summary["notes"]]
     lines += [""] + [f"![{p}]({p})" for p in plots]
     return "\n".join(lines) + "\n"

@@ -20,6 +20,7 @@ from inertia_gym.estimation.filters import realizable_estimate
 from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
 from inertia_gym.estimation.integrator import trajectory
 from inertia_gym.identification import TEST_LEVEL, held_out, identify, lack_of_fit
+from inertia_gym.identify_report import markdown as identify_markdown
 from inertia_gym.information import theta_from_inertia
 from inertia_gym.prepare import prepared
 from inertia_gym.recordings import Recording, read_recordings, write_recording
@@ -684,6 +685,8 @@ def test_a_drag_on_a_gyro_only_throw_is_fitted_where_it_explains_the_misfit_bett
         dragged += bool(said)
         if said:
             assert "a constant gyro bias in its place fits too, less well" in said[0] or "bias" not in said[0]
+            assert min(res.summary()["air_drag"]) >= 0.0 and res.summary()["gyro_bias"] is None
+            assert "- air drag c: " in identify_markdown(res.summary())
         reported.append(_rel(res.estimate.inertia, inertia))
     assert dragged >= 6
     assert np.median(reported) < 0.001

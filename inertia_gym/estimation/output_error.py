@@ -410,7 +410,7 @@ def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) 
                                     np.r_[lin.seg_of, np.full(k, -1)])
 
     res = _minimised(gl.size, free, x, max_iter, linearize, residuals, sh.segments, lo.size,
-                     drag=np.arange(6, 6 + (3 if prob.fit_drag else 0)))
+                     drag=np.flatnonzero(np.isin(gl, np.arange(prob.n_params)[prob.drag_slice])))
     x_new = res.x.copy()
     if prob.with_att:  # each segment's attitude correction taken into its reference attitude
         for s in range(sh.segments):
