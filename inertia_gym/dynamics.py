@@ -20,11 +20,13 @@ flat parameter vector that the compiled right-hand side reads.
 
 from __future__ import annotations
 
+import cmath
 import dataclasses
 import math
 
 import numba as nb
 import numpy as np
+from numba.extending import overload
 
 from inertia_gym.errors import ConfigError
 
@@ -168,6 +170,21 @@ NO_DISTURBANCE = _no_disturbance()
 # ------------------------------------------------------------------------------------------
 
 
+def root(x):
+    """Square root of a real or complex scalar. The compiled integrator runs on complex states
+    for complex-step derivatives (estimation/integrator.py), where the square root must be the
+    analytic one; compiled for a real argument it is math.sqrt itself.
+    """
+    return cmath.sqrt(x) if isinstance(x, complex) else math.sqrt(x)
+
+
+@overload(root)
+def _root_compiled(x):
+    if isinstance(x, nb.types.Complex):
+        return lambda x: cmath.sqrt(x)
+    return lambda x: math.sqrt(x)
+
+
 @nb.njit(cache=True)
 def inv3(m):
     """Inverse of a 3x3 matrix by its adjugate (closed form)."""
@@ -175,7 +192,7 @@ def inv3(m):
     c01 = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
     c02 = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
     det = m[0, 0] * c00 + m[0, 1] * c01 + m[0, 2] * c02
-    out = np.empty((3, 3))
+    out = np.empty((3, 3), dtype=m.dtype)
     out[0, 0] = c00 / det
     out[1, 0] = c01 / det
     out[2, 0] = c02 / det
@@ -293,7 +310,7 @@ def body_rate_with(qw, qx, qy, qz, wx, wy, wz, j, j_inv, tx, ty, tz, sx, sy, sz,
     my = ty + dist[1] - (wz * hx - wx * hz)
     mz = tz + dist[2] - (wx * hy - wy * hx)
     if dist[15] != 0.0:
-        nw = math.sqrt(wx * wx + wy * wy + wz * wz)
+        nw = root(wx * wx + wy * wy + wz * wz)
         mx -= nw * (dist[16] * wx + dist[17] * wy + dist[18] * wz)
         my -= nw * (dist[19] * wx + dist[20] * wy + dist[21] * wz)
         mz -= nw * (dist[22] * wx + dist[23] * wy + dist[24] * wz)
@@ -433,8 +450,8 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
         lx = j[0] * w0 + j[1] * w1 + j[2] * w2 + sx
         ly = j[3] * w0 + j[4] * w1 + j[5] * w2 + sy
         lz = j[6] * w0 + j[7] * w1 + j[8] * w2 + sz
-        nl = math.sqrt(lx * lx + ly * ly + lz * lz)
-        if nl > 0.0:
+        nl = root(lx * lx + ly * ly + lz * lz)
+        if nl.real > 0.0:
             ux, uy, uz = lx / nl, ly / nl, lz / nl
             uw = ux * w0 + uy * w1 + uz * w2
             tx -= diss * (w0 - ux * uw)
@@ -493,7 +510,7 @@ def rk4_augmented(y, dt, j, j_inv, jd0, jd1, jd2, denom, tx, ty, tz, ha0, ha1, h
     o1 = y1 + c6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
     o2 = y2 + c6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
     o3 = y3 + c6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-    s = 1.0 / math.sqrt(o0 ** 2 + o1 ** 2 + o2 ** 2 + o3 ** 2)
+    s = 1.0 / root(o0 ** 2 + o1 ** 2 + o2 ** 2 + o3 ** 2)
     return (o0 * s, o1 * s, o2 * s, o3 * s,
             y4 + c6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
             y5 + c6 * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),

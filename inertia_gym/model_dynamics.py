@@ -9,8 +9,6 @@ dynamics.py's rk4_augmented, the one RK4 step of the rigid body and its effect s
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
@@ -25,6 +23,7 @@ from inertia_gym.dynamics import (
     mat3_entries,
     modal_coupling,
     rk4_augmented,
+    root,
 )
 
 
@@ -73,7 +72,7 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     j, j_inv = (j_after, j_after_inv) if changed else (mat3_entries(inertia), mat3_entries(inv3(inertia)))
     entries = disturbance_entries(dist)
     jd0, jd1, jd2, denom = modal_coupling(j_inv, entries)
-    s = 1.0 / math.sqrt(y0[0] ** 2 + y0[1] ** 2 + y0[2] ** 2 + y0[3] ** 2)
+    s = 1.0 / root(y0[0] ** 2 + y0[1] ** 2 + y0[2] ** 2 + y0[3] ** 2)
     y = (y0[0] * s, y0[1] * s, y0[2] * s, y0[3] * s, y0[4], y0[5], y0[6], eta, etad)
     for k in range(a, b + 1):
         while i < n_samples and sample_pos[i] == k and (k < b or last):
@@ -127,7 +126,8 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
                    or dist[b, _D_DELTA + 2] != 0.0)
         if coupled and s > 0:
             continue  # the task of segment 0 runs them all
-        eta, etad = (dist[b, _D_ETA0], dist[b, _D_ETAD0]) if coupled else (0.0, 0.0)
+        rest = 0.0 * dist[b, _D_ETA0]  # a mode at rest, of the state's own type
+        eta, etad = (dist[b, _D_ETA0], dist[b, _D_ETAD0]) if coupled else (rest, rest)
         for r in range(s, n_seg if coupled else s + 1):
             eta, etad = _model_segment(grid_t, sample_pos, seg_pos[r], seg_pos[r + 1], seg_sample[r],
                                        r == n_seg - 1, y0[b, r], eta, etad, inertia[b],
@@ -169,7 +169,9 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
 
     Returns
     -------
-    (B, n, 7): q (4) and w (3) rad/s at the samples.
+    (B, n, 7): q (4) and w (3) rad/s at the samples; complex where y0, the inertias or dist are
+    (the run is then complex throughout: a complex step's imaginary part carries the derivative
+    of the same discrete steps, estimation/integrator.py).
 
     """
     batch = y0.shape[0]
@@ -178,13 +180,15 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     damping = np.ones((1, np.asarray(grid_t).size - 1)) if damping is None else damping
     damping_index = (np.zeros(batch, np.int64) if damping_index is None
                      else np.asarray(damping_index, np.int64))
-    out = np.empty((batch, sample_pos.size, 7))
+    # complex y0, inertias or dist make the run complex throughout (complex-step derivatives)
+    kind = np.result_type(float, y0, inertia, inertia_after, dist)
+    out = np.empty((batch, sample_pos.size, 7), dtype=kind)
     sample_pos, seg_pos = np.asarray(sample_pos, np.int64), np.asarray(seg_pos, np.int64)
     _model_batch(np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
-                 np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=float),
-                 np.ascontiguousarray(inertia, dtype=float), np.ascontiguousarray(inertia_after, dtype=float),
+                 np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=kind),
+                 np.ascontiguousarray(inertia, dtype=kind), np.ascontiguousarray(inertia_after, dtype=kind),
                  np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
                  tau_index, np.ascontiguousarray(h, dtype=float), h_index,
-                 np.ascontiguousarray(dist, dtype=float), np.ascontiguousarray(damping, dtype=float),
+                 np.ascontiguousarray(dist, dtype=kind), np.ascontiguousarray(damping, dtype=float),
                  damping_index, out)
     return out

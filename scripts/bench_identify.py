@@ -10,7 +10,7 @@ b. a 0.5-s, 4-kHz throw of a 5e-4 kg·m² body, gyro only, torque-free, with a r
 c. eleven such throws (seeds 0-10) of one body fitted together (identify_joint): its wall time
    against the eleven identify() calls it makes inside, and its error against theirs' mean.
 
-identify() (compiled sensitivities, Levenberg-Marquardt over a progressive horizon) is timed as
+identify() (complex-step sensitivities, Levenberg-Marquardt over a progressive horizon) is timed as
 the median of --repeats calls after one warm-up call on a short recording that compiles the
 numba kernels. The peer solves the same problem (``output_error.evaluate(prob, p, q_ref, False).r``, the
 same weights, all free parameters) with ``scipy.optimize.least_squares`` (method 'trf',

@@ -20,9 +20,9 @@ limit's face is tried beside the projected one, so a fit can move along the limi
 creeping by projections.
 
 The solver is written as a generator: it yields what it needs evaluated, so that the caller may
-answer with analytic sensitivities (the rigid model: integrator.py) or with finite differences
-batched over many points (the effect catalogue: discrepancy/fitting.py), and run several solves
-side by side. run() drives one solve from a plain evaluate function.
+answer with the rigid model's complex-step sensitivities (integrator.py) or with the effect
+catalogue's finite differences batched over many points (discrepancy/fitting.py), and run
+several solves side by side. run() drives one solve from a plain evaluate function.
 
 Convergence: a point no damped step improves by more than ``tol + rel_tol * cost / N`` (N
 residuals: rel_tol is in units of the mean square, i.e. of an information criterion) ends the

@@ -58,7 +58,7 @@ def test_update_exposes_innovation_its_covariance_and_nis(paper):
 
 def test_prediction_with_known_internal_momentum_follows_the_momentum_model():
     """With P tiny and no update, predict(dt, tau, h, h_dot) integrates J w_dot + h_dot +
-    w x (J w + h) = tau: it matches the ML model (which integrates L = J w + h exactly)."""
+    w x (J w + h) = tau: it matches the output-error model (estimation/integrator.py)."""
     inertia = np.diag([5.2e-4, 2.2e-4, 5.2e-4])
     w0 = np.array([15.0, -6.0, -10.0])
     dt, n = 2.5e-4, 2000
