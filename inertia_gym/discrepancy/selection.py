@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 
+from inertia_gym.discrepancy.crossval import held_out_sums, predicts_words
 from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import REGISTRY
 from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fanned, fit_model
@@ -183,6 +184,38 @@ def _led_by_best_single(expl: Explanation, d: Data, nominal: Fit, singles: list[
     names, forms = [final.names[i] for i in order], [final.forms[i] for i in order]
     chain = [*_chain(names[:-1], forms[:-1], d, alone), final]
     return Explanation(tuple(chain), _added(nominal, chain, names), expl.dropped, expl.refused)
+
+
+def predictive(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> Explanation:
+    """The explanation expl without the effects it adds after its leader that do not predict where
+    they were not fitted (crossval: the explanation without each, against it whole, refitted on
+    the rows kept and scored on those held out in turn); expl itself where every one predicts.
+
+    A term that only follows the leader's leftover misfit in the rows it is fitted to lowers the
+    BIC there and fits the held-out rows worse: it pads the explanation with physics the body
+    need not have. The effects left out are written into dropped with the held-out ratio.
+    """
+    final = expl.fit
+    if final is None or len(final.names) < 2:
+        return expl
+    by_name = {f.name: f for f in singles}
+    rest = []  # the explanation without each added effect, in order
+    for drop in range(1, len(final.names)):
+        first = _alone(by_name[final.names[0]], final.forms[0], d, nominal)
+        rest.append(_without(final, drop, first, d)[-1])
+    sums = held_out_sums([final, *rest], d)
+    ratio = {final.names[i]: sums[0] / sums[i] if sums[i] > 0 else np.inf
+             for i in range(1, len(final.names))}
+    kept = [i for i, n in enumerate(final.names) if i == 0 or ratio[n] < 1.0]
+    if len(kept) == len(final.names):
+        return expl
+    names, forms = [final.names[i] for i in kept], [final.forms[i] for i in kept]
+    if names == list(final.names[:len(names)]):
+        chain = list(expl.chain[:len(names)])
+    else:
+        chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
+    dropped = {**expl.dropped, **{n: predicts_words(ratio[n]) for n in final.names if n not in names}}
+    return Explanation(tuple(chain), _added(nominal, chain, names), dropped, expl.refused)
 
 
 def _claims_cost(fit: Fit, d: Data) -> float:

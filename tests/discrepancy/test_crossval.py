@@ -1,0 +1,59 @@
+"""What an explanation adds after its leader must predict the record where it was not fitted
+(discrepancy/crossval.py and selection.predictive): the folds against their definition, held-out
+sums at the noise for the true model and far above it without the effect, and a real toss whose
+leftover misfit a rotor's momentum follows in-sample but does not predict."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from inertia_gym.discrepancy.crossval import FOLDS, folds, held_out_sums
+from inertia_gym.discrepancy.fit import fit_effect, fit_nominal, prepare
+from inertia_gym.discrepancy.report import _fits, diagnose
+from inertia_gym.discrepancy.selection import select
+from inertia_gym.discrepancy.synthetic import simulate_recording
+from inertia_gym.prepare import prepared
+from inertia_gym.scenario import Scenario
+
+
+@pytest.fixture(scope="module")
+def biased():
+    """A 40-s record with a concealed gyro bias, its Data, rigid fit and the bias's fit."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, "gyro_bias", seed=3)
+    d = prepare(rec)
+    nominal = fit_nominal(d)
+    return d, nominal, fit_effect("gyro_bias", d, nominal)
+
+
+def test_each_segment_is_cut_into_contiguous_equal_blocks_one_per_fold(biased):
+    d = biased[0]
+    fold = folds(d)
+    for s in range(d.segments):
+        f = fold[d.row_seg == s]
+        assert np.all(np.diff(f) >= 0)  # contiguous, in time order
+        if f.size >= FOLDS:
+            counts = np.bincount(f, minlength=FOLDS)
+            assert counts.max() - counts.min() <= 1
+
+
+def test_held_out_rows_are_predicted_at_the_noise_by_the_true_model_and_far_worse_without_it(biased):
+    d, nominal, bias = biased
+    with_bias, rigid = held_out_sums([bias, nominal], d)
+    n = 3 * d.n_rows  # whitened residuals, each of unit variance at the truth
+    assert 0.7 * n < with_bias < 1.3 * n
+    assert rigid > 3.0 * with_bias
+
+
+def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racquet_toss):
+    """Racquet round 2 segment 3: the selection adds a varying momentum to the varying drag (it
+    gains in BIC on the rows it is fitted to); it fits the stretches held out in turn worse than
+    the drag alone, so the explanation leaves it out and says why."""
+    found = _fits(prepared(racquet_toss("round2", 3)))
+    selected = select(found.data, found.nominal, found.singles)
+    assert "internal_momentum" in selected.fit.names  # what the BIC alone chose
+    assert found.chosen.fit.names == ("viscous_damping",)
+    assert "does not predict" in found.chosen.dropped["internal_momentum"]
+    report = diagnose(racquet_toss("round2", 3)).report
+    assert [e["name"] for e in report["explanation"]] == ["viscous_damping"]
+    assert "does not predict" in report["left_out"]["internal_momentum"]
