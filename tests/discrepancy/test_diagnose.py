@@ -611,20 +611,24 @@ def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
 
 
 def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, monkeypatch):
-    """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the explanation, a constant
-    torque and the time-varying momentum, is listed led by the effect of the best single-effect
-    fit among those it holds, the momentum, which alone explains far more (the first search finds
-    it in this order; one found in the other order is listed so by _led_by_best_single, tested
-    above). One diagnosis: the fits it reports from are kept as _fits returns them."""
+    """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the selection's explanation,
+    a constant torque and the time-varying momentum, is listed led by the effect of the best
+    single-effect fit among those it holds, the momentum, which alone explains far more (the
+    first search finds it in this order; one found in the other order is listed so by
+    _led_by_best_single, tested above). The report's explanation keeps that lead (the torque
+    added after it is then cross-validated). One diagnosis: the fits are kept as _fits returns
+    them."""
     rec = dataclasses.replace(rotor_throw("Empty_LOG00180"), h=None)
     kept = []
     monkeypatch.setattr(report_module, "_fits", lambda r: kept.append(_fits(r)) or kept[-1])
     report = diagnose(rec).report
-    singles, chosen = kept[0].singles, kept[0].chosen
+    d, nominal, singles = kept[0].data, kept[0].nominal, kept[0].singles
+    chosen = select(d, nominal, singles)
     listed = [name for name, _ in chosen.added]
     assert listed[0] == singles[0].name == "internal_momentum"
     assert sorted(listed) == sorted(chosen.fit.names) == ["constant_body_torque", "internal_momentum"]
-    assert [e["name"] for e in report["explanation"]] == listed
+    assert report["explanation"][0]["name"] == "internal_momentum"
+    assert {e["name"] for e in report["explanation"]} <= set(listed)
     assert all(e["delta_bic"] > 0 for e in report["explanation"])
 
 
