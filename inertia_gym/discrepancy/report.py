@@ -344,8 +344,10 @@ def diagnose(rec: Recording) -> Diagnosis:
         "invariants": {k: v for k, v in inv.items() if k != "series"},
         "unexplained_residual": unexplained,
         "refused_implausible": refused,
+        "unpredictive": [{"name": n, "held_out_ratio": r} for n, r in chosen.unpredictive.items()],
         "beyond_catalogue": (not after["valid"] or max(after["rms_over_noise"]) > BEYOND_CATALOGUE
-                             or any(e["implausible"] for e in explanation) or bool(refused)),
+                             or any(e["implausible"] for e in explanation) or bool(refused)
+                             or bool(chosen.unpredictive)),
         "sparse_terms": sparse_terms(d, best) if unexplained else [],
         "gyro_frame_mirrored": frame,
     }

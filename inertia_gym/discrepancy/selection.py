@@ -103,6 +103,9 @@ class Explanation:
     #: {name: (why it is implausible, the BIC it would have gained)}: effects that cleared the
     #: margin but are not physics the body or its sensor plausibly has (plausibility), left out
     refused: dict = dataclasses.field(default_factory=dict)
+    #: {name: held-out residual sum with it over without it}: effects the selection added after
+    #: the leader that did not predict the rows held out in turn (predictive), left out
+    unpredictive: dict = dataclasses.field(default_factory=dict)
 
     @property
     def fit(self) -> Fit | None:
@@ -214,8 +217,9 @@ def predictive(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> 
         chain = list(expl.chain[:len(names)])
     else:
         chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
-    dropped = {**expl.dropped, **{n: predicts_words(ratio[n]) for n in final.names if n not in names}}
-    return Explanation(tuple(chain), _added(nominal, chain, names), dropped, expl.refused)
+    left = {n: float(ratio[n]) for n in final.names if n not in names}
+    dropped = {**expl.dropped, **{n: predicts_words(r) for n, r in left.items()}}
+    return Explanation(tuple(chain), _added(nominal, chain, names), dropped, expl.refused, left)
 
 
 def _claims_cost(fit: Fit, d: Data) -> float:

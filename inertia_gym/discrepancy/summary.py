@@ -311,7 +311,9 @@ def _invariants_words(inv: dict) -> str:
 
 
 def _beyond_words(report: dict) -> list[str]:
-    """A warning where the explanation leaves the residual over BEYOND_CATALOGUE times the noise."""
+    """A warning where the explanation leaves the residual over BEYOND_CATALOGUE times the noise,
+    names an implausible effect, or left out an added effect that did not predict held-out rows.
+    """
     if not report.get("beyond_catalogue"):  # (a report written before the key existed: none)
         return []
     before, after = report["fit_before"], report["fit_after"]
@@ -321,6 +323,14 @@ def _beyond_words(report: dict) -> list[str]:
     worst = max(after["rms_over_noise"])
     odd = [e for e in report["explanation"] if e.get("implausible")]
     refused = report.get("refused_implausible") or []
+    unpredictive = report.get("unpredictive") or []
+    if unpredictive and not (odd or refused) and worst <= BEYOND_CATALOGUE:
+        return ["- **beyond the catalogue**: " + "; ".join(
+            f"`{u['name']}` lowers the misfit on the rows it is fitted to, but fits the stretches "
+            f"held out in turn {u['held_out_ratio']:.2f}x as badly (time-blocked cross-validation)"
+            for u in unpredictive)
+            + f", so it is left out: the explanation leaves {_fmt(after['rms_over_noise'])} times "
+            "the noise, a misfit with structure that no effect of the catalogue predicts"]
     if (odd or refused) and worst <= BEYOND_CATALOGUE:
         return ["- **beyond the catalogue**: " + "; ".join(
             [f"`{e['name']}` is not physics this body or sensor plausibly has ({e['implausible']})"

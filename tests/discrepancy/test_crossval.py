@@ -12,6 +12,7 @@ from inertia_gym.discrepancy.crossval import FOLDS, folds, held_out_sums
 from inertia_gym.discrepancy.fit import fit_effect, fit_nominal, prepare
 from inertia_gym.discrepancy.report import _fits, diagnose
 from inertia_gym.discrepancy.selection import select
+from inertia_gym.discrepancy.summary import _beyond_words
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.prepare import prepared
 from inertia_gym.scenario import Scenario
@@ -57,3 +58,8 @@ def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racqu
     report = diagnose(racquet_toss("round2", 3)).report
     assert [e["name"] for e in report["explanation"]] == ["viscous_damping"]
     assert "does not predict" in report["left_out"]["internal_momentum"]
+    [left] = report["unpredictive"]
+    assert left["name"] == "internal_momentum" and left["held_out_ratio"] > 1.0
+    assert report["beyond_catalogue"]  # the misfit it followed is structure the catalogue lacks
+    words = "\n".join(_beyond_words(report))
+    assert "`internal_momentum`" in words and "held out in turn" in words
