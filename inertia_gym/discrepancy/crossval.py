@@ -32,32 +32,43 @@ HELD_OUT_SCALE = 1e8
 
 
 def folds(d: Data) -> np.ndarray:
-    """(n_rows,) the fold 0 .. FOLDS-1 of each row: the k-th of FOLDS equal contiguous blocks of its
-    segment.
+    """(n_rows,) the fold of each row, -1 .. FOLDS-1: each segment cut into FOLDS + 1 equal
+    contiguous blocks, its first never held out (fold -1: the segment's initial state is fitted
+    there, so a held-out block is predicted forward from it, never extrapolated back to it) and
+    the k-th after it in fold k.
     """
     fold = np.zeros(d.n_rows, np.int64)
     for s in range(d.segments):
         rows = np.flatnonzero(d.row_seg == s)
-        fold[rows] = np.minimum(np.arange(rows.size) * FOLDS // max(rows.size, 1), FOLDS - 1)
+        fold[rows] = np.minimum(np.arange(rows.size) * (FOLDS + 1) // max(rows.size, 1), FOLDS) - 1
     return fold
 
 
-def _held_out_sum(fit: Fit, d: Data, fold: np.ndarray, k: int) -> float:
-    """The whitened residual sum over the rows of fold k of fit's model refitted on the others."""
+def _held_out_sum(fit: Fit, d: Data, fold: np.ndarray, k: int, tested: str | None) -> float:
+    """The whitened residual sum over the rows of fold k of fit's model refitted on the others:
+    the inertia, the segments' initial states and the tested effect's parameters move; every
+    other effect stays as fitted to the whole record (a profile's knots in the rows held out have
+    nothing left to fit them, and would otherwise be extrapolated freely).
+    """
     held = fold == k
     train = dataclasses.replace(d, row_scale=np.where(held, HELD_OUT_SCALE, d.row_scale), cache={})
     lb, ub = _bounds(fit.layout, train)
-    x, _ = solve(np.clip(fit.x, lb, ub), _free(fit.layout, train), fit.layout, train, lb, ub, FULL_ITER)
+    free = _free(fit.layout, train)
+    for name, part in zip(fit.layout.names, fit.layout.slices()):
+        if name != tested:
+            free[part] = False
+    x, _ = solve(np.clip(fit.x, lb, ub), free, fit.layout, train, lb, ub, FULL_ITER)
     z = whitened(np.asarray(x, float)[None], fit.layout, d)[0]
     return float(np.sum(z[held] ** 2)) if np.all(np.isfinite(z[held])) else np.inf
 
 
-def held_out_sums(fits: list[Fit], d: Data) -> list[float]:
+def held_out_sums(fits: list[Fit], d: Data, tested: list) -> list[float]:
     """Each fit's residual sum over the rows held out in turn, its model refitted on the rest
-    (every fold of every fit run side by side).
+    with its effect tested[i] (None: none) moving (every fold of every fit run side by side).
     """
     fold = folds(d)
-    jobs = [{"fit": f, "fold": fold, "k": k} for f in fits for k in range(FOLDS)]
+    jobs = [{"fit": f, "fold": fold, "k": k, "tested": t} for f, t in zip(fits, tested)
+            for k in range(FOLDS)]
     sums = fanned(_held_out_sum, d, jobs)
     return [float(sum(sums[i * FOLDS:(i + 1) * FOLDS])) for i in range(len(fits))]
 

@@ -202,13 +202,14 @@ def predictive(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> 
     if final is None or len(final.names) < 2:
         return expl
     by_name = {f.name: f for f in singles}
+    added = final.names[1:]
     rest = []  # the explanation without each added effect, in order
     for drop in range(1, len(final.names)):
         first = _alone(by_name[final.names[0]], final.forms[0], d, nominal)
         rest.append(_without(final, drop, first, d)[-1])
-    sums = held_out_sums([final, *rest], d)
-    ratio = {final.names[i]: sums[0] / sums[i] if sums[i] > 0 else np.inf
-             for i in range(1, len(final.names))}
+    sums = held_out_sums([final] * len(added) + rest, d, list(added) + [None] * len(added))
+    ratio = {n: sums[i] / sums[len(added) + i] if sums[len(added) + i] > 0 else np.inf
+             for i, n in enumerate(added)}
     kept = [i for i, n in enumerate(final.names) if i == 0 or ratio[n] < 1.0]
     if len(kept) == len(final.names):
         return expl
