@@ -5,12 +5,13 @@ A BIC gain says that a term lowers the residual in the rows it was fitted to. On
 leader leaves a smooth misfit that no catalogue effect models, and a flexible term (a free
 momentum profile, a bias, a dissipation) can follow part of it there and gain in BIC without being
 physics the body has: it makes the residual whiter, but it does not carry over to time it has not
-seen. Each segment's rows are cut into FOLDS contiguous blocks; block k of every segment is held
-out in turn, the explanation is refitted on the rest (from its own fit) and scored on the rows
-held out. An added effect stays only where the explanation with it predicts the held-out rows
-better than the explanation without it (the smaller held-out residual sum: the held-out Gaussian
-likelihood with the variance profiled out). The leader is not judged here: it clears its margin
-against the rigid model alone.
+seen. Each segment's rows are cut into FOLDS + 1 contiguous blocks; the first (where the
+segment's initial state is fitted) always stays, and block k after it of every segment is held
+out in turn. The explanation is refitted on the rest (from its own fit: the inertia, the initial
+states and the tested effect move) and scored on the rows held out. An added effect stays only
+where the explanation with it predicts the held-out rows better than the explanation without it
+(the smaller held-out residual sum: the held-out Gaussian likelihood with the variance profiled
+out). The leader is not judged here: it clears its margin against the rigid model alone.
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.fitting import FULL_ITER, fanned, solve
 from inertia_gym.discrepancy.objective import Fit, _bounds, _free, whitened
 
-#: Contiguous blocks per segment, each held out in turn: each is a quarter of a segment, long
-#: beside the few rows a smooth misfit stays correlated over, so a held-out block is predicted
-#: by the model through it, not by its neighbours' residual.
+#: Blocks per segment held out in turn (after its first): each a fifth of a segment, long beside
+#: the few rows a smooth misfit stays correlated over, so a held-out block is predicted by the
+#: model through it, not by its neighbours' residual.
 FOLDS = 4
 #: Weight-free rows: a held-out row's noise scale, so large that it pulls on no fit.
 HELD_OUT_SCALE = 1e8
