@@ -202,23 +202,25 @@ def predictive(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> 
     if final is None or len(final.names) < 2:
         return expl
     by_name = {f.name: f for f in singles}
-    added = final.names[1:]
-    rest = []  # the explanation without each added effect, in order
-    for drop in range(1, len(final.names)):
-        first = _alone(by_name[final.names[0]], final.forms[0], d, nominal)
-        rest.append(_without(final, drop, first, d)[-1])
-    sums = held_out_sums([final] * len(added) + rest, d, list(added) + [None] * len(added))
-    ratio = {n: sums[i] / sums[len(added) + i] if sums[len(added) + i] > 0 else np.inf
-             for i, n in enumerate(added)}
-    kept = [i for i, n in enumerate(final.names) if i == 0 or ratio[n] < 1.0]
-    if len(kept) == len(final.names):
+    listing = [name for name, _ in expl.added]  # the leader first (the compound fit's own order may differ)
+    tested = listing[1:]
+    rest = []  # the explanation without each added effect
+    for name in tested:
+        drop = final.names.index(name)
+        j = 1 if drop == 0 else 0  # the first effect left, in the compound fit's order
+        rest.append(_without(final, drop, _alone(by_name[final.names[j]], final.forms[j], d, nominal), d)[-1])
+    sums = held_out_sums([final] * len(tested) + rest, d, tested + [None] * len(tested))
+    ratio = {n: sums[i] / sums[len(tested) + i] if sums[len(tested) + i] > 0 else np.inf
+             for i, n in enumerate(tested)}
+    left = {n: float(r) for n, r in ratio.items() if not r < 1.0}
+    if not left:
         return expl
-    names, forms = [final.names[i] for i in kept], [final.forms[i] for i in kept]
-    if names == list(final.names[:len(names)]):
+    names = [n for n in listing if n not in left]
+    forms = [final.forms[final.names.index(n)] for n in names]
+    if names == listing[:len(names)]:
         chain = list(expl.chain[:len(names)])
     else:
         chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
-    left = {n: float(ratio[n]) for n in final.names if n not in names}
     dropped = {**expl.dropped, **{n: predicts_words(r) for n, r in left.items()}}
     return Explanation(tuple(chain), _added(nominal, chain, names), dropped, expl.refused, left)
 

@@ -8,10 +8,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from inertia_gym.discrepancy import selection
 from inertia_gym.discrepancy.crossval import FOLDS, folds, held_out_sums
 from inertia_gym.discrepancy.fit import fit_effect, fit_nominal, prepare
 from inertia_gym.discrepancy.report import _fits, diagnose
-from inertia_gym.discrepancy.selection import select
+from inertia_gym.discrepancy.selection import (
+    Explanation,
+    _added,
+    _alone,
+    _chain,
+    _led_by_best_single,
+    predictive,
+    select,
+)
 from inertia_gym.discrepancy.summary import _beyond_words
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.prepare import prepared
@@ -64,3 +73,33 @@ def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racqu
     assert report["beyond_catalogue"]  # the misfit it followed is structure the catalogue lacks
     words = "\n".join(_beyond_words(report))
     assert "`internal_momentum`" in words and "held out in turn" in words
+
+
+def test_the_effect_tested_is_the_one_added_after_the_listed_leader(monkeypatch):
+    """An explanation whose compound fit holds its effects in another order than it lists them
+    (led by the best single effect: _led_by_best_single keeps the fit, changes the listing): the
+    cross-validation tests the effect listed second, never the leader, and keeps the listing."""
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
+                                seed=1000)
+    found = _fits(prepared(rec))
+    d, nominal, singles = found.data, found.nominal, found.singles
+    listed = select(d, nominal, singles)
+    names, forms = listed.fit.names[::-1], listed.fit.forms[::-1]
+    by_name = {f.name: f for f in singles}
+    chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
+    backwards = Explanation(tuple(chain), _added(nominal, chain, names), {})
+    led = _led_by_best_single(backwards, d, nominal, singles)
+    lead, second = (name for name, _ in led.added)
+    assert led.fit.names == (second, lead)  # the fit's own order is the other one
+    asked = []
+    real = selection.held_out_sums
+
+    def spy(fits, data, tested):
+        asked.append(list(tested))
+        return real(fits, data, tested)
+
+    monkeypatch.setattr(selection, "held_out_sums", spy)
+    kept = predictive(led, d, nominal, singles)
+    assert asked == [[second, None]]
+    assert [name for name, _ in kept.added] == [lead, second]  # both predict: nothing left out
+    assert kept.unpredictive == {}
