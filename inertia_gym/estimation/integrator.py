@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from inertia_gym.dynamics import _D_AERO, _D_AERO_ON, DISTURBANCE_SIZE, quat_mul
+from inertia_gym.dynamics import _D_AERO, _D_AERO_ON, Disturbance, quat_mul
 from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
 from inertia_gym.information import inertia_from_theta
 from inertia_gym.model_dynamics import propagate_model_batch
@@ -59,17 +59,6 @@ def _refined(t_grid, tau_grid, h_grid, n_sub, g_end):
     return t_f, np.asarray(tau_grid, float)[interval], h_f, offset
 
 
-def _dist(c) -> np.ndarray:
-    """The packed disturbance (DISTURBANCE_SIZE,) of a body-axis damping c (3,) N·m·s² (complex
-    where c is).
-    """
-    d = np.zeros(DISTURBANCE_SIZE, np.result_type(float, c))
-    if np.any(c != 0.0):
-        d[_D_AERO_ON] = 1.0
-        d[_D_AERO] = np.diag(c).ravel()
-    return d
-
-
 def trajectories(t_grid, tau_grid, h_grid, n_sub, meas_idx, seg, phi, w0s, q0s, with_sens, with_att,
                  out_w, out_sw, out_q, out_sa, drag=None, first_grid=None) -> bool:
     """Integrate each segment of a multiply shot record and write the outputs at its measurements.
@@ -104,20 +93,16 @@ def trajectories(t_grid, tau_grid, h_grid, n_sub, meas_idx, seg, phi, w0s, q0s, 
     q0s = np.asarray(q0s, float)
     n_seg = seg.size - 1
     cols = [p for p in range(nd) if with_sens and (with_att or not 9 <= p < 12)]
-    if not cols:
-        inertia, y0 = jm[None], np.concatenate([q0s, w0s], axis=1)[None]
-        out = propagate_model_batch(t_f, sample_pos, seg_pos, y0, inertia, inertia, np.full(1, np.inf),
-                                    tau_f[None], h_f[None], _dist(c)[None])
-        out_w[:] = out[0, :, 4:]
-        if with_att:
-            out_q[:] = out[0, :, :4]
-        return bool(np.all(np.isfinite(out[0])))
-    # row k moves column cols[k] by i h; every row's real part is the trajectory
-    batch, step = len(cols), COMPLEX_STEP
-    inertia = np.repeat(jm[None].astype(complex), batch, axis=0)
-    y0 = np.empty((batch, n_seg, 7), complex)
+    packed = Disturbance(aero_drag=tuple(c)).pack()
+    step = COMPLEX_STEP
+    # row k moves column cols[k] by i h (one real row where no sensitivity is asked for); every
+    # row's real part is the trajectory
+    batch = max(len(cols), 1)
+    kind = complex if cols else float
+    inertia = np.repeat(jm[None].astype(kind), batch, axis=0)
+    y0 = np.empty((batch, n_seg, 7), kind)
     y0[:, :, :4], y0[:, :, 4:] = q0s, w0s
-    dist = np.repeat(_dist(c)[None].astype(complex), batch, axis=0)
+    dist = np.repeat(packed[None].astype(kind), batch, axis=0)
     d_phi = dtheta_dphi(np.asarray(phi, float))
     for k, p in enumerate(cols):
         if p < 6:
@@ -126,24 +111,24 @@ def trajectories(t_grid, tau_grid, h_grid, n_sub, meas_idx, seg, phi, w0s, q0s, 
             y0[k, :, p - 2] += 1j * step
         elif p < 12:  # q0 (x) exp(i h e / 2) = q0 + i h/2 q0 (x) (0, e), to first order
             y0[k, :, :4] += 0.5j * step * quat_mul(q0s, np.r_[0.0, np.eye(3)[p - 9]])
-        else:
-            shifted = c.astype(complex)
-            shifted[p - 12] += 1j * step
-            dist[k] = _dist(shifted)
+        else:  # the drag's diagonal entry c_i, the drag switched on (it may be fitted from zero)
+            dist[k, _D_AERO_ON] = 1.0
+            dist[k, _D_AERO.start + 4 * (p - 12)] += 1j * step
     out = propagate_model_batch(t_f, sample_pos, seg_pos, y0, inertia, inertia, np.full(batch, np.inf),
                                 tau_f[None], h_f[None], dist)
     real = out[0].real
     out_w[:] = real[:, 4:]
     if with_att:
         out_q[:] = real[:, :4]
-    conj = real[:, :4] * np.array([1.0, -1.0, -1.0, -1.0])
-    out_sw[:] = 0.0
-    if with_att:
-        out_sa[:] = 0.0
-    for k, p in enumerate(cols):
-        out_sw[:, :, p] = out[k, :, 4:].imag / step
-        if with_att:  # q_true = q (x) exp(d/2): d = 2 vec(q^* (x) dq)
-            out_sa[:, :, p] = 2.0 * quat_mul(conj, out[k, :, :4].imag)[:, 1:] / step
+    if cols:
+        conj = real[:, :4] * np.array([1.0, -1.0, -1.0, -1.0])
+        out_sw[:] = 0.0
+        if with_att:
+            out_sa[:] = 0.0
+        for k, p in enumerate(cols):
+            out_sw[:, :, p] = out[k, :, 4:].imag / step
+            if with_att:  # q_true = q (x) exp(d/2): d = 2 vec(q^* (x) dq)
+                out_sa[:, :, p] = 2.0 * quat_mul(conj, out[k, :, :4].imag)[:, 1:] / step
     return bool(np.all(np.isfinite(real)))
 
 
