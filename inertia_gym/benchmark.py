@@ -39,7 +39,7 @@ from inertia_gym.optimization import AGENTS as OPTIMIZER_AGENTS
 from inertia_gym.optimization import (
     DEFAULT_CARRY_OVER,
     DEFAULT_COST,
-    evaluate_many,
+    evaluate_episodes,
     optimize,
     recommendation_checkpoints,
     recommendation_path,
@@ -162,20 +162,37 @@ def dense_grid(sc: Scenario, points_per_axis: int) -> np.ndarray:
     return lo + u * (hi - lo)
 
 
-def reevaluate(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndarray, np.ndarray]:
-    """From-start cost and final error of each xi (K, 3), averaged over `seeds` (common to all).
-
-    Returns (mean cost (K,), median final relative inertia error (K,)), computed in batches of
-    at most EVAL_CHUNK runs.
+@dataclasses.dataclass(frozen=True)
+class Scores:
+    """Each of K xi scored over the evaluation seeds, each (K,): cost (mean from-start cost),
+    rel_error (median final relative inertia error), impulse (mean N·m·s spent), within (share
+    of the seeds on which the limits let the bursts fire as designed).
     """
+
+    cost: np.ndarray
+    rel_error: np.ndarray
+    impulse: np.ndarray
+    within: np.ndarray
+
+
+def reevaluate(sc: Scenario, xis, seeds, cost: str = "info") -> Scores:
+    """Score each xi (K, 3) over `seeds` (common to all), in batches of at most EVAL_CHUNK runs."""
     xis = np.atleast_2d(np.asarray(xis, dtype=float))
     per_chunk = max(1, EVAL_CHUNK // len(seeds))
-    costs, errors = [], []
-    for i in range(0, len(xis), per_chunk):
-        c, e = evaluate_many(sc, xis[i:i + per_chunk], seeds, cost)
-        costs.append(c.mean(axis=1))
-        errors.append(np.median(e, axis=1))
-    return np.concatenate(costs), np.concatenate(errors)
+    parts = [evaluate_episodes(sc, xis[i:i + per_chunk], seeds, cost)
+             for i in range(0, len(xis), per_chunk)]
+    return Scores(
+        cost=np.concatenate([p.costs.mean(axis=1) for p in parts]),
+        rel_error=np.concatenate([np.median(p.rel_errors, axis=1) for p in parts]),
+        impulse=np.concatenate([p.impulses.mean(axis=1) for p in parts]),
+        within=np.concatenate([p.within.mean(axis=1) for p in parts]))
+
+
+def _limit_keys(sc: Scenario, scores: Scores, k: int) -> dict:
+    """The record's keys of xi k's use of the limits (none without limits)."""
+    if not sc.limited:
+        return {}
+    return {"impulse_star": float(scores.impulse[k]), "within_limits_star": float(scores.within[k])}
 
 
 def run_task(settings: SweepSettings, task: Task) -> dict:
@@ -194,18 +211,32 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
     (re-evaluation and validation), settings_key.
     Grid record: agent "grid", seed None, n_points, xi_star (the best grid point), reeval_cost,
     top (the ten best points with their costs), the validation of xi*, wall_s.
+    Under the scenario's limits both records add impulse_star (mean N·m·s xi* spent over the
+    evaluation seeds) and within_limits_star (the share of them on which the limits let its
+    bursts fire as designed); the grid's optimum is then the best point within the limits on
+    every seed, and its record adds grid: [a, b, T_on, cost, impulse, within] of every point.
     """
     t0 = time.perf_counter()
     sc = settings.scenario
     if task.agent == GRID:
         xis = dense_grid(sc, settings.grid_points)
-        costs, _ = reevaluate(sc, xis, settings.eval_seeds, settings.cost)
-        order = np.argsort(costs, kind="stable")
+        scores = reevaluate(sc, xis, settings.eval_seeds, settings.cost)
+        costs = scores.cost
+        # Under limits the optimum is a design the limits let fire as designed on every seed,
+        # as an agent's xi* is one of its evaluations that fired so.
+        pool = np.flatnonzero(scores.within == 1.0) if sc.limited else np.arange(len(xis))
+        pool = pool if pool.size else np.arange(len(xis))
+        order = pool[np.argsort(costs[pool], kind="stable")]
         record = {
             "agent": GRID, "seed": None, "n_points": len(xis),
             "xi_star": xis[order[0]].tolist(), "reeval_cost": float(costs[order[0]]),
             "top": [[*xis[k].tolist(), float(costs[k])] for k in order[:10]],
+            **_limit_keys(sc, scores, order[0]),
         }
+        if sc.limited:  # the trade-off curve: every grid point's impulse and cost
+            record["grid"] = [[*xis[k].tolist(), float(costs[k]), float(scores.impulse[k]),
+                               float(scores.within[k])] for k in range(len(xis))]
+            record["tradeoff"] = _tradeoff(settings, xis, scores)
         record.update(_validation(settings, xis[order[0]]))
         record["wall_s"] = time.perf_counter() - t0
     else:
@@ -214,10 +245,10 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
         t1 = time.perf_counter()
         checkpoints = recommendation_checkpoints(settings.budget)
         path = recommendation_path(sc, result, checkpoints)  # path[-1] is xi_star's index
-        best = int(np.argmin(result.costs))
+        best = int(np.flatnonzero(np.all(result.xis == result.xi_observed_best, axis=1))[0])
         scored = np.unique(np.append(path, best))
-        reeval, _ = reevaluate(sc, result.xis[scored], settings.eval_seeds, settings.cost)
-        cost_of = dict(zip(scored.tolist(), reeval.tolist()))
+        scores = reevaluate(sc, result.xis[scored], settings.eval_seeds, settings.cost)
+        cost_of = dict(zip(scored.tolist(), scores.cost.tolist()))
         record = {
             "agent": task.agent, "seed": task.seed, "budget": int(settings.budget),
             "costs": result.costs.tolist(), "xis": result.xis.tolist(),
@@ -232,12 +263,38 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
             "reeval_cost_recommended": cost_of[int(path[-1])],
             "recommended_curve": {"evaluations": checkpoints.tolist(),
                                   "reeval_cost": [cost_of[int(k)] for k in path]},
+            **_limit_keys(sc, scores, int(np.searchsorted(scored, path[-1]))),
         }
         record.update(_validation(settings, result.xi_star))
         record["wall_s"] = float(result.wall_s)
         record["score_wall_s"] = time.perf_counter() - t1
     record["settings_key"] = settings.key()
     return record
+
+
+#: Impulse bands of the trade-off curve (quantiles of the grid's impulse spent).
+TRADEOFF_BANDS = 8
+
+
+def _tradeoff(settings: SweepSettings, xis, scores: Scores) -> list[list[float]]:
+    """The grid's trade-off of impulse against validated error: in each of TRADEOFF_BANDS
+    bands of impulse spent (quantiles over the grid), the point of lowest cost that the limits
+    let fire as designed, validated like xi*. Rows [a, b, T_on, impulse N·m·s, cost, validated
+    error or None (diverged)].
+    """
+    torqued = np.flatnonzero((scores.impulse > 0) & (scores.within == 1.0))
+    if torqued.size == 0:
+        return []
+    edges = np.quantile(scores.impulse[torqued], np.linspace(0.0, 1.0, TRADEOFF_BANDS + 1))
+    band = np.clip(np.searchsorted(edges, scores.impulse[torqued], side="right") - 1, 0,
+                   TRADEOFF_BANDS - 1)
+    rows = []
+    for b in np.unique(band):
+        members = torqued[band == b]
+        k = int(members[np.argmin(scores.cost[members])])
+        val = _validation(settings, xis[k])["val_rel_error"]
+        rows.append([*xis[k].tolist(), float(scores.impulse[k]), float(scores.cost[k]), val])
+    return rows
 
 
 def _validation(settings: SweepSettings, xi) -> dict:
@@ -279,7 +336,9 @@ def summarize(records: list[dict]) -> dict:
     "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error", "wall_s"
     (each median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of the shared
     seeds won on the re-evaluated cost of xi*}, "win_seeds": {other agent: how many seeds that
-    share rests on}}}}.
+    share rests on}}}}. Under mission limits each agent adds "impulse_star" (quartiles of the
+    N·m·s its xi* spent) and "within_limits" (the share of its runs whose xi* the limits let
+    fire as designed on every evaluation seed).
     """
     grid = next((r for r in records if r["agent"] == GRID), None)
     ref = None if grid is None else grid["reeval_cost"]
@@ -307,6 +366,9 @@ def summarize(records: list[dict]) -> dict:
                                           "regret", "regret_observed_best", "val_rel_error",
                                           "wall_s")},
             "val_diverged": int(sum(r["val_diverged"] for r in rows)),
+            **({"impulse_star": stat("impulse_star"),
+                "within_limits": float(np.mean([r["within_limits_star"] == 1.0 for r in rows]))}
+               if all("within_limits_star" in r for r in rows) else {}),
             "win_rate": {other: win_rate(by_seed, by_agent[other]) for other in by_agent
                          if other != name},
             "win_seeds": {other: len(set(by_seed) & set(by_agent[other])) for other in by_agent

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from inertia_gym.benchmark import SweepSettings, summarize
 from inertia_gym.commands.common import write_json
-from inertia_gym.plots import plot_cost_curves, plot_regret, plot_validated_error
+from inertia_gym.plots import plot_cost_curves, plot_regret, plot_tradeoff, plot_validated_error
 
 CSV_FIELDS = ("agent", "seed", "best_cost", "cost_star", "reeval_cost",
               "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error",
@@ -29,21 +29,26 @@ def _fmt(stat: dict | None, pct: bool = False) -> str:
 def table_markdown(summary: dict) -> str:
     """The per-agent table (median [25 %, 75 %]) and the win-rate matrix, as markdown."""
     agents = list(summary["agents"])
+    limited = bool(agents) and all("within_limits" in summary["agents"][a] for a in agents)
+    extra = " impulse of xi* N·m·s | xi* within the limits |" if limited else ""
     lines = [
         "| agent | runs | best observed cost | re-evaluated cost of xi* | regret of xi* | "
-        "regret of the observed best | validated error of xi* | wall s |",
-        "|---|---|---|---|---|---|---|---|",
+        "regret of the observed best | validated error of xi* | wall s |" + extra,
+        "|---|---|---|---|---|---|---|---|" + ("---|---|" if limited else ""),
     ]
     for name in agents:
         s = summary["agents"][name]
+        cells = (f" {_fmt(s['impulse_star'])} | {s['within_limits']:.0%} |" if limited else "")
         lines.append(f"| {name} | {s['runs']} | {_fmt(s['best_cost'])} | {_fmt(s['reeval_cost'])} | "
                      f"{_fmt(s['regret'])} | {_fmt(s['regret_observed_best'])} | "
-                     f"{_fmt(s['val_rel_error'], pct=True)} | {_fmt(s['wall_s'])} |")
+                     f"{_fmt(s['val_rel_error'], pct=True)} | {_fmt(s['wall_s'])} |" + cells)
     grid = summary["grid"]
     if grid is not None:
         err = "diverged" if grid["val_rel_error"] is None else f"{grid['val_rel_error']:.3%}"
+        cells = (f" {grid['impulse_star']:.3g} | {grid['within_limits_star']:.0%} |"
+                 if limited and "impulse_star" in grid else (" – | – |" if limited else ""))
         lines.append(f"| grid ({grid['n_points']} xi) | 1 | – | {grid['reeval_cost']:.3g} | "
-                     f"0 (the reference) | – | {err} | {grid['wall_s']:.3g} |")
+                     f"0 (the reference) | – | {err} | {grid['wall_s']:.3g} |" + cells)
     if len(agents) > 1:
         lines += ["", "Win rate (row beats column on the re-evaluated cost of xi*, on the seeds "
                       "both ran; ties count half; in brackets the number of those seeds):", "",
@@ -91,6 +96,20 @@ def explanation(settings: SweepSettings, summary: dict) -> str:
             f"* **win rates** rest on {counts} seed(s) per pair of agents (in brackets): with n "
             f"seeds a rate moves in steps of 1/(2n) and one seed changes it by up to 1/n "
             f"({1 / min(seeds):.2g} here). Read them with the quartiles above, not as a ranking.")
+    if settings.scenario.limited:
+        sc = settings.scenario
+        limits = ", ".join(x for x in (
+            f"an impulse budget of {sc.impulse_budget:g} N·m·s per episode"
+            if sc.impulse_budget is not None else "",
+            f"a rate limit of {sc.rate_limit:g} rad/s" if sc.rate_limit is not None else "") if x)
+        text.append(
+            f"* **mission limits**: {limits}. The loop cuts the bursts where a limit binds, so "
+            r"every episode stays within them; **xi\* within the limits** is the share of runs "
+            "whose xi* the limits let fire as designed (the impulse its law asks for within the "
+            "budget, no burst cut by the rate monitor) on every evaluation seed, and **impulse "
+            r"of xi\*** what it spends per episode. xi* and the grid optimum are picked among "
+            "such designs. **tradeoff.png** plots the validated error against the impulse spent: "
+            "the grid's best point in each band of impulse, and each run's xi*.")
     text.append(
         "* **cost_curves.png**: left, the re-evaluated cost of the xi a run would have "
         "recommended after i evaluations (the learning curve: what the agent knows, not one "
@@ -116,7 +135,8 @@ def write_report(out: Path, settings: SweepSettings, agents: list[str], n_seeds:
             writer.writerow({**r, **dict(zip(("a", "b", "t_on"), r["xi_star"]))})
     plots = [plot_cost_curves(runs, summary, settings, out / "cost_curves.png"),
              plot_regret(runs, summary, out / "regret.png"),
-             plot_validated_error(runs, summary, out / "validated_error.png")]
+             plot_validated_error(runs, summary, out / "validated_error.png"),
+             plot_tradeoff(runs, summary, out / "tradeoff.png")]
     objective = ("Algorithm 1: the estimator carries over between evaluations"
                  if settings.carry_over else "every evaluation is one episode from the "
                                              "scenario's start (stationary)")

@@ -9,6 +9,10 @@ estimator state carries over to the next episode (k0 advances), as in Algorithm 
 Cost options: "info" is the paper's J; "posterior" is the change of log det P_theta over the
 episode (the log-volume of the inertia posterior; more negative is more informative), the
 posterior-uncertainty cost the paper's conclusion proposes.
+
+Under a scenario's mission limits (impulse_budget, rate_limit) the loop cuts the bursts where a
+limit binds, so either cost is the information bought with the impulse allowed: a xi that spends
+its budget on the first bursts leaves the later ones, with their fresh directions v, unfired.
 """
 
 from __future__ import annotations
@@ -45,6 +49,11 @@ class EpisodeResult:
     lambda_min : (W,) lambda_min of each window in S.  duration : s.  v : (3,) burst direction.
     theta_hat : (6,).  p_theta_eigvals : (6,) ascending.  rel_error : ||J_hat - J||_F/||J||_F.
     diverged : the estimator left its domain during the episode (costs are then +inf).
+    impulse : N·m·s the bursts spent, sum_i integral |tau_i| dt (at most sc.impulse_budget).
+    impulse_demand : N·m·s the burst law asked for before the limits cut it (the design's
+    own cost: the bursts fire as designed when it is within the budget).
+    rate_peak : the largest true |w| over the episode, rad/s.  budget_spent : the impulse
+    budget ran out and cut the bursts.  rate_cuts : bursts the rate monitor cut short.
     """
 
     cost: float
@@ -58,6 +67,11 @@ class EpisodeResult:
     p_theta_eigvals: np.ndarray
     rel_error: float
     diverged: bool
+    impulse: float = 0.0
+    impulse_demand: float = 0.0
+    rate_peak: float = 0.0
+    budget_spent: bool = False
+    rate_cuts: int = 0
 
 
 def information_costs(sc: Scenario, w_hat, w_dot_hat, n_steps, bursts, t_on) -> list[tuple]:
@@ -130,6 +144,9 @@ def run_episode(sc: Scenario, state: SimState, xi, rngs: list[np.random.Generato
             cost=j_info if cost == "info" else post, info_cost=j_info, posterior_cost=post,
             alpha=alpha, lambda_min=lam, duration=n_steps[r] * sc.dt, v=v[r],
             theta_hat=theta_hat[r], p_theta_eigvals=eig_end[r], rel_error=float(errors[r]),
-            diverged=diverged,
+            diverged=diverged, impulse=float(trace.impulse[r]),
+            impulse_demand=float(trace.demand[r]),
+            rate_peak=float(trace.rate_peak[r]), budget_spent=bool(trace.budget_spent[r]),
+            rate_cuts=int(trace.rate_cuts[r]),
         ))
     return new_state, results

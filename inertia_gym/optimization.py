@@ -49,7 +49,10 @@ class OptimizationResult:
     seconds of the whole run; rel_errors (M,) the true relative inertia error after each
     evaluation (the simulation knows the truth); carry_over: the estimator carried over between
     evaluations (Algorithm 1) or every evaluation started from the scenario's start;
-    recommendation: the rule behind xi_star, in words.
+    recommendation: the rule behind xi_star, in words. Under the scenario's mission limits:
+    impulses (M,) N·m·s each evaluation spent, impulse_demands (M,) what its burst law asked
+    for, within_limits (M,) bool: the limits let its bursts fire as designed (demand within the
+    budget, no burst cut by the rate monitor). xi_star is picked among those when there are any.
     """
 
     agent: str
@@ -66,6 +69,9 @@ class OptimizationResult:
     cost_observed_best: float
     carry_over: bool
     recommendation: str
+    impulses: np.ndarray | None = None
+    impulse_demands: np.ndarray | None = None
+    within_limits: np.ndarray | None = None
 
     @property
     def xi_recommended(self) -> np.ndarray:
@@ -95,17 +101,26 @@ class OptimizationResult:
             "xis": np.asarray(self.xis, dtype=float).tolist(),
             "rel_errors": [float(e) for e in self.rel_errors],
             "wall_s": float(self.wall_s),
+            **({"impulses": [float(e) for e in self.impulses],
+                "impulse_demands": [float(e) for e in self.impulse_demands],
+                "within_limits": [bool(e) for e in self.within_limits]}
+               if self.impulses is not None else {}),
         }
 
 
 class EvaluationLog(gym.Wrapper):
-    """Records xi (3,), cost and true relative inertia error of every step, in order."""
+    """Records xi (3,), cost, true relative inertia error, impulse spent and demanded, and
+    whether the limits let the bursts fire as designed (:func:`within_limits`), of every step.
+    """
 
     def __init__(self, env: gym.Env):
         super().__init__(env)
         self.xis: list[np.ndarray] = []
         self.costs: list[float] = []
         self.rel_errors: list[float] = []
+        self.impulses: list[float] = []
+        self.impulse_demands: list[float] = []
+        self.within: list[bool] = []
 
     def step(self, action):
         """Step the env and log the evaluation."""
@@ -113,7 +128,18 @@ class EvaluationLog(gym.Wrapper):
         self.xis.append(np.asarray(info["xi"], dtype=float))
         self.costs.append(float(info["cost"]))
         self.rel_errors.append(float(info["rel_error"]))
+        self.impulses.append(float(info["impulse"]))
+        self.impulse_demands.append(float(info["impulse_demand"]))
+        self.within.append(within_limits(info["impulse_budget"], info["impulse_demand"],
+                                         info["rate_cuts"]))
         return obs, reward, terminated, truncated, info
+
+
+def within_limits(budget: float | None, demand: float, rate_cuts: int) -> bool:
+    """An episode's bursts fired as designed: the impulse its law demanded (N·m·s) is within
+    the budget (None: there is none) and the rate monitor cut none of them.
+    """
+    return bool((budget is None or demand <= budget) and rate_cuts == 0)
 
 
 @contextlib.contextmanager
@@ -184,15 +210,21 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = DEFAU
         runner.run(env, budget, progress=progress)
         env.close()
         costs, xis = np.array(env.costs[:budget]), np.array(env.xis[:budget])
+        within = np.array(env.within[:budget], dtype=bool)
         actions = np.array([xi_to_action(sc, x) for x in xis], dtype=float)
-        star, cost_star = runner.recommend(actions, costs)
-    best = int(np.argmin(costs))
+        star, cost_star = runner.recommend(actions, costs, within if sc.limited else None)
+    pool = np.flatnonzero(within) if sc.limited and within.any() else np.arange(len(costs))
+    best = int(pool[np.argmin(costs[pool])])
     return OptimizationResult(
         agent=agent, budget=int(budget), seed=seed, cost_kind=cost, xi_star=xis[star],
         cost_star=cost_star, costs=costs, xis=xis, wall_s=time.perf_counter() - t0,
         rel_errors=np.array(env.rel_errors[:budget]), xi_observed_best=xis[best],
         cost_observed_best=float(costs[best]), carry_over=bool(carry_over),
-        recommendation=runner.recommendation_rule,
+        recommendation=runner.recommendation_rule + (
+            ", among those the limits let fire as designed" if sc.limited else ""),
+        **({"impulses": np.array(env.impulses[:budget]),
+            "impulse_demands": np.array(env.impulse_demands[:budget]),
+            "within_limits": within} if sc.limited else {}),
     )
 
 
@@ -216,8 +248,10 @@ def recommendation_path(sc: Scenario, result: OptimizationResult, checkpoints) -
 
     agent = make_agent(result.agent, result.seed, result.budget)
     actions = np.array([xi_to_action(sc, x) for x in result.xis], dtype=float)
+    within = result.within_limits
     with torch_threads(1):
-        return np.array([agent.recommend(actions[:i], result.costs[:i])[0]
+        return np.array([agent.recommend(actions[:i], result.costs[:i],
+                                         None if within is None else within[:i])[0]
                          for i in checkpoints], dtype=int)
 
 
@@ -243,12 +277,33 @@ def validated_error(sc: Scenario, xi, duration: float, seeds) -> dict:
     }
 
 
+@dataclasses.dataclass(frozen=True)
+class Evaluations:
+    """One episode from the scenario's start of each of K xi with each of S seeds, each (K, S):
+    costs, rel_errors (true relative inertia error at the end), impulses (N·m·s spent),
+    impulse_demands (N·m·s the burst law asked for), within (bool: the limits let the bursts
+    fire as designed, :func:`within_limits`).
+    """
+
+    costs: np.ndarray
+    rel_errors: np.ndarray
+    impulses: np.ndarray
+    impulse_demands: np.ndarray
+    within: np.ndarray
+
+
 def evaluate_many(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndarray, np.ndarray]:
-    """Cost and final relative inertia error of one episode from the scenario's start.
+    """(costs, rel_errors) of :func:`evaluate_episodes`, each (K, S)."""
+    ev = evaluate_episodes(sc, xis, seeds, cost)
+    return ev.costs, ev.rel_errors
+
+
+def evaluate_episodes(sc: Scenario, xis, seeds, cost: str = "info") -> Evaluations:
+    """Cost, final relative inertia error and impulse of one episode from the scenario's start.
 
     xis (K, 3), seeds (S,) integers >= 0: every xi is run with every seed (common random
     numbers: seed s draws the same dwell times, measurement times and noise for every xi), all
-    K*S runs in one batched call. Returns (costs, rel_errors), each (K, S); a diverged run costs
+    K*S runs in one batched call. A diverged run costs
     :func:`~inertia_gym.envs.excitation.divergence_cost`.
     """
     _check_common(sc, cost)
@@ -262,9 +317,18 @@ def evaluate_many(sc: Scenario, xis, seeds, cost: str = "info") -> tuple[np.ndar
     state = initial_state(sc, rngs)
     _, results = run_episode(sc, state, np.repeat(xis, len(seeds), axis=0), rngs, cost=cost)
     penalty = divergence_cost(sc, cost)
-    costs = np.array([penalty if r.diverged else r.cost for r in results])
-    errors = np.array([r.rel_error for r in results])
-    return costs.reshape(len(xis), len(seeds)), errors.reshape(len(xis), len(seeds))
+    shape = (len(xis), len(seeds))
+
+    def grid(values, dtype=float):
+        return np.array(values, dtype=dtype).reshape(shape)
+
+    return Evaluations(
+        costs=grid([penalty if r.diverged else r.cost for r in results]),
+        rel_errors=grid([r.rel_error for r in results]),
+        impulses=grid([r.impulse for r in results]),
+        impulse_demands=grid([r.impulse_demand for r in results]),
+        within=grid([within_limits(sc.impulse_budget, r.impulse_demand, r.rate_cuts)
+                     for r in results], bool))
 
 
 def evaluate_xi(sc: Scenario, xi, seeds, cost: str = "info") -> float:

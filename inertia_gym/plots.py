@@ -292,3 +292,35 @@ def plot_cost_vs_error(mean_costs: dict, validated_errors, episode_errors, corre
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_tradeoff(runs: list[dict], summary: dict, path: str | Path) -> Path | None:
+    """Validated inertia error against the impulse spent per episode: the grid's trade-off
+    curve (its cheapest-cost point in each band of impulse) and each agent's xi* (dots: seeds).
+    None when the sweep ran without mission limits or without the grid.
+    """
+    grid = summary["grid"]
+    if grid is None or not grid.get("tradeoff"):
+        return None
+    path = Path(path)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    curve = [row for row in grid["tradeoff"] if row[5] is not None]
+    ax.plot([row[3] for row in curve], [row[5] for row in curve], "k.-",
+            label="grid: best xi per band of impulse")
+    for i, agent in enumerate(summary["agents"]):
+        rows = [r for r in runs if r["agent"] == agent and r.get("val_rel_error") is not None]
+        ax.scatter([r["impulse_star"] for r in rows], [r["val_rel_error"] for r in rows], s=18,
+                   color=f"C{i}", alpha=0.7, label=f"{agent}: xi* per seed")
+    if grid.get("val_rel_error") is not None:
+        ax.scatter([grid["impulse_star"]], [grid["val_rel_error"]], marker="*", s=160,
+                   color="k", zorder=5, label="grid optimum")
+    ax.set_yscale("log")
+    ax.set_xlabel("impulse spent per episode, N·m·s (sum_i integral |tau_i| dt)")
+    ax.set_ylabel("||J_hat − J||_F / ||J||_F after validation")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+

@@ -238,6 +238,15 @@ class Scenario:
     # explicit bounds to search wider.
     a_bounds: tuple | None = None
     b_bounds: tuple | None = None
+    # Mission limits per episode (None: unlimited). impulse_budget N·m·s bounds the 1-norm
+    # impulse sum_i integral |tau_i| dt: each body axis is torqued by its own actuator pair
+    # (the per-axis saturation above), so the 1-norm is what the pairs spend together, like a
+    # thruster set's propellant. The actuator stops when an episode has spent it (the last step
+    # is scaled to spend it exactly). rate_limit rad/s: a safety monitor inhibits the rest of a
+    # burst once the filter's rate estimate |w_hat| reaches it (the flight software acts on what
+    # it knows; the true peak rate is reported beside it).
+    impulse_budget: float | None = None
+    rate_limit: float | None = None
     # Long-horizon validation: bursts of T_on separated by coasts drawn from this interval.
     # None: [90, 100] T_b (the paper's 90-100 s).
     validation_coast: tuple | None = None
@@ -309,6 +318,9 @@ class Scenario:
         set_(self, "alpha_gamma", gamma)
         for name in ("dwell", "t_on", "validation_coast"):
             set_(self, name, _interval(name, getattr(self, name)))
+        for name in ("impulse_budget", "rate_limit"):
+            if getattr(self, name) is not None:
+                set_(self, name, _positive(name, getattr(self, name)))
         for name in ("a_bounds", "b_bounds"):
             if getattr(self, name) is not None:
                 set_(self, name, _interval(name, getattr(self, name), allow_zero=True))
@@ -335,7 +347,9 @@ class Scenario:
         GUESS_FACTOR_WARNING; the longest burst at tau_max moves the rate of the guessed mean
         moment by less than a tenth of gyro_sigma (the scale cannot be identified); or the rate
         after an episode of full bursts turns the body by more than 0.5 rad per step dt (the
-        torque is implausible for the inertia, or dt too coarse).
+        torque is implausible for the inertia, or dt too coarse); or a mission limit leaves no
+        room to excite (rate_limit at or below |omega0|, impulse_budget under one step of one
+        axis at tau_max).
         """
         out = []
         truth = np.linalg.eigvalsh(self.inertia_true_array)
@@ -356,6 +370,14 @@ class Scenario:
             out.append(f"the rate after an episode of full bursts, up to {fastest:.3g} rad/s, turns "
                        f"the body {fastest * self.dt:.3g} rad per dt = {self.dt:.3g} s (over 0.5): "
                        "tau_max is implausible for this inertia, or dt too coarse")
+        rate0 = float(np.linalg.norm(self.omega0))
+        if self.rate_limit is not None and self.rate_limit <= rate0:
+            out.append(f"rate_limit {self.rate_limit:.3g} rad/s is at or below the starting rate "
+                       f"|omega0| = {rate0:.3g} rad/s: the safety monitor inhibits every burst")
+        if self.impulse_budget is not None and self.impulse_budget < self.tau_max * self.dt:
+            out.append(f"impulse_budget {self.impulse_budget:.3g} N·m·s is less than one step of "
+                       f"one axis at tau_max ({self.tau_max * self.dt:.3g} N·m·s): the bursts "
+                       "can barely fire")
         return out
 
     # --- derived quantities ------------------------------------------------------------------
@@ -386,6 +408,11 @@ class Scenario:
         """
         return max(float(np.linalg.norm(self.omega0)),
                    self.tau_max * self.burst_time / (self.guess_trace / 3.0))
+
+    @property
+    def limited(self) -> bool:
+        """True when an impulse budget or a rate limit constrains the episodes."""
+        return self.impulse_budget is not None or self.rate_limit is not None
 
     @property
     def xi_bounds(self) -> np.ndarray:

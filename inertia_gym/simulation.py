@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import threading
 
 import numba as nb
@@ -179,6 +180,10 @@ class Trace:
     theta_hat, theta_var (B, m, 6) posterior mean and variance of theta after each update;
     measurements (B, m, 14): the true (q, w) at each measurement, then the gyro reading (3) and
     the quaternion reading (4, NaN without an attitude sensor); w_est (B, m, 3); nis (B, m).
+    Mission limits (Scenario.impulse_budget, rate_limit), per run over the segment: impulse (B,)
+    N·m·s spent, sum_i integral |tau_i| dt (with impulse_spent); demand (B,) N·m·s the burst law
+    asked for in this segment before the limits cut it; rate_peak (B,) the largest true |w| rad/s;
+    budget_spent (B,) bool, the budget ran out; rate_cuts (B,) the bursts the rate monitor cut.
     """
 
     w_hat: np.ndarray
@@ -192,6 +197,11 @@ class Trace:
     measurements: np.ndarray
     w_est: np.ndarray
     nis: np.ndarray
+    impulse: np.ndarray
+    demand: np.ndarray
+    rate_peak: np.ndarray
+    budget_spent: np.ndarray
+    rate_cuts: np.ndarray
 
     @property
     def w_true(self) -> np.ndarray:
@@ -210,12 +220,17 @@ Truth = collections.namedtuple("Truth", "y inertia dist")
 Estimator = collections.namedtuple("Estimator", "x P phi_top sigma")
 #: Plan: n_steps (B,); bursts (B, nb, 2) [start, stop) steps and n_bursts (B,); xi (B, 3);
 #: v (B, 3) burst directions; tau_max N·m; meas_at (B, m) steps of the measurements and
-#: n_meas (B,); z_noise (B, m, 13) noise draws; record_steps: keep the per-step log.
+#: n_meas (B,); z_noise (B, m, 13) noise draws; record_steps: keep the per-step log;
+#: impulse_budget N·m·s and rate_limit rad/s, the segment's limits (inf: none; Scenario).
 Plan = collections.namedtuple("Plan", "n_steps bursts n_bursts xi v tau_max meas_at n_meas z_noise "
-                                      "record_steps")
+                                      "record_steps impulse_budget rate_limit")
 #: Logs (see Trace): w_hat, w_dot_hat, tau (B, n, 3) per step; theta, var (B, m, 6),
-#: measurements (B, m, 14), w_est (B, m, 3), nis (B, m) per measurement.
-Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurements w_est nis")
+#: measurements (B, m, 14), w_est (B, m, 3), nis (B, m) per measurement; per run over the
+#: segment: impulse (B,) N·m·s spent (1-norm), demand (B,) N·m·s the burst law asked for before
+#: the limits cut it, rate_peak (B,) largest true |w| rad/s, cuts
+#: (B, 2): 1 once the budget is spent, and the number of bursts the rate monitor cut short.
+Logs = collections.namedtuple("Logs", "w_hat w_dot_hat tau theta var measurements w_est nis "
+                                      "impulse demand rate_peak cuts")
 
 
 #: Runs advanced in lock-step by one task of the compiled loop: the lanes of its vector
@@ -327,7 +342,11 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
             if b < plan.n_bursts[r] and k == plan.bursts[r, b, 0]:
                 burst_torque_into(plan.xi[r, 0], plan.xi[r, 1], (x[4, lane], x[5, lane], x[6, lane]),
                                   plan.v[r], plan.tau_max, tau[:, lane])
+                # The impulse the law asks for over the burst, before any limit cuts it.
+                held = min(plan.bursts[r, b, 1], plan.n_steps[r]) - k
+                logs.demand[r] += (abs(tau[0, lane]) + abs(tau[1, lane]) + abs(tau[2, lane])) * dt * held
             burst_i[lane] = b
+            _apply_limits(tau[:, lane], (x[4, lane], x[5, lane], x[6, lane]), dt, plan, logs, r)
             if plan.record_steps:
                 _record_step((x[4, lane], x[5, lane], x[6, lane]),
                              (tau[0, lane], tau[1, lane], tau[2, lane]),
@@ -342,6 +361,8 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
             if moving[lane] == 0.0:
                 continue
             r = runs[lane]
+            rate = math.sqrt(y[4, lane] ** 2 + y[5, lane] ** 2 + y[6, lane] ** 2)
+            logs.rate_peak[r] = max(logs.rate_peak[r], rate)
             if use_ukf and status[r] == 0:
                 ukf.predict_sigma_points(est.sigma[r], sigma_inertia[lane],
                                          sigma_inertia_inv[lane], tau[:, lane], dt,
@@ -387,6 +408,34 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
         for i in range(7):
             for k in range(N_STATE):
                 est.phi_top[r, i, k] = phi_top[N_STATE * i + k, lane]
+
+
+@nb.njit(cache=True)
+def _apply_limits(tau, w_hat, dt, plan, logs, r):
+    """Cut the torque tau (3,) of run r's coming step to the segment's limits, in place, and
+    count what it spends into logs.impulse[r].
+
+    Rate limit: at |w_hat| >= plan.rate_limit the torque is switched off for the rest of the
+    burst (a safety monitor inhibits the actuator; the next burst starts the law afresh).
+    Impulse budget: a step spends |tau|_1 dt; the step that would overdraw the budget is
+    scaled to spend exactly what is left, which leaves every later step at zero.
+    """
+    spend = (abs(tau[0]) + abs(tau[1]) + abs(tau[2])) * dt
+    if spend == 0.0:
+        return
+    if w_hat[0] ** 2 + w_hat[1] ** 2 + w_hat[2] ** 2 >= plan.rate_limit ** 2:
+        tau[:] = 0.0
+        logs.cuts[r, 1] += 1
+        return
+    left = plan.impulse_budget - logs.impulse[r]
+    if spend >= left:
+        scale = max(left, 0.0) / spend
+        for i in range(3):
+            tau[i] *= scale
+        logs.cuts[r, 0] = 1
+        logs.impulse[r] = plan.impulse_budget
+    else:
+        logs.impulse[r] += spend
 
 
 @nb.njit(cache=True)
@@ -567,6 +616,11 @@ def compile_loop() -> None:
                     [1.0, 0.0, 0.0], rngs, record_steps=False, kernel=name)
 
 
+def _limit(value: float | None) -> float:
+    """A scenario's limit as the compiled loop reads it: inf for none."""
+    return math.inf if value is None else float(value)
+
+
 def run_segment(
     sc: Scenario,
     state: SimState,
@@ -579,6 +633,7 @@ def run_segment(
     record_steps: bool = True,
     disturbance=None,
     kernel: str | None = None,
+    impulse_spent=None,
 ) -> tuple[SimState, Trace]:
     """Advance B runs by one segment.
 
@@ -591,6 +646,8 @@ def run_segment(
     or None.
     kernel : the name of one of :data:`KERNELS` to run the batch with (any of them gives the
     same result); by default the one suited to the batch's size and the threads.
+    impulse_spent : (B,) N·m·s of sc.impulse_budget already spent before this segment (a budget
+    that spans several segments); zero by default. trace.impulse includes it.
     Runs that had diverged are left untouched. The kernel is compiled on its first use in the
     process.
     """
@@ -630,6 +687,11 @@ def run_segment(
     log_meas = np.full((batch, max_meas, 14), np.nan)
     log_w_est = np.full((batch, max_meas, 3), np.nan)
     log_nis = np.full((batch, max_meas), np.nan)
+    impulse = np.zeros(batch) if impulse_spent is None else np.array(
+        np.broadcast_to(np.asarray(impulse_spent, dtype=float), (batch,)))
+    rate_peak = np.linalg.norm(state.y_true[:, 4:7], axis=1)
+    demand = np.zeros(batch)
+    cuts = np.zeros((batch, 2), dtype=np.int64)
     y_true, x, P = state.y_true.copy(), state.x.copy(), state.P.copy()
     n_updates = state.n_updates.copy()
     phi_top, sigma, sigma_fresh = state.phi_top.copy(), state.sigma.copy(), state.sigma_fresh.copy()
@@ -643,8 +705,10 @@ def run_segment(
     args = (
         Truth(y_true, sc.inertia_true_array, dist),
         Estimator(x, P, phi_top, sigma),
-        Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps),
-        Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis),
+        Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps,
+             _limit(sc.impulse_budget), _limit(sc.rate_limit)),
+        Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis,
+             impulse, demand, rate_peak, cuts),
         np.array([cfg]), n_updates, sigma_fresh, status,
     )
     if kernel is None:
@@ -667,5 +731,7 @@ def run_segment(
         w_hat=out_w_hat, w_dot_hat=out_w_dot_hat, tau=out_tau, n_steps=n_steps,
         meas_step=state.step[:, None] + meas_at, n_meas=n_meas, theta_hat=log_theta,
         theta_var=log_var, measurements=log_meas, w_est=log_w_est, nis=log_nis,
+        impulse=impulse, demand=demand, rate_peak=rate_peak, budget_spent=cuts[:, 0] > 0,
+        rate_cuts=cuts[:, 1],
     )
     return new_state, trace

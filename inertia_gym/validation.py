@@ -41,7 +41,9 @@ class ValidationResult:
     scale_identified (S,) bool; t_meas (S, m) s; theta_hat, theta_sigma (S, m, 6); w_est, w_true
     (S, m, 3); t_step (n,) and tau (S, n, 3) the applied torque (when recorded); refined (the
     batch-ML scores, when asked for); measurements (S, m, 14) the true (q, w) and the gyro and
-    quaternion readings the filter took at t_meas.
+    quaternion readings the filter took at t_meas. impulse (S,) N·m·s the bursts spent over the
+    horizon (sc.impulse_budget renews every sc.bursts_per_episode bursts, as per episode);
+    rate_peak (S,) the largest true |w| rad/s.
     """
 
     seeds: tuple
@@ -64,6 +66,8 @@ class ValidationResult:
     wall_s: float
     refined: "RefinedScores | None" = None
     measurements: np.ndarray | None = None
+    impulse: np.ndarray | None = None
+    rate_peak: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The contract keys of docs/contracts.md (validate's result.json)."""
@@ -85,6 +89,8 @@ class ValidationResult:
             "inertia_true": self.inertia_true.tolist(),
             "inertia_hat": finite_or_none(self.inertia_hat),
             "wall_s": self.wall_s,
+            **({"impulse_used": finite_or_none(self.impulse),
+                "rate_peak": finite_or_none(self.rate_peak)} if self.impulse is not None else {}),
             **(self.refined.summary(ok) if self.refined is not None else {}),
         }
 
@@ -170,7 +176,12 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
     state = initial_state(sc, sensor_rngs)
     prior_sigma_s = np.sqrt(state.P[:, 7, 7])
     logs, torques = [], []
+    spent = np.zeros(len(seeds))  # of the current episode's budget
+    impulse = np.zeros(len(seeds))
+    rate_peak = np.zeros(len(seeds))
     for i in range(n_seg):
+        if i % sc.bursts_per_episode == 1 or sc.bursts_per_episode == 1:
+            spent[:] = 0.0  # segment i >= 1 holds burst i: a new episode's budget every N bursts
         n_steps = np.array([s[i].n_steps if i < len(s) else 0 for s in schedules])
         bursts = np.zeros((len(seeds), 1 if t_on is not None else 0, 2), dtype=np.int64)
         for r, s in enumerate(schedules):
@@ -183,8 +194,11 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
                       for p, d in zip(p_theta, state.diverged)])
         state, trace = run_segment(
             sc, state, n_steps, bursts, np.tile(xi_arr, (len(seeds), 1)), v, sensor_rngs,
-            record_steps=record_torque, disturbance=disturbance,
+            record_steps=record_torque, disturbance=disturbance, impulse_spent=spent,
         )
+        impulse += trace.impulse - spent
+        spent = trace.impulse
+        rate_peak = np.maximum(rate_peak, trace.rate_peak)
         logs.append(trace)
         if record_torque:
             torques.append((n_steps, trace.tau))
@@ -214,6 +228,7 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
         inertia_hat=j_hat, inertia_true=inertia_true, t_meas=t_meas, theta_hat=th,
         theta_sigma=th_sig, w_est=w_est, w_true=w_true, t_step=t_step, tau=tau,
         wall_s=time.perf_counter() - t0, refined=refined, measurements=measurements,
+        impulse=impulse, rate_peak=rate_peak,
     )
 
 

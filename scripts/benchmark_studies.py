@@ -68,7 +68,7 @@ def bo_vs_random(args) -> None:
         target = ref + 0.05 * abs(ref)
         true_runs = []
         for r in report["runs"]:
-            true_costs, _ = reevaluate(sc, r["xis"], settings.eval_seeds, settings.cost)
+            true_costs = reevaluate(sc, r["xis"], settings.eval_seeds, settings.cost).cost
             true_runs.append({**r, "costs": true_costs.tolist(),
                               "evals_to_5pct": evals_to_within(true_costs, target)})
         summary = {}

@@ -46,9 +46,10 @@ def test_reevaluate_is_the_mean_from_start_cost_in_any_chunking(paper):
     xis = dense_grid(paper, 2)[:5]
     seeds = [3, 4, 5]
     costs, errors = evaluate_many(paper, xis, seeds)
-    got_cost, got_err = reevaluate(paper, xis, seeds)
-    np.testing.assert_allclose(got_cost, costs.mean(axis=1), rtol=1e-12)
-    np.testing.assert_allclose(got_err, np.median(errors, axis=1), rtol=1e-12)
+    got = reevaluate(paper, xis, seeds)
+    np.testing.assert_allclose(got.cost, costs.mean(axis=1), rtol=1e-12)
+    np.testing.assert_allclose(got.rel_error, np.median(errors, axis=1), rtol=1e-12)
+    assert np.all(got.within == 1.0) and np.all(got.impulse > 0)
 
 
 def test_sweep_tasks_put_the_grid_first_and_give_each_agent_every_seed():

@@ -27,7 +27,7 @@ class Agent(abc.ABC):
     def __init__(self, seed: int):
         self.seed = int(seed)
 
-    def recommend(self, actions, costs) -> tuple[int, float]:
+    def recommend(self, actions, costs, within=None) -> tuple[int, float]:
         """The evaluation whose xi a user should use: (its index, its predicted cost).
 
         actions (M, 3) in [-1, 1] and costs (M,) are the run's evaluations in order. The rule,
@@ -36,12 +36,15 @@ class Agent(abc.ABC):
         agent's seed), with that posterior mean as its predicted cost, in the costs' units.
         Unlike the lowest observed cost (Algorithm 1, line 24) it does not chase one lucky
         noisy draw. With M = 1 the only evaluation and its cost.
+        within (M,) bool, optional: the evaluations whose bursts the scenario's limits let fire
+        as designed; the pick is among them when there are any (a design the limits cut is not
+        the design that flew).
         """
         costs = np.asarray(costs, dtype=float)
         if len(costs) == 1:
             return 0, float(costs[0])
         return extra_module("optimize", "the recommendation (a GP fitted to the costs)").posterior_best(
-            actions, costs, self.seed)
+            actions, costs, self.seed, within)
 
     @abc.abstractmethod
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:
@@ -55,7 +58,9 @@ class AskTellAgent(Agent):
     """An agent that proposes one action at a time and is told its cost (BO, random search).
 
     Subclasses implement :meth:`ask` -> u (3,) in [-1, 1] and :meth:`tell` (u, cost); the
-    observations of the env are not used (Algorithm 1 treats J(xi) as a black box).
+    observations of the env are not used (Algorithm 1 treats J(xi) as a black box). An agent
+    that also learns from a step's info (BO's model of the impulse an xi demands) overrides
+    :meth:`observe`.
     """
 
     @abc.abstractmethod
@@ -66,12 +71,16 @@ class AskTellAgent(Agent):
     def tell(self, action: np.ndarray, cost: float) -> None:
         """Record that `action` (3,) cost `cost` (lower is better)."""
 
+    def observe(self, action: np.ndarray, info: dict) -> None:
+        """Called with each step's info before :meth:`tell`; nothing by default."""
+
     def run(self, env: gym.Env, budget: int, progress: bool = False) -> None:
-        """Ask, step, tell, `budget` times."""
+        """Ask, step, observe, tell, `budget` times."""
         env.reset(seed=self.seed)
         for _ in tqdm(range(budget), desc=self.name, disable=not progress, leave=False):
             action = self.ask()
-            _, reward, terminated, truncated, _ = env.step(action.astype(np.float32))
+            _, reward, terminated, truncated, info = env.step(action.astype(np.float32))
+            self.observe(action, info)
             self.tell(action, -float(reward))
             if terminated or truncated:
                 env.reset()

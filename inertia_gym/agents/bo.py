@@ -18,10 +18,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 from botorch.acquisition.analytic import LogProbabilityOfImprovement, ProbabilityOfImprovement
+from botorch.acquisition.monte_carlo import qProbabilityOfImprovement
+from botorch.acquisition.objective import GenericMCObjective
 from botorch.fit import fit_gpytorch_mll
-from botorch.models import SingleTaskGP
+from botorch.models import ModelListGP, SingleTaskGP
 from botorch.models.transforms import Normalize, Standardize
 from botorch.optim import optimize_acqf
+from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from inertia_gym.agents.base import AskTellAgent
@@ -32,6 +35,13 @@ INCUMBENTS = ("observed", "posterior")
 # State-dict entries that are hyperparameters (warm-started), not data-dependent buffers.
 _HYPER_PREFIXES = ("likelihood.", "mean_module.", "covar_module.")
 _UNIT = torch.tensor([[0.0] * 3, [1.0] * 3], dtype=torch.double)
+#: Width of the smooth step of the constrained PI, relative to the scale of its argument: the
+#: improvement in standard deviations of the costs, the constraint in fractions of the budget.
+#: A hundredth keeps the step sharp against the GPs' own spread while giving it gradients.
+CONSTRAINT_SMOOTHING = 0.01
+#: Monte Carlo samples of the constrained PI (quasi-random, seeded): its estimate's error,
+#: about 1/256 of a probability, is far below the differences the optimiser ranks.
+CONSTRAINED_SAMPLES = 256
 
 
 def fit_gp(x: torch.Tensor, y: torch.Tensor, hyper: dict | None = None,
@@ -56,13 +66,15 @@ def hyperparameters(model: SingleTaskGP) -> dict:
             if k.startswith(_HYPER_PREFIXES)}
 
 
-def posterior_best(actions, costs, seed: int = 0) -> tuple[int, float]:
+def posterior_best(actions, costs, seed: int = 0, within=None) -> tuple[int, float]:
     """Return (index, posterior mean cost) of the evaluated action with the lowest GP mean.
 
     actions (n, 3) in [-1, 1], costs (n,), n >= 2. A recommendation that does not chase one lucky
     noisy evaluation: a GP like BO's surrogate (fitted afresh, seeded) smooths the costs, and the
     evaluated point it predicts cheapest is returned with that prediction (in the costs' units).
     It depends only on the history, so it scores any agent's evaluations the same way.
+    within (n,) bool, optional: pick among these evaluations only, when there are any (the GP
+    still learns from all).
     """
     actions = np.asarray(actions, dtype=float)
     x = torch.tensor((actions + 1.0) / 2.0, dtype=torch.double)
@@ -72,7 +84,10 @@ def posterior_best(actions, costs, seed: int = 0) -> tuple[int, float]:
         model = fit_gp(x, y)
         with torch.no_grad():
             mean = model.posterior(x).mean.squeeze(-1).numpy()
-    best = int(np.argmin(mean))
+    allowed = np.ones(len(mean), dtype=bool) if within is None else np.asarray(within, dtype=bool)
+    if not allowed.any():
+        allowed[:] = True
+    best = int(np.flatnonzero(allowed)[np.argmin(mean[allowed])])
     return best, float(mean[best])
 
 
@@ -89,6 +104,14 @@ class BOAgent(AskTellAgent):
     refit_every : refit hyperparameters every this many evaluations (1 = every iteration).
     num_restarts, raw_samples, maxiter : ``optimize_acqf`` settings.
     Fitted attributes: ``x_`` (n, 3) unit-cube inputs, ``y_`` (n,) costs, ``model_``.
+
+    **Under an impulse budget** (a step's info names one) the budget is a constraint, not a
+    cost: a second GP models g(xi) = impulse_demand / impulse_budget - 1, the share by which
+    the bursts the law asks for overdraw the budget (g <= 0: they fire as designed), and the
+    next xi maximises PI times the probability that g <= 0 (BoTorch's
+    ``qProbabilityOfImprovement`` with ``constraints``, on a ``ModelListGP`` of the two). The
+    incumbent is the best evaluation within the budget; before there is one, the acquisition
+    is the probability of being within it. Fitted attribute ``g_`` (n,).
     """
 
     name = "bo"
@@ -113,6 +136,8 @@ class BOAgent(AskTellAgent):
         self.y_: list[float] = []
         self.model_: SingleTaskGP | None = None
         self._hyper: dict | None = None
+        self.g_: list[float] = []
+        self._g_hyper: dict | None = None
 
     def ask(self) -> np.ndarray:
         """Sobol point while n < n_init, else the maximiser of the acquisition."""
@@ -133,15 +158,48 @@ class BOAgent(AskTellAgent):
                 with torch.no_grad():
                     ref = float(self.model_.posterior(x).mean.min())
             best_f = ref - self.kappa * float(y.std())
-            acq_cls = ProbabilityOfImprovement if self.acquisition == "pi" else \
-                LogProbabilityOfImprovement
-            acq = acq_cls(self.model_, best_f=best_f, maximize=False)
+            if self.g_:
+                acq = self._constrained_acquisition(x, y, refit, n)
+            else:
+                acq_cls = ProbabilityOfImprovement if self.acquisition == "pi" else \
+                    LogProbabilityOfImprovement
+                acq = acq_cls(self.model_, best_f=best_f, maximize=False)
             cand, _ = optimize_acqf(acq, bounds=_UNIT, q=1, num_restarts=self.num_restarts,
                                     raw_samples=self.raw_samples,
                                     options={"seed": self.seed * 100_003 + n,
                                              "maxiter": self.maxiter},
                                     retry_on_optimization_warning=False)
         return 2.0 * cand.detach().numpy().reshape(3) - 1.0
+
+    def _constrained_acquisition(self, x, y, refit: bool, n: int) -> qProbabilityOfImprovement:
+        """PI of the cost times the probability of staying within the budget (class docstring)."""
+        g = torch.tensor(np.array(self.g_)[:, None], dtype=torch.double)
+        g_model = fit_gp(x, g, self._g_hyper, refit=refit)
+        if refit:
+            self._g_hyper = hyperparameters(g_model)
+        within = g.squeeze(-1) <= 0.0
+        spread = max(float(y.std()), 1e-12)
+        if within.any():
+            if self.incumbent == "observed":
+                ref = float(y.squeeze(-1)[within].min())
+            else:
+                with torch.no_grad():
+                    ref = float(self.model_.posterior(x[within]).mean.min())
+            best_f = -(ref - self.kappa * spread)
+        else:  # nothing within the budget yet: every xi improves, only feasibility counts
+            best_f = -(float(y.max()) + 1e3 * spread)
+        return qProbabilityOfImprovement(
+            ModelListGP(self.model_, g_model), best_f=best_f,
+            sampler=SobolQMCNormalSampler(torch.Size([CONSTRAINED_SAMPLES]), seed=self.seed * 100_003 + n),
+            objective=GenericMCObjective(lambda z, X=None: -z[..., 0]),
+            constraints=[lambda z: z[..., 1]], tau=CONSTRAINT_SMOOTHING * spread,
+            eta=CONSTRAINT_SMOOTHING)
+
+    def observe(self, action: np.ndarray, info: dict) -> None:
+        """Record g = impulse_demand / impulse_budget - 1 when the step ran under a budget."""
+        budget = info.get("impulse_budget")
+        if budget is not None:
+            self.g_.append(float(info["impulse_demand"]) / float(budget) - 1.0)
 
     def tell(self, action: np.ndarray, cost: float) -> None:
         """Add (action, cost) to the data set D_i."""

@@ -164,8 +164,10 @@ def observations(sc: Scenario, state: SimState, steps, budget: int) -> np.ndarra
     return obs
 
 
-def step_info(res: EpisodeResult, xi: np.ndarray, cost: float, time: float) -> dict:
-    """The info dict of one run's step (keys as in :class:`ExcitationEnv`); time s since reset."""
+def step_info(sc: Scenario, res: EpisodeResult, xi: np.ndarray, cost: float, time: float) -> dict:
+    """The info dict of one run's step on `sc` (keys as in :class:`ExcitationEnv`); time s since
+    reset. The limits are None where the scenario sets none.
+    """
     return {
         "cost": cost,
         "info_cost": float(res.info_cost),
@@ -179,6 +181,13 @@ def step_info(res: EpisodeResult, xi: np.ndarray, cost: float, time: float) -> d
         "duration": float(res.duration),
         "time": time,
         "diverged": bool(res.diverged),
+        "impulse": float(res.impulse),
+        "impulse_demand": float(res.impulse_demand),
+        "impulse_budget": sc.impulse_budget,
+        "budget_spent": bool(res.budget_spent),
+        "rate_peak": float(res.rate_peak),
+        "rate_limit": sc.rate_limit,
+        "rate_cuts": int(res.rate_cuts),
     }
 
 
@@ -217,7 +226,12 @@ class ExcitationEnv(gym.Env):
 
     **info.** cost, info_cost, posterior_cost, alpha, lambda_min (smallest over windows),
     theta_hat (6,), p_theta_eigvals (6,) ascending, rel_error (||J_hat − J||_F / ||J||_F, the
-    simulation knows the truth), xi (3,), duration (s), time (s since reset), diverged.
+    simulation knows the truth), xi (3,), duration (s), time (s since reset), diverged; the
+    mission limits and what the episode used of them: impulse (N·m·s, sum_i integral |tau_i| dt),
+    impulse_demand (what the burst law asked for before the limits cut it),
+    impulse_budget (None: unlimited), budget_spent (the budget ran out and cut the bursts),
+    rate_peak (the largest true |w|, rad/s), rate_limit (None: unlimited), rate_cuts (bursts
+    the rate monitor cut short).
 
     **Seeding.** ``reset(seed=...)`` seeds ``self.np_random``, which alone draws dwell times,
     measurement times and noise: a seed and an action sequence fix the run.
@@ -268,7 +282,7 @@ class ExcitationEnv(gym.Env):
         self._steps += 1
         self._time += float(res.duration)
         obs = self._observation()
-        info = step_info(res, xi, float(cost), self._time)
+        info = step_info(self.scenario, res, xi, float(cost), self._time)
         if res.diverged:
             self._state = None
         truncated = not res.diverged and self._steps >= self.budget

@@ -146,7 +146,7 @@ class ExcitationVectorEnv(VectorEnv):
                 rewards[i] = -cost
                 terminated[i] = res.diverged
                 truncated[i] = not res.diverged and self._steps[i] >= self.budget
-                infos[i] = step_info(res, xi, float(cost), float(self._time[i]))
+                infos[i] = step_info(self.scenario, res, xi, float(cost), float(self._time[i]))
         if self.max_episode_steps is not None:
             truncated[stepping] |= self._steps[stepping] >= self.max_episode_steps
         if resetting.size:
