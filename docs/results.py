@@ -114,6 +114,10 @@ STUDIES = (
         "--out {out}/default",
         "inertia-gym benchmark --agents bo,random,grid --seeds 4 --budget 40 --grid-points 5 --workers 1 "
         "--carry-over --cost info --out {out}/algorithm1"), tables.render_benchmark),
+    Study("benchmark-budget", tuple(
+        f"inertia-gym benchmark --scenario {name} --agents bo,random,ppo,sac,grid --seeds 16 "
+        f"--budget 50 --out {{out}}/{name}" for name in ("paper-budget", "cubesat-6u-budget")),
+          tables.render_benchmark_budget),
     Study("cost-vs-error", ("python scripts/benchmark_studies.py cost-vs-error --out {out}",),
           tables.render_cost_vs_error),
     Study("validate-paper", ("inertia-gym validate --xi 0.4,4,1 --seeds 16 --duration 1000 --out {out}",),

@@ -128,6 +128,42 @@ def render_benchmark(folder: Path) -> str:
                   "validated error of ξ\\*", "BO wins"], rows)
 
 
+BUDGET_SCENARIOS = (("paper-budget", "the paper's body, 13 N·m·s per episode"),
+                    ("cubesat-6u-budget", "6U CubeSat, 2 mN·m·s per episode"))
+#: Where the results page's figures live (docs/figures), written by the renderers that show one.
+FIGURES = Path(__file__).parent / "figures"
+
+
+def render_benchmark_budget(folder: Path) -> str:
+    """Each budgeted sweep's benchmark.json: regret, validated error, impulse and the share
+    within the limits per agent, the grid optimum; and the paper body's trade-off figure,
+    copied into docs/figures."""
+    rows = []
+    for sub, label in BUDGET_SCENARIOS:
+        summary = load(folder / sub / "benchmark.json")["summary"]
+        agents, grid = summary["agents"], summary["grid"]
+        bo = agents.get("bo")
+        for i, (name, s) in enumerate(agents.items()):
+            wins = "–"
+            if bo is not None and name != "bo" and bo["win_rate"].get(name) is not None:
+                n = bo["win_seeds"][name]
+                wins = f"{bo['win_rate'][name] * n:g} of {n}"
+            rows.append([label if i == 0 else "", name, quartiles(s["regret"]),
+                         quartiles(s["val_rel_error"], 100.0, " %"), quartiles(s["impulse_star"]),
+                         f"{100 * s['within_limits']:.0f} %", wins])
+        if grid is not None:
+            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0",
+                         "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]),
+                         f"{grid['impulse_star']:.3g}", "100 %", ""])
+    FIGURES.mkdir(exist_ok=True)
+    (FIGURES / "tradeoff-paper-budget.png").write_bytes(
+        (folder / "paper-budget" / "tradeoff.png").read_bytes())
+    return (table(["scenario", "agent", "regret of ξ\*", "validated error of ξ\*",
+                   "impulse of ξ\* per episode", "ξ\* within the limits", "BO wins"], rows)
+            + "\n\n![Validated error against the impulse spent per episode, paper-budget]"
+              "(figures/tradeoff-paper-budget.png)")
+
+
 def render_cost_vs_error(folder: Path) -> str:
     """benchmark_studies.py cost-vs-error's cost_vs_error.json: Spearman rho of each cost."""
     a = load(folder / "cost_vs_error.json")["A_from_start"]

@@ -157,3 +157,41 @@ def test_agents_are_registered_by_name():
     assert isinstance(make_agent("random", 0, 5), RandomAgent)
     with pytest.raises(ConfigError, match="bo, random"):
         make_agent("cmaes", 0, 5)
+
+
+def budget_info(u):
+    """A step's info under a budget of 1 whose demand exceeds it where sum(u) > 0."""
+    return {"impulse_budget": 1.0, "impulse_demand": 1.0 + 0.5 * float(np.sum(u))}
+
+
+def test_bo_under_a_budget_searches_within_it_and_finds_the_constrained_optimum():
+    """The bowl's minimum OPT overdraws the budget (sum(OPT) = 1.1 > 0); the best design within
+    it is OPT projected onto sum(u) = 0. Fixed seeds, 25 evaluations."""
+    best_within = OPT - OPT.sum() / 3.0
+    with torch_threads(1):
+        for seed in range(2):
+            agent, rng, us = BOAgent(seed), np.random.default_rng(seed), []
+            for _ in range(25):
+                u = agent.ask()
+                agent.observe(u, budget_info(u))
+                agent.tell(u, toy_cost(u, rng))
+                us.append(u)
+            us = np.array(us)
+            within = us.sum(axis=1) <= 0.0
+            assert within[agent.n_init:].mean() >= 0.7  # the constraint model steers the search
+            closest = np.min(np.sum((us[within] - best_within) ** 2, axis=1))
+            assert closest < 0.05
+            assert len(agent.g_) == 25
+
+
+def test_the_recommendation_is_among_the_evaluations_within_the_limits():
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-1, 1, (30, 3))
+    costs = np.sum((u - OPT) ** 2, axis=1)
+    within = u.sum(axis=1) <= 0.0
+    with torch_threads(1):
+        free, _ = posterior_best(u, costs)
+        index, _ = posterior_best(u, costs, within=within)
+        assert posterior_best(u, costs, within=np.zeros(30, bool))[0] == free  # none: all count
+    assert not within[free] and within[index]
+    assert costs[index] <= np.quantile(costs[within], 0.2)
