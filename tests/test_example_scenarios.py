@@ -66,3 +66,20 @@ def test_a_body_scaled_with_its_torque_is_estimated_identically(paper):
     np.testing.assert_allclose(got.rel_errors, ref.rel_errors, rtol=1e-6)
     np.testing.assert_allclose(got.theta_sigma / s, ref.theta_sigma, rtol=1e-6, equal_nan=True)
     assert bool(got.scale_identified[0]) == bool(ref.scale_identified[0])
+
+
+@pytest.mark.parametrize("name, unlimited", [("paper-budget", "paper"),
+                                             ("cubesat-6u-budget", "cubesat-6u")])
+def test_a_budgeted_scenario_is_its_body_with_a_budget_the_corner_overdraws_threefold(name, unlimited):
+    from inertia_gym.optimization import evaluate_episodes
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScenarioWarning)
+        sc = Scenario.load(name)
+    free = Scenario.load(unlimited)
+    assert sc == free.replace(impulse_budget=sc.impulse_budget)
+    corner = evaluate_episodes(free, sc.xi_bounds[1], [0, 1, 2], "posterior")
+    assert 2.5 < corner.impulses.mean() / sc.impulse_budget < 3.5
+    limited = evaluate_episodes(sc, sc.xi_bounds[1], [0, 1, 2], "posterior")
+    assert np.allclose(limited.impulses, sc.impulse_budget, rtol=1e-12)
+    assert not limited.within.any()
