@@ -137,7 +137,8 @@ FIGURES = Path(__file__).parent / "figures"
 def render_benchmark_budget(folder: Path) -> str:
     """Each budgeted sweep's benchmark.json: regret, validated error, impulse and the share
     within the limits per agent, the grid optimum; and the paper body's trade-off figure,
-    copied into docs/figures."""
+    copied into docs/figures.
+    """
     rows = []
     for sub, label in BUDGET_SCENARIOS:
         summary = load(folder / sub / "benchmark.json")["summary"]
@@ -158,8 +159,8 @@ def render_benchmark_budget(folder: Path) -> str:
     FIGURES.mkdir(exist_ok=True)
     (FIGURES / "tradeoff-paper-budget.png").write_bytes(
         (folder / "paper-budget" / "tradeoff.png").read_bytes())
-    return (table(["scenario", "agent", "regret of ξ\*", "validated error of ξ\*",
-                   "impulse of ξ\* per episode", "ξ\* within the limits", "BO wins"], rows)
+    return (table(["scenario", "agent", "regret of ξ\\*", "validated error of ξ\\*",
+                   "impulse of ξ\\* per episode", "ξ\\* within the limits", "BO wins"], rows)
             + "\n\n![Validated error against the impulse spent per episode, paper-budget]"
               "(figures/tradeoff-paper-budget.png)")
 

@@ -138,6 +138,26 @@ def test_cli_optimize_writes_contract_validation_and_plot(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "xi* =" in printed and "validation of xi* over 100 s, 2 seeds: median inertia error" \
         in printed
+    assert "impulses" not in data and "mission limits" not in printed  # none set
+
+
+def test_cli_optimize_and_validate_report_the_mission_limits(tmp_path, capsys):
+    out = tmp_path / "opt"
+    assert main(["optimize", "--scenario", "paper-budget", "--agent", "random", "--budget", "4",
+                 "--seed", "0", "--out", str(out), "--no-progress", "--val-seeds", "0"]) == 0
+    data = json.loads((out / "result.json").read_text())
+    sc = Scenario.load("paper-budget")
+    assert len(data["impulses"]) == len(data["within_limits"]) == 4
+    assert all(i <= sc.impulse_budget * (1 + 1e-12) for i in data["impulses"])
+    assert data["within_limits"] == [d <= sc.impulse_budget for d in data["impulse_demands"]]
+    star = data["xis"].index(data["xi_star"])
+    assert data["within_limits"][star] or not any(data["within_limits"])
+    assert "N·m·s per episode of the 13 allowed" in capsys.readouterr().out
+    assert main(["validate", "--scenario", "paper-budget", "--xi", "0,3,1", "--seeds", "1",
+                 "--duration", "100", "--out", str(tmp_path / "val")]) == 0
+    result = json.loads((tmp_path / "val" / "result.json").read_text())
+    assert 0 < result["impulse_used"][0] <= sc.impulse_budget and result["rate_peak"][0] > 10
+    assert "mission limits: median impulse spent" in capsys.readouterr().out
 
 
 def test_cli_optimize_runs_algorithm_1_on_request(tmp_path):

@@ -69,6 +69,13 @@ def run(args: argparse.Namespace) -> int:
           f"  xi* = ({xi}) (evaluation {result.star_index + 1}, recommended: lowest GP posterior "
           f"mean; predicted cost {result.cost_star:.4g})\n"
           f"  observed best: ({best}) cost {result.cost_observed_best:.4g}")
+    if result.within_limits is not None:
+        k = result.star_index
+        budget = "" if sc.impulse_budget is None else f" of the {sc.impulse_budget:.4g} allowed"
+        print(f"  mission limits: xi* asked for {result.impulse_demands[k]:.4g} N·m·s per "
+              f"episode{budget} ({'within the limits' if result.within_limits[k] else 'cut by them'}); "
+              f"{int(result.within_limits.sum())} of {len(result.within_limits)} evaluations "
+              "fired as designed")
     if args.val_seeds:
         err = data["val_rel_error"]
         text = "every run diverged" if err is None else (

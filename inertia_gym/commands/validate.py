@@ -72,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
         f"coverage {summary['ci95_coverage']:.0%}, diverged {summary['diverged']}, "
         f"scale identified: {summary['scale_identified']} ({summary['wall_s']:.1f} s) -> {out}"
     )
+    if sc.limited:
+        used = np.median(result.impulse)
+        print(f"mission limits: median impulse spent {used:.4g} N·m·s over {args.duration:g} s, "
+              f"largest true rate {float(np.max(result.rate_peak)):.4g} rad/s"
+              + ("" if sc.rate_limit is None else f" (limit {sc.rate_limit:.4g})"))
     if summary.get("efficiency") is not None:
         print(f"batch ML refinement: median error {summary['refined_median_rel_error']:.4%}"
               f"{' (ratios)' if summary['refined_errors_are_ratios'] else ''}, coverage "
