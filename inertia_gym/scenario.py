@@ -193,6 +193,8 @@ def derived_defaults(guess_trace: float, tau_max: float, gyro_sigma: float, quat
     }
 
 
+#: The mission limits: None means unlimited.
+LIMIT_FIELDS = ("impulse_budget", "rate_limit")
 #: Fields that default to None and are then derived (derived_defaults).
 DERIVED_FIELDS = ("P0_theta", "Q_theta", "Q_omega", "Q_quat", "P0_attitude_rate", "epsilon",
                   "epsilon_lambda", "softmin_beta", "t_on", "dwell", "validation_coast")
@@ -318,7 +320,7 @@ class Scenario:
         set_(self, "alpha_gamma", gamma)
         for name in ("dwell", "t_on", "validation_coast"):
             set_(self, name, _interval(name, getattr(self, name)))
-        for name in ("impulse_budget", "rate_limit"):
+        for name in LIMIT_FIELDS:
             if getattr(self, name) is not None:
                 set_(self, name, _positive(name, getattr(self, name)))
         for name in ("a_bounds", "b_bounds"):
@@ -431,10 +433,13 @@ class Scenario:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form of every input field as used (lists instead of tuples, derived values
-        filled in; ``derived`` is not included).
+        filled in; ``derived`` is not included). The mission limits appear only where set, so a
+        scenario without them serialises (and a benchmark's settings key hashes) as it did
+        before the limits existed.
         """
         return json.loads(json.dumps({f.name: getattr(self, f.name)
-                                      for f in dataclasses.fields(self) if f.init}))
+                                      for f in dataclasses.fields(self) if f.init
+                                      and not (f.name in LIMIT_FIELDS and getattr(self, f.name) is None)}))
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "Scenario":

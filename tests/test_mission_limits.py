@@ -120,3 +120,10 @@ def test_a_limit_that_leaves_no_room_to_excite_is_warned_about():
         Scenario(rate_limit=5.0)
     with pytest.warns(ScenarioWarning, match="impulse_budget"):
         Scenario(impulse_budget=1e-3)
+
+
+def test_a_scenario_serialises_its_limits_only_where_set(paper):
+    assert not set(paper.to_dict()) & {"impulse_budget", "rate_limit"}
+    limited = paper.replace(impulse_budget=13.0)
+    assert limited.to_dict()["impulse_budget"] == 13.0 and "rate_limit" not in limited.to_dict()
+    assert Scenario.from_mapping(limited.to_dict()) == limited
