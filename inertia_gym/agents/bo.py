@@ -111,7 +111,8 @@ class BOAgent(AskTellAgent):
     next xi maximises PI times the probability that g <= 0 (BoTorch's
     ``qProbabilityOfImprovement`` with ``constraints``, on a ``ModelListGP`` of the two). The
     incumbent is the best evaluation within the budget; before there is one, the acquisition
-    is the probability of being within it. Fitted attribute ``g_`` (n,).
+    is the probability of being within it (``acquisition`` chooses the unconstrained form
+    only). Fitted attribute ``g_`` (n,).
     """
 
     name = "bo"
@@ -159,6 +160,9 @@ class BOAgent(AskTellAgent):
                     ref = float(self.model_.posterior(x).mean.min())
             best_f = ref - self.kappa * float(y.std())
             if self.g_:
+                if len(self.g_) != n:
+                    raise ConfigError(f"under a budget, observe() each step's info before tell(): "
+                                      f"{len(self.g_)} observed for {n} told")
                 acq = self._constrained_acquisition(x, y, refit, n)
             else:
                 acq_cls = ProbabilityOfImprovement if self.acquisition == "pi" else \
