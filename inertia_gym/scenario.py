@@ -194,7 +194,7 @@ def derived_defaults(guess_trace: float, tau_max: float, gyro_sigma: float, quat
 
 
 #: The mission limits: None means unlimited.
-LIMIT_FIELDS = ("impulse_budget", "rate_limit")
+LIMIT_FIELDS = ("impulse_budget", "rate_limit", "min_impulse_bit")
 #: Fields that default to None and are then derived (derived_defaults).
 DERIVED_FIELDS = ("P0_theta", "Q_theta", "Q_omega", "Q_quat", "P0_attitude_rate", "epsilon",
                   "epsilon_lambda", "softmin_beta", "t_on", "dwell", "validation_coast")
@@ -247,8 +247,10 @@ class Scenario:
     # is scaled to spend it exactly). rate_limit rad/s: a safety monitor inhibits the rest of a
     # burst once the filter's rate estimate |w_hat| reaches it (the flight software acts on what
     # it knows; the true peak rate is reported beside it).
+    # min_impulse_bit N·m·s: an axis's pulse that would deliver less does not fire.
     impulse_budget: float | None = None
     rate_limit: float | None = None
+    min_impulse_bit: float | None = None
     # Long-horizon validation: bursts of T_on separated by coasts drawn from this interval.
     # None: [90, 100] T_b (the paper's 90-100 s).
     validation_coast: tuple | None = None
@@ -351,7 +353,7 @@ class Scenario:
         after an episode of full bursts turns the body by more than 0.5 rad per step dt (the
         torque is implausible for the inertia, or dt too coarse); or a mission limit leaves no
         room to excite (rate_limit at or below |omega0|, impulse_budget under one step of one
-        axis at tau_max).
+        axis at tau_max, min_impulse_bit above the longest burst at tau_max).
         """
         out = []
         truth = np.linalg.eigvalsh(self.inertia_true_array)
@@ -380,6 +382,10 @@ class Scenario:
             out.append(f"impulse_budget {self.impulse_budget:.3g} N·m·s is less than one step of "
                        f"one axis at tau_max ({self.tau_max * self.dt:.3g} N·m·s): the bursts "
                        "can barely fire")
+        if self.min_impulse_bit is not None and self.min_impulse_bit > self.tau_max * self.t_on[1]:
+            out.append(f"min_impulse_bit {self.min_impulse_bit:.3g} N·m·s is more than the longest "
+                       f"burst at tau_max delivers ({self.tau_max * self.t_on[1]:.3g} N·m·s): "
+                       "no burst can fire")
         return out
 
     # --- derived quantities ------------------------------------------------------------------

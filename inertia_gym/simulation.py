@@ -221,9 +221,10 @@ Estimator = collections.namedtuple("Estimator", "x P phi_top sigma")
 #: Plan: n_steps (B,); bursts (B, nb, 2) [start, stop) steps and n_bursts (B,); xi (B, 3);
 #: v (B, 3) burst directions; tau_max N·m; meas_at (B, m) steps of the measurements and
 #: n_meas (B,); z_noise (B, m, 13) noise draws; record_steps: keep the per-step log;
-#: impulse_budget N·m·s and rate_limit rad/s, the segment's limits (inf: none; Scenario).
+#: impulse_budget N·m·s and rate_limit rad/s, the segment's limits (inf: none; Scenario);
+#: min_impulse_bit N·m·s (0: none).
 Plan = collections.namedtuple("Plan", "n_steps bursts n_bursts xi v tau_max meas_at n_meas z_noise "
-                                      "record_steps impulse_budget rate_limit")
+                                      "record_steps impulse_budget rate_limit min_impulse_bit")
 #: Logs (see Trace): w_hat, w_dot_hat, tau (B, n, 3) per step; theta, var (B, m, 6),
 #: measurements (B, m, 14), w_est (B, m, 3), nis (B, m) per measurement; per run over the
 #: segment: impulse (B,) N·m·s spent (1-norm), demand (B,) N·m·s the burst law asked for before
@@ -342,8 +343,13 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
             if b < plan.n_bursts[r] and k == plan.bursts[r, b, 0]:
                 burst_torque_into(plan.xi[r, 0], plan.xi[r, 1], (x[4, lane], x[5, lane], x[6, lane]),
                                   plan.v[r], plan.tau_max, tau[:, lane])
-                # The impulse the law asks for over the burst, before any limit cuts it.
                 held = min(plan.bursts[r, b, 1], plan.n_steps[r]) - k
+                # An axis whose pulse would deliver less than the actuator's minimum impulse
+                # bit does not fire (a thruster cannot open for less).
+                for i in range(3):
+                    if abs(tau[i, lane]) * dt * held < plan.min_impulse_bit:
+                        tau[i, lane] = 0.0
+                # The impulse the law asks for over the burst, before any limit cuts it.
                 logs.demand[r] += (abs(tau[0, lane]) + abs(tau[1, lane]) + abs(tau[2, lane])) * dt * held
             burst_i[lane] = b
             _apply_limits(tau[:, lane], (x[4, lane], x[5, lane], x[6, lane]), dt, plan, logs, r)
@@ -706,7 +712,7 @@ def run_segment(
         Truth(y_true, sc.inertia_true_array, dist),
         Estimator(x, P, phi_top, sigma),
         Plan(n_steps, bursts, n_bursts, xi, v, sc.tau_max, meas_at, n_meas, z_noise, record_steps,
-             _limit(sc.impulse_budget), _limit(sc.rate_limit)),
+             _limit(sc.impulse_budget), _limit(sc.rate_limit), float(sc.min_impulse_bit or 0.0)),
         Logs(out_w_hat, out_w_dot_hat, out_tau, log_theta, log_var, log_meas, log_w_est, log_nis,
              impulse, demand, rate_peak, cuts),
         np.array([cfg]), n_updates, sigma_fresh, status,

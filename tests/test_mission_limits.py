@@ -90,6 +90,24 @@ def test_the_rate_monitor_inhibits_bursts_at_the_limit_of_the_estimated_rate(pap
     assert np.all(trace.rate_peak >= start)
 
 
+def test_an_axis_whose_pulse_is_below_the_minimum_impulse_bit_does_not_fire(paper):
+    # Bursts along a tilted direction: a large pulse on y, small ones on x and z.
+    v = np.array([0.1, 1.0, 0.2]) / np.linalg.norm([0.1, 1.0, 0.2])
+    rngs = [np.random.default_rng(0)]
+    free_sc = paper
+    _, free = run_segment(free_sc, initial_state(free_sc, rngs), N_STEPS, BURSTS[:1], (0.0, 4.0, 1.0),
+                          v, rngs)
+    pulses = np.abs(free.tau[0, 50]) * 100 * paper.dt  # per axis over the 1-s burst
+    bit = 0.5 * (pulses[1] + max(pulses[0], pulses[2]))
+    sc = paper.replace(min_impulse_bit=bit)
+    rngs = [np.random.default_rng(0)]
+    _, trace = run_segment(sc, initial_state(sc, rngs), N_STEPS, BURSTS[:1], (0.0, 4.0, 1.0), v, rngs)
+    fired = np.abs(trace.tau[0, 50:150]) > 0
+    assert fired[:, 1].all() and not fired[:, [0, 2]].any()
+    assert trace.demand[0] == pytest.approx(trace.impulse[0], rel=1e-12)
+    assert trace.impulse[0] < free.impulse[0]
+
+
 def test_an_episode_reports_what_it_used_of_each_limit(paper):
     sc = paper.replace(impulse_budget=5.0)
     rngs = [np.random.default_rng(s) for s in range(2)]
@@ -108,7 +126,7 @@ def test_validation_renews_the_budget_every_episode_of_bursts(paper):
     assert res.summary()["impulse_used"] == pytest.approx([6.0, 6.0], rel=1e-9)
 
 
-@pytest.mark.parametrize("field", ["impulse_budget", "rate_limit"])
+@pytest.mark.parametrize("field", ["impulse_budget", "rate_limit", "min_impulse_bit"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), "ten"])
 def test_limits_must_be_positive_numbers(field, value):
     with pytest.raises(ConfigError, match=field):
@@ -120,6 +138,8 @@ def test_a_limit_that_leaves_no_room_to_excite_is_warned_about():
         Scenario(rate_limit=5.0)
     with pytest.warns(ScenarioWarning, match="impulse_budget"):
         Scenario(impulse_budget=1e-3)
+    with pytest.warns(ScenarioWarning, match="min_impulse_bit"):
+        Scenario(min_impulse_bit=6.0)
 
 
 def test_a_scenario_serialises_its_limits_only_where_set(paper):
