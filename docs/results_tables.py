@@ -106,21 +106,29 @@ BENCHMARK_OBJECTIVES = (("default", "default (from the start, posterior cost)"),
                         ("algorithm1", "`--carry-over --cost info` (Algorithm 1)"))
 
 
+def agent_rows(agents: dict, label: str, cells) -> list[list[str]]:
+    """One row per agent of a benchmark summary: the label on the first, the agent's name, the
+    cells(stats) columns, and how many seeds BO won against it.
+    """
+    rows, bo = [], agents.get("bo")
+    for i, (name, s) in enumerate(agents.items()):
+        wins = "–"
+        if bo is not None and name != "bo" and bo["win_rate"].get(name) is not None:
+            n = bo["win_seeds"][name]
+            wins = f"{bo['win_rate'][name] * n:g} of {n}"
+        rows.append([label if i == 0 else "", name, *cells(s), wins])
+    return rows
+
+
 def render_benchmark(folder: Path) -> str:
     """The two sweeps' benchmark.json: regrets, validated errors and BO's wins per objective."""
     rows = []
     for sub, label in BENCHMARK_OBJECTIVES:
         summary = load(folder / sub / "benchmark.json")["summary"]
         agents, grid = summary["agents"], summary["grid"]
-        bo = agents.get("bo")
-        for i, (name, s) in enumerate(agents.items()):
-            wins = "–"
-            if bo is not None and name != "bo" and bo["win_rate"].get(name) is not None:
-                n = bo["win_seeds"][name]
-                wins = f"{bo['win_rate'][name] * n:g} of {n}"
-            rows.append([label if i == 0 else "", name, quartiles(s["regret"]),
-                         quartiles(s["regret_observed_best"]),
-                         quartiles(s["val_rel_error"], 100.0, " %"), wins])
+        rows += agent_rows(agents, label, lambda s: [
+            quartiles(s["regret"]), quartiles(s["regret_observed_best"]),
+            quartiles(s["val_rel_error"], 100.0, " %")])
         if grid is not None:
             rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0", "–",
                          "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]), ""])
@@ -143,15 +151,9 @@ def render_benchmark_budget(folder: Path) -> str:
     for sub, label in BUDGET_SCENARIOS:
         summary = load(folder / sub / "benchmark.json")["summary"]
         agents, grid = summary["agents"], summary["grid"]
-        bo = agents.get("bo")
-        for i, (name, s) in enumerate(agents.items()):
-            wins = "–"
-            if bo is not None and name != "bo" and bo["win_rate"].get(name) is not None:
-                n = bo["win_seeds"][name]
-                wins = f"{bo['win_rate'][name] * n:g} of {n}"
-            rows.append([label if i == 0 else "", name, quartiles(s["regret"]),
-                         quartiles(s["val_rel_error"], 100.0, " %"), quartiles(s["impulse_star"]),
-                         f"{100 * s['within_limits']:.0f} %", wins])
+        rows += agent_rows(agents, label, lambda s: [
+            quartiles(s["regret"]), quartiles(s["val_rel_error"], 100.0, " %"),
+            quartiles(s["impulse_star"]), f"{100 * s['within_limits']:.0f} %"])
         if grid is not None:
             rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0",
                          "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]),

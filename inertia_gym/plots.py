@@ -163,12 +163,7 @@ def plot_costs(result, path: str | Path) -> Path:
     xi = ", ".join(f"{x:.3g}" for x in result.xi_star)
     mode = "carry-over (Algorithm 1)" if result.carry_over else "from-start episodes"
     ax.set_title(f"{result.agent}, seed {result.seed}, {mode}: xi* = ({xi})", fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, ax, path)
 
 
 def plot_cost_curves(runs: list[dict], summary: dict, settings, path: str | Path) -> Path:
@@ -317,10 +312,14 @@ def plot_tradeoff(runs: list[dict], summary: dict, path: str | Path) -> Path | N
     ax.set_yscale("log")
     ax.set_xlabel("impulse spent per episode, N·m·s (sum_i integral |tau_i| dt)")
     ax.set_ylabel("||J_hat − J||_F / ||J||_F after validation")
+    return _finish(fig, ax, path)
+
+
+def _finish(fig, ax, path: Path) -> Path:
+    """Grid and legend on ax, then the figure written to path and closed; returns path."""
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
