@@ -16,7 +16,7 @@ from inertia_gym.plots import plot_cost_curves, plot_regret, plot_tradeoff, plot
 
 CSV_FIELDS = ("agent", "seed", "best_cost", "cost_star", "reeval_cost",
               "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error",
-              "val_diverged", "a", "b", "t_on", "wall_s")
+              "val_diverged", "a", "b", "t_on", "wall_s", "impulse_star", "within_limits_star")
 
 
 def _fmt(stat: dict | None, pct: bool = False) -> str:

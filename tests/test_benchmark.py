@@ -1,3 +1,4 @@
+import csv
 import json
 
 import numpy as np
@@ -15,7 +16,7 @@ from inertia_gym.benchmark import (
     sweep_tasks,
     win_rate,
 )
-from inertia_gym.benchmark_report import explanation, table_markdown
+from inertia_gym.benchmark_report import explanation, table_markdown, write_report
 from inertia_gym.envs.excitation import xi_to_action
 from inertia_gym.errors import ConfigError
 from inertia_gym.optimization import evaluate_many, optimize, recommendation_checkpoints
@@ -130,8 +131,6 @@ def test_grid_task_keeps_the_best_grid_point(tiny):
 def test_under_a_budget_the_grid_and_the_agents_pick_designs_within_it(tmp_path):
     """The grid's optimum fires as designed on every seed, its trade-off curve spans the grid's
     impulse, and the report adds the limit columns and the trade-off plot."""
-    from inertia_gym.benchmark_report import write_report
-
     settings = SweepSettings(scenario=Scenario.load("paper-budget"),
                              **{**TINY, "grid_points": 3, "val_duration": 100.0})
     grid = run_task(settings, Task(GRID, None))
@@ -150,6 +149,8 @@ def test_under_a_budget_the_grid_and_the_agents_pick_designs_within_it(tmp_path)
     summary = (tmp_path / "summary.md").read_text()
     assert "xi* within the limits" in summary and "13 N·m·s" in summary
     assert (tmp_path / "tradeoff.png").stat().st_size > 10_000
+    row = next(csv.DictReader((tmp_path / "benchmark.csv").open()))
+    assert float(row["impulse_star"]) == pytest.approx(rec["impulse_star"])
     assert report["summary"]["agents"]["random"]["within_limits"] in (0.0, 1.0)
 
 
