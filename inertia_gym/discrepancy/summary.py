@@ -92,6 +92,29 @@ def _rotor_reading(expl: list[dict], duration: float | None) -> str | None:
             "along that axis, a rotor spinning up and down where the body has one.")
 
 
+#: The damping ratio from which a fitted mode reads as dissipation (_damped_mode_reading):
+#: 1/sqrt(2), where a second-order system stops amplifying any forcing (no resonant peak).
+DISSIPATIVE_ZETA = 1.0 / np.sqrt(2.0)
+
+
+def _damped_mode_reading(expl: list[dict]) -> str | None:
+    """The sentence that reads a flexible mode of damping ratio at least DISSIPATIVE_ZETA as
+    internal dissipation, or None. Such a mode has no resonance and sheds its energy within
+    about one period while the body's angular momentum is kept: the physics of a nutation
+    damper or a heavily damped slosh mass, of which internal_dissipation's torque is the
+    quasi-steady limit (the mode keeps the internal mass's lag, which that torque leaves out).
+    """
+    mode = next((e for e in expl if e["name"] == "flexible_mode"), None)
+    if mode is None or float(mode["params"]["zeta"]) < DISSIPATIVE_ZETA:
+        return None
+    zeta, omega = float(mode["params"]["zeta"]), float(mode["params"]["omega_n"])
+    return (f"flexible_mode's damping ratio {zeta:.2g} is at or above 1/√2: the internal motion has "
+            f"no resonance and loses its energy within about one period ({2 * np.pi / omega:.3g} s) "
+            "while the angular momentum is kept. Read it as internal dissipation: a damper or a "
+            "heavily damped slosh mass (internal_dissipation is the same physics without the "
+            "internal mass's lag).")
+
+
 def _flight_reading(expl: list[dict]) -> str | None:
     """The sentence that reads aero_drag's flight form in the explanation as a throw, or None: the
     plate's normal, the launch speed and how far above the horizontal it was thrown.
@@ -133,6 +156,8 @@ def _explanation_words(report: dict) -> str:
         text += f"\n\n{rotor}" if rotor else ""
         flight = _flight_reading(expl)
         text += f"\n\n{flight}" if flight else ""
+        damped = _damped_mode_reading(expl)
+        text += f"\n\n{damped}" if damped else ""
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
         text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "
