@@ -106,6 +106,11 @@ BENCHMARK_OBJECTIVES = (("default", "default (from the start, posterior cost)"),
                         ("algorithm1", "`--carry-over --cost info` (Algorithm 1)"))
 
 
+def interval(bounds: list | None) -> str:
+    """[lo, hi] to 3 significant digits, or – for none."""
+    return "–" if bounds is None else f"[{bounds[0]:.3g}, {bounds[1]:.3g}]"
+
+
 def agent_rows(agents: dict, label: str, cells) -> list[list[str]]:
     """One row per agent of a benchmark summary: the label on the first, the agent's name, the
     cells(stats) columns, and how many seeds BO won against it.
@@ -152,16 +157,18 @@ def render_benchmark_budget(folder: Path) -> str:
         summary = load(folder / sub / "benchmark.json")["summary"]
         agents, grid = summary["agents"], summary["grid"]
         rows += agent_rows(agents, label, lambda s: [
-            quartiles(s["regret"]), quartiles(s["val_rel_error"], 100.0, " %"),
+            quartiles(s["regret"]), interval(s["regret_median_ci95"]),
+            quartiles(s["val_rel_error"], 100.0, " %"),
             quartiles(s["impulse_star"]), f"{100 * s['within_limits']:.0f} %"])
         if grid is not None:
-            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0",
+            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0", "–",
                          "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]),
                          f"{grid['impulse_star']:.3g}", "100 %", ""])
     FIGURES.mkdir(exist_ok=True)
     (FIGURES / "tradeoff-paper-budget.png").write_bytes(
         (folder / "paper-budget" / "tradeoff.png").read_bytes())
-    return (table(["scenario", "agent", "regret of ξ\\*", "validated error of ξ\\*",
+    return (table(["scenario", "agent", "regret of ξ\\*", "95 % interval of the median regret",
+                   "validated error of ξ\\*",
                    "impulse of ξ\\* per episode", "ξ\\* within the limits", "BO wins"], rows)
             + "\n\n![Validated error against the impulse spent per episode, paper-budget]"
               "(figures/tradeoff-paper-budget.png)")

@@ -312,6 +312,25 @@ def _quartiles(values) -> dict | None:
     return {"median": float(med), "q25": float(q25), "q75": float(q75), "n": int(v.size)}
 
 
+#: Resamples of the bootstrap interval of a median (median_interval); its seed is fixed so a
+#: report is a pure function of its records.
+BOOTSTRAP_RESAMPLES = 10_000
+
+
+def median_interval(values, level: float = 0.95) -> list[float] | None:
+    """The percentile-bootstrap interval of the median of the finite values (level 95 %):
+    where the median over seeds would fall on another draw of as many seeds. None when fewer
+    than 2 values.
+    """
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=float)
+    if v.size < 2:
+        return None
+    draws = np.random.default_rng(0).integers(0, v.size, (BOOTSTRAP_RESAMPLES, v.size))
+    medians = np.median(v[draws], axis=1)
+    tail = (1.0 - level) / 2.0
+    return [float(np.quantile(medians, tail)), float(np.quantile(medians, 1.0 - tail))]
+
+
 def win_rate(a: dict, b: dict, key: str = "reeval_cost") -> float | None:
     """Share of the seeds both agents ran on which agent a's `key` is lower (ties count half).
 
@@ -336,9 +355,10 @@ def summarize(records: list[dict]) -> dict:
     "reeval_cost_observed_best", "regret", "regret_observed_best", "val_rel_error", "wall_s"
     (each median/q25/q75/n), "val_diverged", "win_rate": {other agent: share of the shared
     seeds won on the re-evaluated cost of xi*}, "win_seeds": {other agent: how many seeds that
-    share rests on}}}}. Under mission limits each agent adds "impulse_star" (quartiles of the
-    N·m·s its xi* spent) and "within_limits" (the share of its runs whose xi* the limits let
-    fire as designed on every evaluation seed).
+    share rests on}, "regret_median_ci95": the 95 % bootstrap interval of the median regret
+    (None without a grid or with one seed)}}}. Under mission limits each agent adds
+    "impulse_star" (quartiles of the N·m·s its xi* spent) and "within_limits" (the share of its
+    runs whose xi* the limits let fire as designed on every evaluation seed).
     """
     grid = next((r for r in records if r["agent"] == GRID), None)
     ref = None if grid is None else grid["reeval_cost"]
@@ -365,6 +385,7 @@ def summarize(records: list[dict]) -> dict:
             **{key: stat(key) for key in ("best_cost", "reeval_cost", "reeval_cost_observed_best",
                                           "regret", "regret_observed_best", "val_rel_error",
                                           "wall_s")},
+            "regret_median_ci95": median_interval([r["regret"] for r in rows]),
             "val_diverged": int(sum(r["val_diverged"] for r in rows)),
             **({"impulse_star": stat("impulse_star"),
                 "within_limits": float(np.mean([r["within_limits_star"] == 1.0 for r in rows]))}

@@ -49,6 +49,12 @@ def table_markdown(summary: dict) -> str:
                  if limited and "impulse_star" in grid else (" – | – |" if limited else ""))
         lines.append(f"| grid ({grid['n_points']} xi) | 1 | – | {grid['reeval_cost']:.3g} | "
                      f"0 (the reference) | – | {err} | {grid['wall_s']:.3g} |" + cells)
+    intervals = [f"{a} [{summary['agents'][a]['regret_median_ci95'][0]:.3g}, "
+                 f"{summary['agents'][a]['regret_median_ci95'][1]:.3g}]"
+                 for a in agents if summary["agents"][a].get("regret_median_ci95") is not None]
+    if intervals:
+        lines += ["", "95 % bootstrap intervals of the median regret of xi*: " + "; ".join(intervals)
+                  + "."]
     if len(agents) > 1:
         lines += ["", "Win rate (row beats column on the re-evaluated cost of xi*, on the seeds "
                       "both ran; ties count half; in brackets the number of those seeds):", "",
