@@ -125,18 +125,30 @@ def agent_rows(agents: dict, label: str, cells) -> list[list[str]]:
     return rows
 
 
+def validated(record: dict) -> str:
+    """A record's validated error in percent, or "diverged"."""
+    return "diverged" if record["val_rel_error"] is None else pct(record["val_rel_error"])
+
+
+def sweep_rows(folder: Path, sweeps, cells, grid_cells) -> list[list[str]]:
+    """The rows of several sweeps (folder/SUB/benchmark.json for each (SUB, label) of sweeps):
+    each agent's (agent_rows with cells), then the grid optimum's with grid_cells(grid record).
+    """
+    rows = []
+    for sub, label in sweeps:
+        summary = load(folder / sub / "benchmark.json")["summary"]
+        rows += agent_rows(summary["agents"], label, cells)
+        grid = summary["grid"]
+        if grid is not None:
+            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", *grid_cells(grid), ""])
+    return rows
+
+
 def render_benchmark(folder: Path) -> str:
     """The two sweeps' benchmark.json: regrets, validated errors and BO's wins per objective."""
-    rows = []
-    for sub, label in BENCHMARK_OBJECTIVES:
-        summary = load(folder / sub / "benchmark.json")["summary"]
-        agents, grid = summary["agents"], summary["grid"]
-        rows += agent_rows(agents, label, lambda s: [
-            quartiles(s["regret"]), quartiles(s["regret_observed_best"]),
-            quartiles(s["val_rel_error"], 100.0, " %")])
-        if grid is not None:
-            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0", "–",
-                         "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]), ""])
+    rows = sweep_rows(folder, BENCHMARK_OBJECTIVES, lambda s: [
+        quartiles(s["regret"]), quartiles(s["regret_observed_best"]),
+        quartiles(s["val_rel_error"], 100.0, " %")], lambda grid: ["0", "–", validated(grid)])
     return table(["objective", "agent", "regret of ξ\\*", "regret of the observed best",
                   "validated error of ξ\\*", "BO wins"], rows)
 
@@ -152,18 +164,11 @@ def render_benchmark_budget(folder: Path) -> str:
     within the limits per agent, the grid optimum; and the paper body's trade-off figure,
     copied into docs/figures.
     """
-    rows = []
-    for sub, label in BUDGET_SCENARIOS:
-        summary = load(folder / sub / "benchmark.json")["summary"]
-        agents, grid = summary["agents"], summary["grid"]
-        rows += agent_rows(agents, label, lambda s: [
-            quartiles(s["regret"]), interval(s["regret_median_ci95"]),
-            quartiles(s["val_rel_error"], 100.0, " %"),
-            quartiles(s["impulse_star"]), f"{100 * s['within_limits']:.0f} %"])
-        if grid is not None:
-            rows.append(["", f"grid optimum {xi_label(grid['xi_star'])}", "0", "–",
-                         "diverged" if grid["val_rel_error"] is None else pct(grid["val_rel_error"]),
-                         f"{grid['impulse_star']:.3g}", "100 %", ""])
+    rows = sweep_rows(folder, BUDGET_SCENARIOS, lambda s: [
+        quartiles(s["regret"]), interval(s["regret_median_ci95"]),
+        quartiles(s["val_rel_error"], 100.0, " %"),
+        quartiles(s["impulse_star"]), f"{100 * s['within_limits']:.0f} %"],
+        lambda grid: ["0", "–", validated(grid), f"{grid['impulse_star']:.3g}", "100 %"])
     FIGURES.mkdir(exist_ok=True)
     (FIGURES / "tradeoff-paper-budget.png").write_bytes(
         (folder / "paper-budget" / "tradeoff.png").read_bytes())
