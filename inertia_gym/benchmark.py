@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 
+from inertia_gym.agents.base import candidates
 from inertia_gym.envs.excitation import check_seed
 from inertia_gym.episode import COSTS
 from inertia_gym.errors import ConfigError
@@ -224,8 +225,7 @@ def run_task(settings: SweepSettings, task: Task) -> dict:
         costs = scores.cost
         # Under limits the optimum is a design the limits let fire as designed on every seed,
         # as an agent's xi* is one of its evaluations that fired so.
-        pool = np.flatnonzero(scores.within == 1.0) if sc.limited else np.arange(len(xis))
-        pool = pool if pool.size else np.arange(len(xis))
+        pool = candidates(scores.within == 1.0 if sc.limited else None, len(xis))
         order = pool[np.argsort(costs[pool], kind="stable")]
         record = {
             "agent": GRID, "seed": None, "n_points": len(xis),

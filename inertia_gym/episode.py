@@ -67,11 +67,11 @@ class EpisodeResult:
     p_theta_eigvals: np.ndarray
     rel_error: float
     diverged: bool
-    impulse: float = 0.0
-    impulse_demand: float = 0.0
-    rate_peak: float = 0.0
-    budget_spent: bool = False
-    rate_cuts: int = 0
+    impulse: float
+    impulse_demand: float
+    rate_peak: float
+    budget_spent: bool
+    rate_cuts: int
 
 
 def information_costs(sc: Scenario, w_hat, w_dot_hat, n_steps, bursts, t_on) -> list[tuple]:

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from inertia_gym.agents.base import AGENTS as AGENT_REGISTRY
-from inertia_gym.agents.base import extra_module
+from inertia_gym.agents.base import candidates, extra_module
 from inertia_gym.envs import ENV_ID
 from inertia_gym.envs.excitation import check_seed, divergence_cost
 from inertia_gym.episode import COSTS, run_episode
@@ -213,7 +213,7 @@ def optimize(agent: str, sc: Scenario, budget: int, seed: int, cost: str = DEFAU
         within = np.array(env.within[:budget], dtype=bool)
         actions = np.array([xi_to_action(sc, x) for x in xis], dtype=float)
         star, cost_star = runner.recommend(actions, costs, within if sc.limited else None)
-    pool = np.flatnonzero(within) if sc.limited and within.any() else np.arange(len(costs))
+    pool = candidates(within if sc.limited else None, len(costs))
     best = int(pool[np.argmin(costs[pool])])
     return OptimizationResult(
         agent=agent, budget=int(budget), seed=seed, cost_kind=cost, xi_star=xis[star],

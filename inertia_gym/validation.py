@@ -180,7 +180,7 @@ def validate(sc: Scenario, xi, duration: float, seeds, *, record_torque: bool = 
     impulse = np.zeros(len(seeds))
     rate_peak = np.zeros(len(seeds))
     for i in range(n_seg):
-        if i % sc.bursts_per_episode == 1 or sc.bursts_per_episode == 1:
+        if (i - 1) % sc.bursts_per_episode == 0:
             spent[:] = 0.0  # segment i >= 1 holds burst i: a new episode's budget every N bursts
         n_steps = np.array([s[i].n_steps if i < len(s) else 0 for s in schedules])
         bursts = np.zeros((len(seeds), 1 if t_on is not None else 0, 2), dtype=np.int64)

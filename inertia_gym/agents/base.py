@@ -12,6 +12,14 @@ from tqdm.auto import tqdm
 from inertia_gym.errors import ConfigError
 
 
+def candidates(within, n: int) -> np.ndarray:
+    """Indices of the n evaluations a recommendation picks from: those within the scenario's
+    limits (within (n,) bool) when there are any, else all (also for within None).
+    """
+    allowed = np.flatnonzero(np.asarray(within, dtype=bool)) if within is not None else np.arange(0)
+    return allowed if allowed.size else np.arange(n)
+
+
 class Agent(abc.ABC):
     """Chooses actions u in [-1, 1]^3 (the env's normalised xi) for a budget of env steps.
 

@@ -27,7 +27,7 @@ from botorch.optim import optimize_acqf
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from inertia_gym.agents.base import AskTellAgent
+from inertia_gym.agents.base import AskTellAgent, candidates
 from inertia_gym.errors import ConfigError
 
 ACQUISITIONS = ("pi", "logpi")
@@ -84,10 +84,8 @@ def posterior_best(actions, costs, seed: int = 0, within=None) -> tuple[int, flo
         model = fit_gp(x, y)
         with torch.no_grad():
             mean = model.posterior(x).mean.squeeze(-1).numpy()
-    allowed = np.ones(len(mean), dtype=bool) if within is None else np.asarray(within, dtype=bool)
-    if not allowed.any():
-        allowed[:] = True
-    best = int(np.flatnonzero(allowed)[np.argmin(mean[allowed])])
+    pool = candidates(within, len(mean))
+    best = int(pool[np.argmin(mean[pool])])
     return best, float(mean[best])
 
 
