@@ -42,6 +42,7 @@ from inertia_gym.estimation import ml, output_error
 from inertia_gym.estimation.equation_error import EquationError, equation_error
 from inertia_gym.estimation.filters import run_over_recording
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia, theta_from_phi
+from inertia_gym.estimation.nested import Extended, lack_of_fit, with_bias_or_drag
 from inertia_gym.estimation.uncertainty import (
     SCALE_SIGMA_IDENTIFIED,
     TEST_LEVEL,
@@ -118,21 +119,6 @@ class Identification:
                 "wall_s": float(self.wall_s)}
 
 
-def lack_of_fit(refinement: ml.Refinement, level: np.ndarray, prob: output_error.Problem) -> float:
-    """The p-value of the fit's residuals against the noise level (3,) rad/s: their whitened sum
-    of squares against a chi-square on the residuals' degrees of freedom (fewer where they are
-    correlated: each run of correlated lags counts once). A fit in several segments is tested the
-    same way, each segment's own initial state counted among the fitted parameters: a long tumble
-    that no single trajectory follows numerically (its sensitivity to the inertia grows without
-    bound) is still one rigid body wherever its segments leave residuals at the noise.
-    """
-    fit = refinement.fit
-    z = fit.evaluation.e_w / level
-    states = (fit.segments - 1) * output_error.local_indices(prob).size
-    dof = max(z.size - prob.n_params - states, 1) / (1 + refinement.noise.hac_lags)
-    return float(stats.chi2.sf(float(np.sum(z ** 2)) / (1 + refinement.noise.hac_lags), dof))
-
-
 def _starts(ee_phi: np.ndarray, trace: float) -> list[np.ndarray]:
     """Starting inertias: the equation error's, then the elongated and flat bodies of its trace
     (a short flip can leave several inertias locally consistent).
@@ -162,13 +148,15 @@ def _penalised_cost(fit: output_error.Fit, prob: output_error.Problem, level) ->
 
 
 def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: InertiaEstimate,
-                     ee_misfit: bool, trace_ref) -> ml.Refinement:
+                     ee_misfit: bool, trace_ref, nested: bool = False) -> Extended:
     """The maximum-likelihood fit with its statistics: from the equation error's inertia; where
     that fit is one trajectory that the data reject (lack_of_fit) while the equation error finds
     no model error (ee_misfit false) or disagrees with it beyond their intervals (agreement): a
     basin other than the equation error's, also from the other starts (_starts), the likelihood
     choosing (_penalised_cost). Without a stated noise level each fit is reweighted once by its
-    own residuals' level. Raises EstimatorDivergedError where no fit's error bars are finite.
+    own residuals' level. nested: a gyro bias or a drag may join the fit (with_bias_or_drag); one
+    that makes the first basin's fit pass the lack-of-fit test explains its misfit, and no other
+    basin is searched. Raises EstimatorDivergedError where no fit's error bars are finite.
     """
     q0 = None if prep.rec.q is None else prep.rec.q[0]
     stated = prep.sigma is not None
@@ -183,13 +171,21 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
         weighted = dataclasses.replace(prob, sigma_w=np.maximum(level, 1e-9))
         return weighted, output_error.fit(weighted, fit.p, fit.q0) if fit.segments == 1 else fit
 
-    fits, refused = [], None
+    def kept(refinement: ml.Refinement) -> Extended:
+        if not nested:
+            return Extended(prob, refinement, None)
+        return with_bias_or_drag(prep, prob, refinement, trace_ref)
+
+    fits, refused, tried = [], None, None
     try:
         fits.append(one(ee_phi))
         first = ml.statistics(*fits[0], trace_ref, prep.sigma_source, stated)
         if (fits[0][1].segments > 1 or lack_of_fit(first, prep.level, prob) >= 1.0 - TEST_LEVEL
                 or (ee_misfit and not agreement(first.estimate, reference).disagree)):
-            return first
+            return kept(first)
+        tried = kept(first)
+        if tried.note is not None:
+            return tried
     except (EstimatorDivergedError, ConfigError) as err:
         refused = err
     trace = float(TRACE_WEIGHTS @ theta_from_phi(np.ascontiguousarray(ee_phi)))
@@ -199,62 +195,15 @@ def output_error_fit(prep: Prepared, prob: output_error.Problem, reference: Iner
         except (EstimatorDivergedError, ConfigError):
             continue
     for problem, fit in sorted(fits, key=lambda found: _penalised_cost(found[1], prob, prep.level)):
+        if tried is not None and fit is fits[0][1]:
+            return tried  # the first basin's fit, its nested terms already tested
         try:
             if fit is not fits[0][1] and fit.segments == 1:  # another start's basin: to its floor
                 fit = output_error.fit(problem, fit.p, fit.q0)
-            return ml.statistics(problem, fit, trace_ref, prep.sigma_source, stated)
+            return kept(ml.statistics(problem, fit, trace_ref, prep.sigma_source, stated))
         except (EstimatorDivergedError, ConfigError) as err:
             refused = err
     raise refused
-
-
-def _extended(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref, term: str):
-    """(problem, refinement, whitened residual sum) of the plain fit extended by `term` ("fit_bias"
-    or "fit_drag"), where the likelihood-ratio test finds it (chi-square on 3 degrees of freedom
-    at TEST_LEVEL) and the extended fit passes the lack-of-fit test (a term that leaves a misfit
-    is soaking up other model error); else None.
-    """
-    extended_prob = dataclasses.replace(prob, **{term: True})
-    try:
-        fit = output_error.fit(extended_prob, np.r_[plain.fit.p, np.zeros(3)], plain.fit.q0)
-        extended = ml.statistics(extended_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
-    except (EstimatorDivergedError, ConfigError):
-        return None
-    if (extended.fit.segments > plain.fit.segments
-            or lack_of_fit(extended, prep.level, extended_prob) < 1 - TEST_LEVEL):
-        return None
-    # the gain's discount for correlated rows: where the term leaves white residuals, the noise is
-    # white and the gain a chi-square on 3 degrees of freedom (the plain fit's correlation is then
-    # the term's own misfit, not noise); where correlation remains, model error beyond the term
-    # is in both fits, and the longer of their correlations discounts it
-    lags = 1 + (0 if extended.noise.hac_lags == 0 else max(plain.noise.hac_lags, extended.noise.hac_lags))
-    cost = float(np.sum((extended.fit.evaluation.e_w / prep.level) ** 2))
-    gain = float(np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)) - cost
-    # nested fits in as many segments: the likelihood-ratio test; a term that lets fewer
-    # trajectories follow the record is evidence of its own
-    if plain.fit.segments == extended.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
-        return None
-    return extended_prob, extended, cost
-
-
-def _with_bias_or_drag(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, trace_ref) -> tuple:
-    """(problem, refinement, note): the plain fit, or with a bias or a drag (_extended) by likelihood."""
-    terms = ("fit_bias",) if prob.fit_drag else ("fit_bias", "fit_drag")
-    found = {t: got for t in terms if (got := _extended(prep, prob, plain, trace_ref, t)) is not None}
-    if not found:
-        return prob, plain, None
-    term = min(found, key=lambda k: found[k][2])  # both add 3 parameters: the smaller sum, more likely
-    chosen_prob, chosen, cost = found[term]
-    values = chosen.fit.p[-3:] if term == "fit_bias" else chosen.fit.p[chosen_prob.drag_slice]
-    shown = np.array2string(values, formatter={"float_kind": lambda v: f"{v:.3g}"})  # 3 significant digits
-    what = (f"a constant gyro bias {shown} rad/s" if term == "fit_bias" else
-            f"a body-axis air drag c = {shown} N·m·s² (torque -c_i |w| w_i)")
-    note = f"{what} was fitted: the likelihood-ratio test finds it and with it the residuals are at the noise"
-    for other in set(found) - {term}:  # the other term's residual sum beside the kept one's
-        words = {"fit_bias": "a constant gyro bias", "fit_drag": "a body-axis air drag"}[other]
-        note += (f"; {words} in its place fits too, less well (whitened residual sums {cost:.6g}, "
-                 f"{found[other][2]:.6g})")
-    return chosen_prob, chosen, note
 
 
 def _equation_error_estimate(prep: Prepared, trace_ref, bias=None) -> EquationError:
@@ -274,7 +223,7 @@ def identify(rec: Recording, method: str = "ml", *, fit_bias: bool | None = None
     method: 'ml' (both estimates, one reported), or 'ekf' / 'ukf' (the paper's filter run once
     over the record, started from the equation error). fit_bias (ml only): estimate a constant
     gyro bias (default: where the attitude is recorded, which makes it identifiable; on a
-    gyro-only record, where the likelihood-ratio test finds one: _with_bias_or_drag). fit_drag
+    gyro-only record, where the likelihood-ratio test finds one: nested.with_bias_or_drag). fit_drag
     (ml only): also estimate a body-axis aerodynamic damping (torque -c_i |w| w_i, c (3,)
     N·m·s²; by default on a gyro-only record where it fits better than a bias would).
     """
@@ -315,7 +264,7 @@ def identify_prepared(prep: Prepared, method: str = "ml", *, fit_bias: bool | No
 @dataclasses.dataclass(frozen=True)
 class _Estimates:
     """Both estimates of one record: the equation error (ee; as an InertiaEstimate, reference),
-    the output-error problem (prob, with _with_bias_or_drag's bias or drag), its fit (oe), the
+    the output-error problem (prob, with a nested bias or drag: nested.with_bias_or_drag), its fit (oe), the
     note on that term.
     """
 
@@ -327,16 +276,16 @@ class _Estimates:
 
 
 def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
-    """The equation error, then the output error started from it (output_error_fit, and
-    _with_bias_or_drag); where that fits a gyro bias, the equation error again from the rates less it.
+    """The equation error, then the output error started from it (output_error_fit, with its
+    nested terms on a gyro-only record); where that fits a gyro bias, the equation error again
+    from the rates less it.
     """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
     prob = output_error.problem_from(prep, prep.sigma, bool(fit_bias), fit_drag)
-    oe = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref)
-    said = None
-    if fit_bias is None and prep.rec.q is None:
-        prob, oe, said = _with_bias_or_drag(prep, prob, oe, trace_ref)
+    found = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref,
+                             nested=fit_bias is None and prep.rec.q is None)
+    prob, oe, said = found.prob, found.refinement, found.note
     if prob.fit_bias:  # a sensor offset enters the windows' regressors: both estimates without it
         ee = _equation_error_estimate(prep, trace_ref, oe.fit.p[-3:])
         reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
