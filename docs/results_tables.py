@@ -248,7 +248,8 @@ def render_basilisk_identify(folder: Path) -> str:
 
 
 #: The concealed components of scripts/basilisk_harness.py diagnose, in the page's words.
-CONCEALED = {"slosh": "slosh", "panel": "hinged panel", "hidden_wheels": "reaction wheels, momentum hidden",
+CONCEALED = {"slosh": "slosh", "slosh_damped": "slosh damped past resonance", "panel": "hinged panel",
+             "hidden_wheels": "reaction wheels, momentum hidden",
              "hidden_torque": "constant body torque", "gyro_bias": "gyro bias", "gyro_scale": "gyro scale",
              "gyro_drift": "gyro bias drifting"}
 
@@ -277,15 +278,28 @@ def render_basilisk_diagnose(folder: Path) -> str:
         rms = [max(r["rms_over_noise_after"]) for r in members if r["rms_over_noise_after"]]
         off = [100 * r["nominal_error"] for r in members]
         out.append([label, str(len(members)), str(sum(r["correct"] for r in members)),
-                    span(off, ".1f") + " %", span(rms, ".2f")])
+                    str(sum(bool(r["outside_truth"]) for r in members)), span(off, ".1f") + " %",
+                    span(rms, ".2f")])
     out.append(["**all**", f"**{len(rows)}**", f"**{totals['cases_correct']} of {totals['cases']}, "
-                f"controls {totals['controls_clean']} of {totals['controls']}**", "", ""])
-    text = table(["concealed", "cases", "correct", "nominal off by",
+                f"controls {totals['controls_clean']} of {totals['controls']}**",
+                f"**{sum(bool(r['outside_truth']) for r in rows)}**", "", ""])
+    text = table(["concealed", "cases", "correct", "naming physics the truth lacks", "nominal off by",
                   "worst-axis rms / noise after the explanation"], out)
+    damped = [r for r in rows if "slosh_damped" in r["components"]]
+    if damped:
+        text += (f"\n\nSlosh damped past resonance read as internal dissipation: "
+                 f"{sum(r['reads_dissipation'] for r in damped)} of {len(damped)}.")
     misses = [r for r in rows if not r["correct"]]
     lines = [f"- `{r['case']}`: concealed {', '.join(r['components']) or 'nothing'}; named "
              f"{', '.join(r['named']) or 'nothing'}" for r in misses]
-    return text + "\n\nCases not correct:" + ("\n\n" + "\n".join(lines) if lines else " none.")
+    padded = [f"- `{r['case']}`: {', '.join(r['outside_truth'])} beside "
+              f"{', '.join(n for n in r['named'] if n not in r['outside_truth']) or 'nothing'}"
+              for r in rows if r["outside_truth"] and r["correct"]]
+    text += "\n\nCases not correct:" + ("\n\n" + "\n".join(lines) if lines else " none.")
+    if padded:
+        text += ("\n\nCorrect cases whose explanation also names physics the truth lacks:\n\n"
+                 + "\n".join(padded))
+    return text
 
 
 def render_diagnose_harness(folder: Path) -> str:

@@ -43,12 +43,14 @@ from basilisk_identify import run_case as identify_case
 
 def diagnose_markdown(rows: list[dict], totals: dict) -> str:
     """The table: one row per case, then the totals."""
-    lines = ["| case | concealed | nominal off by | named by diagnose | rms / noise after (worst axis) "
-             "| mismatch detected | correct |", "|---|---|---|---|---|---|---|"]
+    lines = ["| case | concealed | nominal off by | named by diagnose | of which not in the truth "
+             "| rms / noise after (worst axis) | mismatch detected | correct |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         worst = max(r["rms_over_noise_after"] or [float("nan")])
         lines.append(f"| {r['case']} | {', '.join(r['components']) or '— (control)'} | "
-                     f"{100 * r['nominal_error']:.1f} % | {', '.join(r['named']) or '—'} | {worst:.2f} | "
+                     f"{100 * r['nominal_error']:.1f} % | {', '.join(r['named']) or '—'} | "
+                     f"{', '.join(r['outside_truth']) or '—'} | {worst:.2f} | "
                      f"{'yes' if r['mismatch_detected'] else 'no'} | {'yes' if r['correct'] else 'no'} |")
     lines += ["", f"Concealed-effect cases correct: {totals['cases_correct']}/{totals['cases']}; "
               f"controls clean: {totals['controls_clean']}/{totals['controls']}; "

@@ -17,6 +17,7 @@ import numpy as np
 from basilisk_sim import TRUTH_KEY, Panel, Slosh, SpacecraftCase, Wheels, simulate
 
 from inertia_gym.discrepancy.report import diagnose
+from inertia_gym.discrepancy.summary import DISSIPATIVE_ZETA
 from inertia_gym.recordings import read_recordings, write_recording
 
 # What counts as a correct diagnosis of each concealed component: the catalogue names that
@@ -33,9 +34,13 @@ from inertia_gym.recordings import read_recordings, write_recording
 # - gyro_bias, gyro_scale: added to the reading: `gyro_bias`, `gyro_scale`.
 # - gyro_drift: a bias random walk added to the reading: `gyro_bias` (its varying form, on a record
 #   long enough for it).
+# - slosh_damped: a slosh whose damping ratio is at least DISSIPATIVE_ZETA (no resonance: the
+#   particle sheds its energy within about a period): the same names; whether the explanation
+#   reads it as dissipation (reads_dissipation) is reported beside.
 MASS_LEFT_OUT = ("inertia_offset", "flexible_mode", "internal_dissipation")
 ACCEPTED = {
     "slosh": MASS_LEFT_OUT,
+    "slosh_damped": MASS_LEFT_OUT,
     "panel": MASS_LEFT_OUT,
     "hidden_wheels": ("internal_momentum",),
     "hidden_torque": ("constant_body_torque",),
@@ -69,8 +74,10 @@ def hub(body: str) -> tuple[float, np.ndarray]:
 def components(case: SpacecraftCase) -> list[str]:
     """The concealed components of a case (keys of ACCEPTED); [] for a control."""
     out = []
-    if case.slosh:
+    if any(p.damping_ratio < DISSIPATIVE_ZETA for p in case.slosh):
         out.append("slosh")
+    if any(p.damping_ratio >= DISSIPATIVE_ZETA for p in case.slosh):
+        out.append("slosh_damped")
     if case.panels:
         out.append("panel")
     if case.wheels is not None and not case.wheels.logged:
@@ -167,6 +174,14 @@ def cases(duration: float) -> list[SpacecraftCase]:
         base("slosh_bus_bursts", "bus", 23, True, slosh=(slosh("bus", 0.05, 0.15, 0.2, 23),), **d),
         base("slosh_cubesat_free", "cubesat", 24, False, slosh=(slosh("cubesat", 0.15, 0.5, 0.3, 24),), **d),
         base("slosh_bus_small_free", "bus", 25, False, slosh=(slosh("bus", 0.03, 0.2, 0.02, 25),), **d),
+        # slosh damped past resonance (a propellant management device, a viscous damper)
+        base("slosh_damped_smallsat_free", "smallsat", 26, False,
+             slosh=(slosh("smallsat", 0.1, 0.3, 1.0, 26),), **d),
+        base("slosh_damped_smallsat_bursts", "smallsat", 27, True,
+             slosh=(slosh("smallsat", 0.1, 0.3, 1.0, 27),), **d),
+        base("slosh_damped_bus_bursts", "bus", 28, True, slosh=(slosh("bus", 0.05, 0.15, 3.0, 28),), **d),
+        base("slosh_damped_cubesat_free", "cubesat", 29, False,
+             slosh=(slosh("cubesat", 0.15, 0.5, 2.0, 29),), **d),
         # hinged panels: panel mass left out
         base("panel_smallsat_free", "smallsat", 31, False, panels=(panel("smallsat", 0.04, 0.5, 0.02),), **d),
         base("panel_smallsat_bursts", "smallsat", 32, True, panels=(panel("smallsat", 0.04, 0.5, 0.02),),
@@ -258,10 +273,22 @@ def named_effects(report: dict, count: int) -> list[str]:
     return [e["name"] for e in report["effects"] if e["significant"]][:count]
 
 
+def reads_dissipation(report: dict) -> bool:
+    """Whether the explanation reads as internal dissipation: internal_dissipation in it, or a
+    flexible_mode damped past resonance (the summary's reading, DISSIPATIVE_ZETA).
+    """
+    expl = report.get("explanation") or []
+    return any(e["name"] == "internal_dissipation" or (
+        e["name"] == "flexible_mode" and float(e.get("params", {}).get("zeta", 0.0)) >= DISSIPATIVE_ZETA)
+        for e in expl)
+
+
 def score(case: SpacecraftCase, report: dict) -> dict:
     """Correctness of one report (see ACCEPTED): a control must name nothing and detect no
     mismatch; a single component must lead; each component of a pair must be among the names
-    given; a component in FORM, in that form in the explanation.
+    given; a component in FORM, in that form in the explanation. Beside it: the names given for
+    physics the truth does not hold (outside_truth: padding) and whether the explanation reads
+    as internal dissipation (reads_dissipation).
     """
     parts = components(case)
     significant = [e for e in report["effects"] if e["significant"]]
@@ -276,9 +303,11 @@ def score(case: SpacecraftCase, report: dict) -> dict:
     else:
         correct = all(any(n in ACCEPTED[p] for n in named) for p in parts)
     top = significant[0] if significant else None
+    truth = {n for p in parts for n in ACCEPTED[p]}
     return {
         "case": case.name, "components": parts, "accepted": {p: list(ACCEPTED[p]) for p in parts},
         "named": named, "correct": bool(correct), "mismatch_detected": bool(report["mismatch_detected"]),
+        "outside_truth": [n for n in named if n not in truth], "reads_dissipation": reads_dissipation(report),
         "top_effect": top["name"] if top else None, "top_delta_bic": top["delta_bic"] if top else None,
         "significant": [e["name"] for e in significant],
         "delta_bic": {e["name"]: e["delta_bic"] for e in report["effects"]},

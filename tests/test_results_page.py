@@ -349,27 +349,35 @@ def test_render_diagnose_harness_on_a_fixture(tmp_path):
 def test_render_basilisk_diagnose_on_a_fixture(tmp_path):
     # basilisk_harness.json of `PYTHONPATH=.:tests python scripts/basilisk_harness.py diagnose
     # --out DIR` (keys the renderer does not read trimmed)
-    def row(case, components, named, correct, rms, off):
+    def row(case, components, named, correct, rms, off, outside=(), dissipation=False):
         return {"case": case, "components": components, "named": named, "correct": correct,
-                "mismatch_detected": bool(components), "rms_over_noise_after": rms, "nominal_error": off}
+                "mismatch_detected": bool(components), "rms_over_noise_after": rms, "nominal_error": off,
+                "outside_truth": list(outside), "reads_dissipation": dissipation}
 
     rows = [row("control_smallsat_bursts", [], [], True, [0.99, 1.0, 1.01], 0.0),
             row("control_bus_free", [], [], True, [1.06, 1.0, 1.0], 0.0),
             row("slosh_smallsat_bursts", ["slosh"], ["inertia_offset"], True, [1.08, 1.16, 1.2], 0.0696),
+            row("slosh_damped_bus_bursts", ["slosh_damped"], ["inertia_offset", "internal_dissipation"], True,
+                [1.0, 1.1, 1.0], 0.05, dissipation=True),
+            row("slosh_damped_smallsat_bursts", ["slosh_damped"], ["inertia_offset", "constant_body_torque"],
+                True, [1.0, 1.3, 1.0], 0.07, outside=["constant_body_torque"]),
             row("pair_panel_torque", ["panel", "hidden_torque"], ["inertia_offset"], False,
                 [1.1, 3.55, 1.0], 0.25),
             row("drift_bus_long", ["gyro_drift"], [], False, None, 0.0)]
-    totals = {"cases": 3, "cases_correct": 1, "controls": 2, "controls_clean": 2, "wall_s": 60.0,
+    totals = {"cases": 5, "cases_correct": 3, "controls": 2, "controls_clean": 2, "wall_s": 60.0,
               "duration_s": 60.0, "stamp_scatter": 0.0, "gyro_step": 20.0}
     (tmp_path / "basilisk_harness.json").write_text(json.dumps({"totals": totals, "rows": rows}))
     text = tables.render_basilisk_diagnose(tmp_path)
-    assert row_cells(text, "nothing (controls)")[1:] == ["2", "2", "0.0 %", "1.01–1.06"]
-    assert row_cells(text, "slosh")[1:] == ["1", "1", "7.0 %", "1.20"]
-    assert row_cells(text, "pairs of the above")[1:] == ["1", "0", "25.0 %", "3.55"]
-    assert row_cells(text, "gyro bias drifting")[1:] == ["1", "0", "0.0 %", "–"]
-    assert row_cells(text, "**all**")[2] == "**1 of 3, controls 2 of 2**"
+    assert row_cells(text, "nothing (controls)")[1:] == ["2", "2", "0", "0.0 %", "1.01–1.06"]
+    assert row_cells(text, "slosh")[1:] == ["1", "1", "0", "7.0 %", "1.20"]
+    assert row_cells(text, "slosh damped past resonance")[1:] == ["2", "2", "1", "5.0–7.0 %", "1.10–1.30"]
+    assert row_cells(text, "pairs of the above")[1:] == ["1", "0", "0", "25.0 %", "3.55"]
+    assert row_cells(text, "gyro bias drifting")[1:] == ["1", "0", "0", "0.0 %", "–"]
+    assert row_cells(text, "**all**")[2:4] == ["**3 of 5, controls 2 of 2**", "**1**"]
+    assert "read as internal dissipation: 1 of 2." in text
     assert "- `pair_panel_torque`: concealed panel, hidden_torque; named inertia_offset" in text
     assert "- `drift_bus_long`: concealed gyro_drift; named nothing" in text
+    assert "- `slosh_damped_smallsat_bursts`: constant_body_torque beside inertia_offset" in text
 
 
 def test_render_basilisk_identify_puts_the_per_kind_table_first(tmp_path):

@@ -158,6 +158,22 @@ def test_score_follows_the_accepted_table():
 
     assert harness.score(drift, drifting("varying"))["correct"]
     assert not harness.score(drift, drifting(None))["correct"]
+    # names for physics the truth lacks are listed beside the score (padding)
+    padded = report("inertia_offset", "gyro_bias", explanation=["inertia_offset", "gyro_bias"])
+    assert harness.score(slosh, padded)["outside_truth"] == ["gyro_bias"]
+    assert harness.score(pair, report("gyro_bias", "constant_body_torque"))["outside_truth"] == []
+    # a slosh damped past resonance reads as dissipation where the explanation says so
+    damped = _case("slosh_damped_smallsat_free")
+    assert harness.components(damped) == ["slosh_damped"] and harness.components(slosh) == ["slosh"]
+
+    def mode(zeta):
+        explanation = [{"name": "inertia_offset"}, {"name": "flexible_mode", "params": {"zeta": zeta}}]
+        return report("inertia_offset") | {"explanation": explanation}
+
+    assert harness.score(damped, mode(0.9))["reads_dissipation"]
+    assert not harness.score(damped, mode(0.05))["reads_dissipation"]
+    assert harness.score(damped, report("inertia_offset") | {"explanation": [
+        {"name": "inertia_offset"}, {"name": "internal_dissipation"}]})["reads_dissipation"]
 
 
 # ------------------------------------------------------------------------------------------
