@@ -138,7 +138,7 @@ STUDIES = (
           tables.render_diagnose_harness),
     Study("basilisk-diagnose",
           ("PYTHONPATH=.:tests python scripts/basilisk_harness.py diagnose --out {out}",),
-          tables.render_basilisk_diagnose, (BASILISK,)),
+          tables.render_basilisk_diagnose_cases, (BASILISK,)),
     Study("basilisk-diagnose-step20",
           ("PYTHONPATH=.:tests python scripts/basilisk_harness.py diagnose --gyro-step 20 --out {out}",),
           tables.render_basilisk_diagnose, (BASILISK,)),

@@ -302,6 +302,22 @@ def render_basilisk_diagnose(folder: Path) -> str:
     return text
 
 
+def render_basilisk_diagnose_cases(folder: Path) -> str:
+    """render_basilisk_diagnose, then every case on a row: what was concealed, how far off the
+    nominal is, the names diagnose gave and those of them the truth lacks, whether the explanation
+    reads as dissipation, the rms left and whether the case is correct.
+    """
+    rows = load(folder / "basilisk_harness.json")["rows"]
+    out = [[f"`{r['case']}`", ", ".join(r["components"]) or "— (control)",
+            f"{100 * r['nominal_error']:.1f} %", ", ".join(r["named"]) or "—",
+            ", ".join(r["outside_truth"]) or "—", "yes" if r["reads_dissipation"] else "no",
+            f"{max(r['rms_over_noise_after']):.2f}" if r["rms_over_noise_after"] else "–",
+            "yes" if r["correct"] else "no"] for r in rows]
+    return (render_basilisk_diagnose(folder) + "\n\nEvery case:\n\n"
+            + table(["case", "concealed", "nominal off by", "named", "of which not in the truth",
+                     "read as dissipation", "worst-axis rms / noise after", "correct"], out))
+
+
 def render_diagnose_harness(folder: Path) -> str:
     """confusion_matrix.py's cm.json: the harness's figures."""
     d = load(folder / "cm.json")

@@ -227,7 +227,7 @@ def test_software_time_stamps_do_not_change_the_diagnosis(tmp_path, name):
 def test_telemetry_read_in_steps_of_20x_the_noise_keeps_controls_clean_and_names_the_effect(tmp_path, name):
     """Basilisk's rates rounded to a lattice of 20x the gyro's noise (the sidecar keeps its
     gyro_sigma): the samples repeat in runs, the rounding error follows the rate, and the
-    control stays clean while a hidden wheel and a gyro scale are still named (all 65 cases:
+    control stays clean while a hidden wheel and a gyro scale are still named (every case:
     scripts/basilisk_harness.py diagnose --gyro-step 20)."""
     row = harness.run_case(_case(name), tmp_path, gyro_step=20.0)
     assert row["correct"], f"{name}: concealed {row['components']}, diagnose named {row['named']}"
