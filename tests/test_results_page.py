@@ -378,6 +378,12 @@ def test_render_basilisk_diagnose_on_a_fixture(tmp_path):
     assert "- `pair_panel_torque`: concealed panel, hidden_torque; named inertia_offset" in text
     assert "- `drift_bus_long`: concealed gyro_drift; named nothing" in text
     assert "- `slosh_damped_smallsat_bursts`: constant_body_torque beside inertia_offset" in text
+    every = tables.render_basilisk_diagnose_cases(tmp_path)
+    assert every.startswith(text)
+    assert row_cells(every, "`slosh_damped_smallsat_bursts`")[1:] == [
+        "slosh_damped", "7.0 %", "inertia_offset, constant_body_torque", "constant_body_torque", "no", "1.30",
+        "yes"]
+    assert row_cells(every, "`drift_bus_long`")[-2:] == ["–", "no"]
 
 
 def test_render_basilisk_identify_puts_the_per_kind_table_first(tmp_path):
