@@ -18,7 +18,7 @@ from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fan
 from inertia_gym.discrepancy.objective import Fit, Layout
 from inertia_gym.discrepancy.plausibility import implausible
 from inertia_gym.discrepancy.starts import SHORT_SEGMENTS, Probe
-from inertia_gym.discrepancy.statistics import effective_share
+from inertia_gym.discrepancy.statistics import residual_correlated
 
 TIE_BIC = 0.5  # BICs closer than this are a tie (the solver's own spread on equivalent models)
 #: At most this many effects in a compound explanation; the best this many screens of each
@@ -284,7 +284,7 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     Each further step fits every remaining candidate's own parameters on top of the current
     fit (everything else held: a screen, started from the candidate's single-effect fit or
     from its neutral parameters, whichever fits better, and for an effect in a form it
-    restarts_on_base in also, where the current fit's residual is not white (effective_share < 1),
+    restarts_on_base in also, where the current fit's residual is not white (residual_correlated),
     from each of its own starts found on top of the current fit, the best screen kept),
     refits the REFIT_SCREENED best (and any that restarts_on_base) jointly with the inertia and
     the effects already chosen,
@@ -346,7 +346,7 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
     chain and the effect refused so ({name: (why, gain)}, or {}).
     """
     while len(current.names) < max_effects:
-        structured = effective_share(d, current) < 1.0  # the residual left is not white
+        structured = residual_correlated(d, current)  # the residual left is not white
         trials = fanned(_screened, d, [{"single": by_name[n], "current": current, "structured": structured}
                                        for n in pool if n not in current.names])
         trials = [t for t in trials if np.isfinite(t.bic)]

@@ -114,6 +114,27 @@ def intervals(fit: Fit, d: Data, level: float = 0.95) -> dict:
     return out
 
 
+def _segment_residuals(d: Data, fit: Fit) -> list[np.ndarray]:
+    """The whitened residual rows of fit, segment by segment, each less its mean (segments of at least
+    8 rows); [] where the residual is not finite or the record too short to tell.
+    """
+    z = fit.z
+    if not np.all(np.isfinite(z)) or d.n_rows < 16:
+        return []
+    pieces = [z[d.row_seg == s] for s in range(d.segments)]
+    return [p - p.mean(axis=0) for p in pieces if p.shape[0] >= 8]
+
+
+def residual_correlated(d: Data, fit: Fit) -> bool:
+    """Whether fit's whitened residual rows stay correlated within segments at some lag (the
+    autocorrelation test of estimation.longrun.correlation_lags): structure is left, a smooth
+    misfit or an oscillation alike. An oscillation's autocorrelation alternates in sign and sums
+    to about nothing, so effective_share reads it as white; this test does not.
+    """
+    pieces = _segment_residuals(d, fit)
+    return bool(pieces) and correlation_lags(np.vstack(pieces)) > 0
+
+
 def effective_share(d: Data, fit: Fit) -> float:
     """1/tau: the share of fit's residual rows that are independent, tau = 1 + 2 sum_l
     (1 - l/(L+1)) rho_l the integrated autocorrelation (Bartlett weights) of the whitened rows
@@ -123,11 +144,7 @@ def effective_share(d: Data, fit: Fit) -> float:
     correlated over many rows: counted as independent it would make every extra parameter that
     absorbs a little of it look significant, a flexible one most of all.
     """
-    z = fit.z
-    if not np.all(np.isfinite(z)) or d.n_rows < 16:
-        return 1.0
-    pieces = [z[d.row_seg == s] for s in range(d.segments)]
-    pieces = [p - p.mean(axis=0) for p in pieces if p.shape[0] >= 8]
+    pieces = _segment_residuals(d, fit)
     if not pieces:
         return 1.0
     lags = max(correlation_lags(np.vstack(pieces)), 0)
