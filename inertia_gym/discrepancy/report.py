@@ -50,7 +50,7 @@ from inertia_gym.discrepancy.fit import (
     lattice_level,
     lattice_refits_counted,
     polished,
-    predictive,
+    predictive_selection,
     prepare,
     ranked,
     rounding_checked,
@@ -217,7 +217,7 @@ def _fits(prep: Prepared) -> _Fits:
         nominal = finish(nominal.layout, nominal.x, d, nominal.k)
         fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
-    chosen = predictive(chosen, d, nominal, fits)  # what it adds after its leader must predict
+    chosen = predictive_selection(chosen, d, nominal, fits)  # what it adds after its leader must predict
     if floors and chosen.fit is not None:  # each effect it claims against the rounding, over more draws
         chosen, alone = rounding_checked(d, nominal, chosen, fits)
         d = dataclasses.replace(d, rounding_floor={n: max(f, alone.get(n, 0.0)) for n, f in floors.items()})

@@ -225,6 +225,25 @@ def predictive(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> 
     return Explanation(tuple(chain), _added(nominal, chain, names), dropped, expl.refused, left)
 
 
+def predictive_selection(expl: Explanation, d: Data, nominal: Fit, singles: list[Fit]) -> Explanation:
+    """The explanation expl with what it adds after its leader judged on held-out rows
+    (predictive); where that leaves effects out, the selection runs again without them (select
+    over the other singles) and its additions are judged in turn, until none is left out. As the
+    backward check's forward steps resume without the effects it drops: an effect that follows the
+    leader's leftover misfit only where it was fitted can stand in the way of one that explains it
+    (a slosh damped past resonance: a free momentum profile, dropped, hid the damped mode).
+    """
+    chosen = predictive(expl, d, nominal, singles)
+    left = dict(chosen.unpredictive)
+    dropped = dict(chosen.dropped)
+    while chosen.unpredictive:
+        pool = [f for f in singles if f.name not in left]
+        chosen = predictive(select(d, nominal, pool), d, nominal, pool)
+        left |= chosen.unpredictive
+        dropped |= chosen.dropped
+    return dataclasses.replace(chosen, dropped=dropped, unpredictive=left)
+
+
 def _claims_cost(fit: Fit, d: Data) -> float:
     """A compound fit's BIC plus the margin each effect it names must clear (claim_margin)."""
     return fit.bic + sum(claim_margin(d, name) for name in fit.names)
