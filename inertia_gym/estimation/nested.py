@@ -55,24 +55,24 @@ def extended(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement, t
     extended_prob = dataclasses.replace(prob, **{term: True})
     try:
         fit = output_error.fit(extended_prob, np.r_[plain.fit.p, np.zeros(3)], plain.fit.q0)
-        extended = ml.statistics(extended_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
+        fitted = ml.statistics(extended_prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
     except (EstimatorDivergedError, ConfigError):
         return None
-    if (extended.fit.segments > plain.fit.segments
-            or lack_of_fit(extended, prep.level, extended_prob) < 1 - TEST_LEVEL):
+    if (fitted.fit.segments > plain.fit.segments
+            or lack_of_fit(fitted, prep.level, extended_prob) < 1 - TEST_LEVEL):
         return None
     # the gain's discount for correlated rows: where the term leaves white residuals, the noise is
     # white and the gain a chi-square on 3 degrees of freedom (the plain fit's correlation is then
     # the term's own misfit, not noise); where correlation remains, model error beyond the term
     # is in both fits, and the longer of their correlations discounts it
-    lags = 1 + (0 if extended.noise.hac_lags == 0 else max(plain.noise.hac_lags, extended.noise.hac_lags))
-    cost = float(np.sum((extended.fit.evaluation.e_w / prep.level) ** 2))
+    lags = 1 + (0 if fitted.noise.hac_lags == 0 else max(plain.noise.hac_lags, fitted.noise.hac_lags))
+    cost = float(np.sum((fitted.fit.evaluation.e_w / prep.level) ** 2))
     gain = float(np.sum((plain.fit.evaluation.e_w / prep.level) ** 2)) - cost
     # nested fits in as many segments: the likelihood-ratio test; a term that lets fewer
     # trajectories follow the record is evidence of its own
-    if plain.fit.segments == extended.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
+    if plain.fit.segments == fitted.fit.segments and gain / lags < stats.chi2.ppf(TEST_LEVEL, 3):
         return None
-    return extended_prob, extended, cost
+    return extended_prob, fitted, cost
 
 
 def with_bias_or_drag(prep: Prepared, prob: output_error.Problem, plain: ml.Refinement,
