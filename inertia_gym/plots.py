@@ -49,10 +49,7 @@ def plot_validation(result, path: str | Path, run: int = 0) -> Path:
     xi = "none" if result.xi is None else "(" + ", ".join(f"{x:.3g}" for x in result.xi) + ")"
     fig.suptitle(f"Validation of xi = {xi}, seed {result.seeds[run]}: "
                  f"final error {100 * result.rel_errors[run]:.2f}%")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_error_histories(result, path: str | Path) -> Path:
@@ -77,10 +74,7 @@ def plot_informative_vs_not(informative, non_informative, path: str | Path) -> P
     ax.set_ylabel("||theta_hat - theta|| / ||theta||")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_identification(result, folder: str | Path) -> list[Path]:
@@ -100,10 +94,7 @@ def plot_identification(result, folder: str | Path) -> list[Path]:
     axes[1].set_ylabel("residual (rad/s)")
     axes[1].set_xlabel("time (s)")
     axes[1].set_title(f"residuals: rms/noise {result.rms_over_noise:.2f} ({result.noise.kind})")
-    fig.tight_layout()
-    fit_path = folder / "fit.png"
-    fig.savefig(fit_path, dpi=110)
-    plt.close(fig)
+    fit_path = _saved(fig, folder / "fit.png")
     est = result.estimate
     fig, ax = plt.subplots(figsize=(7, 4))
     ci = est.ci95()
@@ -114,11 +105,7 @@ def plot_identification(result, folder: str | Path) -> list[Path]:
     unit = "kg·m²" if est.scale_identified else "normalised (scale not identified)"
     ax.set_ylabel(f"inertia ({unit})")
     ax.set_title("identified inertia with 95 % intervals")
-    fig.tight_layout()
-    inertia_path = folder / "inertia.png"
-    fig.savefig(inertia_path, dpi=110)
-    plt.close(fig)
-    return [fit_path, inertia_path]
+    return [fit_path, _saved(fig, folder / "inertia.png")]
 
 
 # --- optimisation and benchmark figures ----------------------------------------------------
@@ -203,10 +190,7 @@ def plot_cost_curves(runs: list[dict], summary: dict, settings, path: str | Path
         ax.set_xlabel("evaluation i")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def _per_agent_strip(ax, runs, agents, key):
@@ -236,10 +220,7 @@ def plot_regret(runs: list[dict], summary: dict, path: str | Path) -> Path | Non
         ax.set_title(title, fontsize=10)
         ax.grid(True, axis="y", alpha=0.3)
     axes[0].set_ylabel("regret: re-evaluated cost − grid optimum")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_validated_error(runs: list[dict], summary: dict, path: str | Path) -> Path:
@@ -255,10 +236,7 @@ def plot_validated_error(runs: list[dict], summary: dict, path: str | Path) -> P
     ax.set_yscale("log")
     ax.set_ylabel("||J_hat − J||_F / ||J||_F after validation")
     ax.grid(True, axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_cost_vs_error(mean_costs: dict, validated_errors, episode_errors, correlations: dict,
@@ -283,10 +261,7 @@ def plot_cost_vs_error(mean_costs: dict, validated_errors, episode_errors, corre
         ax.set_title(f"{kind}: rho = {r['rho_episode_error_xi_means']:.2f} (episode), "
                      f"{r['rho_validated_error_1000s']:.2f} (validation)", fontsize=9)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_tradeoff(runs: list[dict], summary: dict, path: str | Path) -> Path | None:
@@ -316,9 +291,14 @@ def plot_tradeoff(runs: list[dict], summary: dict, path: str | Path) -> Path | N
 
 
 def _finish(fig, ax, path: Path) -> Path:
-    """Grid and legend on ax, then the figure written to path and closed; returns path."""
+    """Grid and legend on ax, then the figure saved (_saved)."""
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
+    return _saved(fig, path)
+
+
+def _saved(fig, path: Path) -> Path:
+    """The figure laid out, written to path and closed; returns path."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
