@@ -46,7 +46,10 @@ _D_DISS = 29  # internal dissipation d: torque -d (w - u (u . w)), u along the t
 _D_OMEGA, _D_ZETA, _D_DELTA = 30, 31, 32  # flexible mode: omega_n rad/s, zeta, coupling (3,) sqrt(kg)·m
 _D_FLEX = slice(_D_OMEGA, _D_DELTA + 3)
 _D_ETA0, _D_ETAD0 = 35, 36  # the mode's state at the first segment's start: eta, eta_dot
-DISTURBANCE_SIZE = 37
+# the flexible mode's inertia rate K = dJ/d eta (xx, xy, xz, yy, yz, zz), sqrt(kg)·m
+_D_K0 = 37
+_D_K = slice(_D_K0, _D_K0 + 6)
+DISTURBANCE_SIZE = 43
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +76,12 @@ class Disturbance:
         the rigid-body integrators here refuse a coupling.
     flex_eta0, flex_eta_dot0 : the mode's state (sqrt(kg)·m, sqrt(kg)·m/s) where the recording
         starts: a panel or a propellant already moving (zero: at rest).
+    flex_inertia_rate : (6,) sqrt(kg)·m, K = dJ/d eta as (xx, xy, xz, yy, yz, zz): the mode
+        moves mass, so the body's inertia is J + K eta. From the Lagrangian
+        T = w^T J(eta) w / 2 + w^T delta eta_dot + eta_dot^2 / 2, the body's equation becomes
+        J(eta) w_dot + K eta_dot w + delta eta_ddot + w x (J(eta) w + h + delta eta_dot) = tau
+        and the mode is driven by the centrifugal load w^T K w / 2 (a propellant mass pressed
+        outwards by the rotation, a panel bent back by it).
 
     """
 
@@ -88,6 +97,7 @@ class Disturbance:
     flex_coupling: tuple = (0.0, 0.0, 0.0)
     flex_eta0: float = 0.0
     flex_eta_dot0: float = 0.0
+    flex_inertia_rate: tuple = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def pack(self) -> np.ndarray:
         """Flat float64 vector of length DISTURBANCE_SIZE read by the compiled kernels."""
@@ -100,7 +110,7 @@ _SLOTS = {"constant_torque": (_D_TAU, (3,)), "internal_momentum": (_D_H, (3,)),
           "damping": (_D_C, (3, 3)), "orbit_rate": (_D_N, ()), "dissipation": (_D_DISS, ()),
           "flex_omega": (_D_OMEGA, ()), "flex_zeta": (_D_ZETA, ()),
           "flex_coupling": (slice(_D_DELTA, _D_DELTA + 3), (3,)), "flex_eta0": (_D_ETA0, ()),
-          "flex_eta_dot0": (_D_ETAD0, ())}
+          "flex_eta_dot0": (_D_ETAD0, ()), "flex_inertia_rate": (_D_K, (6,))}
 
 
 def check_rigid_steps(dist: np.ndarray, method: str = "rk4") -> None:
@@ -108,8 +118,8 @@ def check_rigid_steps(dist: np.ndarray, method: str = "rk4") -> None:
     a flexible mode (its state must be carried from step to step), and with ``method="gauss"``
     an internal dissipation (the Gauss-Legendre rate leaves it out).
     """
-    if np.any(np.asarray(dist)[..., _D_DELTA:_D_DELTA + 3] != 0.0):
-        raise ConfigError("a flexible mode (flex_coupling) needs its state carried between steps: "
+    if np.any(np.asarray(dist)[..., _D_DELTA:_D_DELTA + 3] != 0.0) or np.any(np.asarray(dist)[..., _D_K] != 0.0):
+        raise ConfigError("a flexible mode (flex_coupling, flex_inertia_rate) needs its state carried between steps: "
                           "integrate it with model_dynamics.propagate_model_batch")
     if method == "gauss" and np.any(np.asarray(dist)[..., _D_DISS] != 0.0):
         raise ConfigError('method="gauss" does not apply an internal dissipation: use "rk4"')
@@ -433,18 +443,36 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
     """Rates (9-tuple) of (q (4), w (3), eta, eta_dot): body_rate with the momentum
     (hx, hy, hz) + delta eta_dot added to its hook's and the torque (tx, ty, tz) (N·m, known h_dot
     already subtracted) plus the dissipation torque; a flexible mode then solves J w_dot + delta
-    eta_ddot = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -delta . w_dot
-    in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta). Scalars in and out: j and
+    eta_ddot = J a together with eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = w^T K w / 2
+    - delta . w_dot in closed form (jd = J^-1 delta, denom = 1 - delta . J^-1 delta), J being
+    J + K eta and the torque less K eta_dot w where the mode's inertia rate K is not zero
+    (Disturbance.flex_inertia_rate). Scalars in and out: j and
     j_inv row-major 9-tuples, dist the packed disturbance as a tuple (disturbance_entries).
     modal False: the mode's terms are left out (the rigid body; inlined with a literal False,
     the compiler drops them, so the rigid step costs what a 7-state step costs).
     """
     cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
     sx, sy, sz = dist[3] + hx, dist[4] + hy, dist[5] + hz
+    force = 0.0  # the centrifugal load on the mode, w^T K w / 2
     if modal:
         sx += cx * etad
         sy += cy * etad
         sz += cz * etad
+        kxx, kxy, kxz = dist[_D_K0], dist[_D_K0 + 1], dist[_D_K0 + 2]
+        kyy, kyz, kzz = dist[_D_K0 + 3], dist[_D_K0 + 4], dist[_D_K0 + 5]
+        if kxx != 0.0 or kxy != 0.0 or kxz != 0.0 or kyy != 0.0 or kyz != 0.0 or kzz != 0.0:
+            # the mode moves mass: J(eta) = J + K eta, whose rate K eta_dot w joins the torque
+            j = (j[0] + kxx * eta, j[1] + kxy * eta, j[2] + kxz * eta, j[3] + kxy * eta, j[4] + kyy * eta,
+                 j[5] + kyz * eta, j[6] + kxz * eta, j[7] + kyz * eta, j[8] + kzz * eta)
+            j_inv = inv3_entries(j)
+            jd0, jd1, jd2, denom = modal_coupling(j_inv, dist)
+            kw0 = kxx * w0 + kxy * w1 + kxz * w2
+            kw1 = kxy * w0 + kyy * w1 + kyz * w2
+            kw2 = kxz * w0 + kyz * w1 + kzz * w2
+            tx -= etad * kw0
+            ty -= etad * kw1
+            tz -= etad * kw2
+            force = 0.5 * (w0 * kw0 + w1 * kw1 + w2 * kw2)
     diss = dist[_D_DISS]
     if diss != 0.0:
         lx = j[0] * w0 + j[1] * w1 + j[2] * w2 + sx
@@ -460,13 +488,25 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
     r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, j, j_inv, tx, ty, tz, sx, sy, sz, dist)
     ax, ay, az = r[4], r[5], r[6]
     eta_dd = 0.0
-    if modal and (cx != 0.0 or cy != 0.0 or cz != 0.0):
+    if modal and (cx != 0.0 or cy != 0.0 or cz != 0.0 or force != 0.0):
         om = dist[_D_OMEGA]
-        eta_dd = (-2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
+        eta_dd = (force - 2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
         ax -= jd0 * eta_dd
         ay -= jd1 * eta_dd
         az -= jd2 * eta_dd
     return r[0], r[1], r[2], r[3], ax, ay, az, etad, eta_dd
+
+
+@nb.njit(cache=True, forceinline=True)
+def inv3_entries(j):
+    """The inverse of a 3x3 matrix given and returned as row-major 9-tuples (its adjugate)."""
+    c0 = j[4] * j[8] - j[5] * j[7]
+    c1 = j[5] * j[6] - j[3] * j[8]
+    c2 = j[3] * j[7] - j[4] * j[6]
+    f = 1.0 / (j[0] * c0 + j[1] * c1 + j[2] * c2)
+    return (c0 * f, (j[2] * j[7] - j[1] * j[8]) * f, (j[1] * j[5] - j[2] * j[4]) * f,
+            c1 * f, (j[0] * j[8] - j[2] * j[6]) * f, (j[2] * j[3] - j[0] * j[5]) * f,
+            c2 * f, (j[1] * j[6] - j[0] * j[7]) * f, (j[0] * j[4] - j[1] * j[3]) * f)
 
 
 @nb.njit(cache=True, forceinline=True)
@@ -555,11 +595,12 @@ def disturbance_entries(d):
     """
     return (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], d[8], d[9], d[10], d[11], d[12],
             d[13], d[14], d[15], d[16], d[17], d[18], d[19], d[20], d[21], d[22], d[23], d[24],
-            d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32], d[33], d[34], d[35], d[36])
+            d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32], d[33], d[34], d[35], d[36],
+            d[37], d[38], d[39], d[40], d[41], d[42])
 
 
 # disturbance_entries spells out every slot of the packed vector.
-assert DISTURBANCE_SIZE == 37, "update disturbance_entries to the new DISTURBANCE_SIZE"
+assert DISTURBANCE_SIZE == 43, "update disturbance_entries to the new DISTURBANCE_SIZE"
 
 
 @nb.njit(cache=True, forceinline=True)

@@ -18,6 +18,8 @@ from inertia_gym.dynamics import (
     _D_DELTA,
     _D_ETA0,
     _D_ETAD0,
+    _D_K0,
+    DISTURBANCE_SIZE,
     disturbance_entries,
     inv3,
     mat3_entries,
@@ -46,11 +48,11 @@ def _damping_scaled(d, f):
     return (d[0], d[1], d[2], d[3], d[4], d[5], d[6] * f, d[7] * f, d[8] * f, d[9] * f, d[10] * f,
             d[11] * f, d[12] * f, d[13] * f, d[14] * f, d[15], d[16], d[17], d[18], d[19], d[20],
             d[21], d[22], d[23], d[24], d[25], d[26], d[27], d[28], d[29], d[30], d[31], d[32],
-            d[33], d[34], d[35], d[36])
+            d[33], d[34], d[35], d[36], d[37], d[38], d[39], d[40], d[41], d[42])
 
 
 # _damping_scaled spells out every slot, the damping matrix at 6..14.
-assert (_D_C0, _D_C1) == (6, 15), "update _damping_scaled to the new damping slots"
+assert (_D_C0, _D_C1, DISTURBANCE_SIZE) == (6, 15, 43), "update _damping_scaled to the new slots"
 
 
 @nb.njit(cache=True)
@@ -122,8 +124,11 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
     n_seg = seg_pos.size - 1
     for task in nb.prange(y0.shape[0] * n_seg):
         b, s = task // n_seg, task % n_seg
-        coupled = (dist[b, _D_DELTA] != 0.0 or dist[b, _D_DELTA + 1] != 0.0
-                   or dist[b, _D_DELTA + 2] != 0.0)
+        coupled = False
+        for c in range(3):
+            coupled = coupled or dist[b, _D_DELTA + c] != 0.0
+        for c in range(6):
+            coupled = coupled or dist[b, _D_K0 + c] != 0.0
         if coupled and s > 0:
             continue  # the task of segment 0 runs them all
         rest = 0.0 * dist[b, _D_ETA0]  # a mode at rest, of the state's own type

@@ -183,6 +183,7 @@ class Probe:
         best frequencies give delta = sqrt(lambda) v from M's leading eigenpair (size within the
         room J leaves: J - delta delta^T stays positive) or, where M has none, along a and b's
         leading direction at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
+        A loaded mode (flexible_mode's "loaded" form) starts with its inertia rate K at zero.
         """
         d, base = self.d, self.base
         lam_min = float(np.linalg.eigvalsh(base.inertia)[0])
@@ -192,13 +193,15 @@ class Probe:
         eps = np.sqrt(1e-4 * lam_min)
         directions = [np.eye(3)[i] for i in range(3)] + [np.eye(3)[i] + np.eye(3)[j]
                                                          for i, j in ((0, 1), (0, 2), (1, 2))]
-        r0 = objective(self.x(np.zeros(7))[None], self.layout, self.d)[0]
+        part = self.layout.slices()[-1]
+        rest = np.zeros(part.stop - part.start - 7)  # a loaded mode's K: of second order in the couplings
+        r0 = objective(self.x(np.zeros(7 + rest.size))[None], self.layout, self.d)[0]
 
         def screen(omega):
             layout = dataclasses.replace(self.layout, omega_max=omega)
-            xs = [self.x(np.r_[omega, zeta, eps * v, 0.0, 0.0]) for v in directions]
-            xs += [self.x(np.r_[omega, zeta, eps * e, eps, 0.0]) for e in np.eye(3)]
-            xs += [self.x(np.r_[omega, zeta, eps * e, 0.0, eps * omega]) for e in np.eye(3)]
+            xs = [self.x(np.r_[omega, zeta, eps * v, 0.0, 0.0, rest]) for v in directions]
+            xs += [self.x(np.r_[omega, zeta, eps * e, eps, 0.0, rest]) for e in np.eye(3)]
+            xs += [self.x(np.r_[omega, zeta, eps * e, 0.0, eps * omega, rest]) for e in np.eye(3)]
             resp = objective(np.stack(xs), layout, d) - r0
             excite = resp[:6] / eps ** 2
             cols = np.stack([excite[0], excite[1], excite[2], excite[3] - excite[0] - excite[1],
@@ -227,7 +230,7 @@ class Probe:
             else:
                 continue
             a, b = state.T @ delta / (delta @ delta)
-            out.append(np.r_[om, zeta, delta, a, b * om])
+            out.append(np.r_[om, zeta, delta, a, b * om, rest])
             if len(out) == keep:
                 break
         return out

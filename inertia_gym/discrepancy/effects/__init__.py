@@ -1,8 +1,9 @@
 """The physics catalogue (docs/contracts.md) as a registry of effect classes, one per module.
 
 Units: rad/s, N·m, kg·m², s. The body obeys
-    J(t) w_dot + h_dot + d eta_ddot + w x (J(t) w + h + d eta_dot) = tau_applied + tau_ext,
-    eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = -d . w_dot          (flexible mode)
+    J(t) w_dot + K eta_dot w + h_dot + d eta_ddot + w x (J(t) w + h + d eta_dot) = tau_applied + tau_ext,
+    eta_ddot + 2 zeta Omega eta_dot + Omega^2 eta = w^T K w / 2 - d . w_dot   (flexible mode,
+    J(t) carrying its K eta)
 and the gyro reads (1 + s) * w + b. Every effect sets one group of these terms, and one class
 owns everything about it: its parameters and their fitted vector, a random draw sized to the
 body, bounds, typical sizes and starts of the fit, its known ambiguities, and its physics hooks:

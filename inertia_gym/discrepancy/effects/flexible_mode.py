@@ -30,21 +30,30 @@ def flex_floor_hz(d) -> float:
 #: The largest modal mass fraction delta^T J^-1 delta a fitted flexible_mode may take (1 makes
 #: the body and mode's joint mass matrix singular; drawn modes take up to about 0.1).
 MODE_MASS_LIMIT = 0.9
+#: Length of the loaded form's p: the mode's seven and its inertia rate K (6).
+LOADED_SIZE = 13
 
 
 @register
 class FlexibleMode(EffectModel):
     """One lightly damped mode (omega_n rad/s, zeta, coupling d (3,) sqrt(kg)·m) coupled to w_dot,
     with its state where the recording starts (eta0 sqrt(kg)·m, eta_dot0 sqrt(kg)·m/s): a
-    panel or a propellant already swinging when the log begins, as on any real record.
+    panel or a propellant already swinging when the log begins, as on any real record. The mode
+    moves mass, so the body's inertia is J + K eta and the rotation loads the mode by
+    w^T K w / 2 (inertia_rate K = dJ/d eta, (xx, xy, xz, yy, yz, zz) sqrt(kg)·m;
+    dynamics.Disturbance): a propellant mass on a spring at r along p has d = sqrt(m) r x p and
+    K = sqrt(m) (2 (r . p) I - r p^T - p r^T), as large as d, so at a tumble rate that is a
+    tenth of the mode's the centrifugal load moves the mass by a share of its swing.
     """
 
-    name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0"),
-                                  7, "internal motion")
-    units = {"omega_n": "rad/s", "zeta": "", "coupling": "√kg·m", "eta0": "√kg·m", "eta_dot0": "√kg·m/s"}
+    name, params, size, family = ("flexible_mode", ("omega_n", "zeta", "coupling", "eta0", "eta_dot0",
+                                                    "inertia_rate"), 7, "internal motion")
+    units = {"omega_n": "rad/s", "zeta": "", "coupling": "√kg·m", "eta0": "√kg·m", "eta_dot0": "√kg·m/s",
+             "inertia_rate": "√kg·m"}
     hardware, hardware_words = ("appendages", "propellant"), "flexible appendage or liquid"
-    as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode"}
-    restarts_on_base = ("",)
+    as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode",
+                 "loaded": "an oscillating unmodelled torque, fitted as a damped mode"}
+    restarts_on_base = ("", "loaded")
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises
     # and falls along d (a simulated rotor's spin-up and brake, 0.5 (1 - cos 2 pi t / T), reads
@@ -54,7 +63,7 @@ class FlexibleMode(EffectModel):
         "falls as it swings: a slow mode (about one cycle in the record) beside a momentum along "
         "the same axis draws a rotor spinning up and down; where the body has a rotor along that "
         "axis, read the two together as its momentum")),)
-    optional = {"eta0": 0.0, "eta_dot0": 0.0}
+    optional = {"eta0": 0.0, "eta_dot0": 0.0, "inertia_rate": np.zeros(6)}
 
     @override
     def draw(self, rng, body):  # the mode at rest at the start: the bursts excite it
@@ -63,20 +72,36 @@ class FlexibleMode(EffectModel):
                 "eta0": 0.0, "eta_dot0": 0.0}
 
     @override
-    def unpack(self, p):  # the model depends on delta delta^T and delta eta: report delta's sign
-        sign = 1.0 if p[2 + int(np.argmax(np.abs(p[2:5])))] >= 0 else -1.0  # canonically
-        return {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": np.array(p[2:5] * sign),
-                "eta0": float(p[5] * sign), "eta_dot0": float(p[6] * sign)}
+    def forms(self, d):  # "": the mode alone; "loaded": also moving the body's mass (K)
+        return ("", "loaded")
 
     @override
-    def pack(self, params):
-        params = {**self.optional, **params}
-        return np.r_[float(params["omega_n"]), float(params["zeta"]),
-                     np.asarray(params["coupling"], float), float(params["eta0"]), float(params["eta_dot0"])]
+    def form_size(self, form, d):
+        return LOADED_SIZE if form == "loaded" else self.size
+
+    @override
+    def nested(self, form, d, p):  # K = 0 is the mode of the first form
+        return np.r_[p, np.zeros(LOADED_SIZE - self.size)] if form == "loaded" else None
+
+    @override
+    def unpack(self, p):  # the model depends on delta delta^T, delta eta and K eta: report delta's sign
+        sign = 1.0 if p[2 + int(np.argmax(np.abs(p[2:5])))] >= 0 else -1.0  # canonically
+        out = {"omega_n": abs(p[0]), "zeta": abs(p[1]), "coupling": np.array(p[2:5] * sign),
+               "eta0": float(p[5] * sign), "eta_dot0": float(p[6] * sign)}
+        if p.size == LOADED_SIZE:
+            out["inertia_rate"] = np.array(p[7:] * sign)
+        return out
+
+    @override
+    def pack(self, params):  # the loaded form's vector where params give an inertia rate
+        full = {**self.optional, **params}
+        p = np.r_[float(full["omega_n"]), float(full["zeta"]), np.asarray(full["coupling"], float),
+                  float(full["eta0"]), float(full["eta_dot0"])]
+        return np.r_[p, np.asarray(params["inertia_rate"], float)] if "inertia_rate" in params else p
 
     @override
     def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, 1]
-        lb, ub = np.full(7, -np.inf), np.full(7, np.inf)
+        lb, ub = np.full(self.form_size(form, d), -np.inf), np.full(self.form_size(form, d), np.inf)
         lb[:2] = 2 * np.pi * 0.5 * flex_floor_hz(d), 0.0
         ub[:2] = 2 * np.pi * FLEX_BAND[1] / d.dt, 1.0
         return lb, ub
@@ -87,7 +112,8 @@ class FlexibleMode(EffectModel):
         eta = 0.01 * np.sqrt(d.j_ref)
         # the frequency's typical size is the band's floor, which no fitted frequency is below:
         # its finite-difference step is then always relative to the frequency itself
-        return np.r_[lb[0], 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0])]
+        return np.r_[lb[0], 0.01, np.full(3, 0.1 * np.sqrt(d.j_ref)), eta, eta * np.sqrt(lb[0] * ub[0]),
+                     np.full(lb.size - self.size, 0.1 * np.sqrt(d.j_ref))]
 
     @override
     def starts(self, form, d, probe):
@@ -98,17 +124,19 @@ class FlexibleMode(EffectModel):
         # the body and mode's joint mass matrix [[J, delta], [delta^T, 1]] is positive definite
         # only while delta^T J^-1 delta < 1 (the modal mass fraction): the coupling is scaled
         # back to MODE_MASS_LIMIT, beyond which the model is singular or indefinite; the modal
-        # state scaled up alike keeps delta eta (what the rates see of it)
+        # state scaled up alike keeps delta eta (what the rates see of it), and K scaled down
+        # alike keeps K eta
         c = p[2:5]
         fraction = float(c @ np.linalg.solve(inertia, c))
         if not fraction > MODE_MASS_LIMIT:
             return p
         shrink = np.sqrt(MODE_MASS_LIMIT / fraction)
-        return np.r_[p[:2], c * shrink, p[5:7] / shrink]
+        return np.r_[p[:2], c * shrink, p[5:7] / shrink, p[7:] * shrink]
 
     @override
     def disturbance(self, params):
         params = {**self.optional, **params}
         return {"flex_omega": float(params["omega_n"]), "flex_zeta": float(params["zeta"]),
                 "flex_coupling": np.asarray(params["coupling"], float),
-                "flex_eta0": float(params["eta0"]), "flex_eta_dot0": float(params["eta_dot0"])}
+                "flex_eta0": float(params["eta0"]), "flex_eta_dot0": float(params["eta_dot0"]),
+                "flex_inertia_rate": np.asarray(params["inertia_rate"], float)}
