@@ -118,9 +118,10 @@ def check_rigid_steps(dist: np.ndarray, method: str = "rk4") -> None:
     a flexible mode (its state must be carried from step to step), and with ``method="gauss"``
     an internal dissipation (the Gauss-Legendre rate leaves it out).
     """
-    if np.any(np.asarray(dist)[..., _D_DELTA:_D_DELTA + 3] != 0.0) or np.any(np.asarray(dist)[..., _D_K] != 0.0):
-        raise ConfigError("a flexible mode (flex_coupling, flex_inertia_rate) needs its state carried between steps: "
-                          "integrate it with model_dynamics.propagate_model_batch")
+    packed = np.asarray(dist)
+    if np.any(packed[..., _D_DELTA:_D_DELTA + 3] != 0.0) or np.any(packed[..., _D_K] != 0.0):
+        raise ConfigError("a flexible mode (flex_coupling, flex_inertia_rate) needs its state carried "
+                          "between steps: integrate it with model_dynamics.propagate_model_batch")
     if method == "gauss" and np.any(np.asarray(dist)[..., _D_DISS] != 0.0):
         raise ConfigError('method="gauss" does not apply an internal dissipation: use "rk4"')
 
@@ -454,13 +455,15 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
     cx, cy, cz = dist[_D_DELTA], dist[_D_DELTA + 1], dist[_D_DELTA + 2]
     sx, sy, sz = dist[3] + hx, dist[4] + hy, dist[5] + hz
     force = 0.0  # the centrifugal load on the mode, w^T K w / 2
+    loaded = False
     if modal:
         sx += cx * etad
         sy += cy * etad
         sz += cz * etad
         kxx, kxy, kxz = dist[_D_K0], dist[_D_K0 + 1], dist[_D_K0 + 2]
         kyy, kyz, kzz = dist[_D_K0 + 3], dist[_D_K0 + 4], dist[_D_K0 + 5]
-        if kxx != 0.0 or kxy != 0.0 or kxz != 0.0 or kyy != 0.0 or kyz != 0.0 or kzz != 0.0:
+        loaded = kxx != 0.0 or kxy != 0.0 or kxz != 0.0 or kyy != 0.0 or kyz != 0.0 or kzz != 0.0
+        if loaded:
             # the mode moves mass: J(eta) = J + K eta, whose rate K eta_dot w joins the torque
             j = (j[0] + kxx * eta, j[1] + kxy * eta, j[2] + kxz * eta, j[3] + kxy * eta, j[4] + kyy * eta,
                  j[5] + kyz * eta, j[6] + kxz * eta, j[7] + kyz * eta, j[8] + kzz * eta)
@@ -488,9 +491,10 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
     r = body_rate_with(y0, y1, y2, y3, w0, w1, w2, j, j_inv, tx, ty, tz, sx, sy, sz, dist)
     ax, ay, az = r[4], r[5], r[6]
     eta_dd = 0.0
-    if modal and (cx != 0.0 or cy != 0.0 or cz != 0.0 or force != 0.0):
+    if modal and (cx != 0.0 or cy != 0.0 or cz != 0.0 or loaded):
         om = dist[_D_OMEGA]
-        eta_dd = (force - 2.0 * dist[_D_ZETA] * om * etad - om * om * eta - (cx * ax + cy * ay + cz * az)) / denom
+        eta_dd = (force - 2.0 * dist[_D_ZETA] * om * etad - om * om * eta
+                  - (cx * ax + cy * ay + cz * az)) / denom
         ax -= jd0 * eta_dd
         ay -= jd1 * eta_dd
         az -= jd2 * eta_dd

@@ -283,8 +283,9 @@ def _model_run(inertia, delta, k, omega, zeta, w0, eta0, t):
     y0 = np.zeros((1, 1, 7))
     y0[0, 0, 0], y0[0, 0, 4:] = 1.0, w0
     n = t.size
-    return propagate_model_batch(t, np.arange(n), np.array([0, n - 1]), y0, inertia[None], inertia[None],
-                                 np.array([np.inf]), np.zeros((1, n - 1, 3)), np.zeros((1, n, 3)), dist)[0, :, 4:]
+    out = propagate_model_batch(t, np.arange(n), np.array([0, n - 1]), y0, inertia[None], inertia[None],
+                                np.array([np.inf]), np.zeros((1, n - 1, 3)), np.zeros((1, n, 3)), dist)
+    return out[0, :, 4:]
 
 
 @pytest.mark.parametrize("zeta", [0.0, 0.05])

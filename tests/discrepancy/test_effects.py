@@ -81,7 +81,8 @@ def test_a_loaded_mode_round_trips_its_inertia_rate_with_the_coupling_sign():
     back = model.unpack(p)
     np.testing.assert_allclose(back["coupling"], -np.asarray(params["coupling"]))
     np.testing.assert_allclose(back["inertia_rate"], -np.asarray(params["inertia_rate"]))
-    np.testing.assert_allclose(back["eta0"] * back["inertia_rate"], params["eta0"] * np.asarray(params["inertia_rate"]))
+    np.testing.assert_allclose(back["eta0"] * back["inertia_rate"],
+                               params["eta0"] * np.asarray(params["inertia_rate"]))
     assert model.nested("loaded", None, p[:7]).tolist() == [*p[:7], 0, 0, 0, 0, 0, 0]
 
 
