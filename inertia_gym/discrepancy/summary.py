@@ -11,6 +11,7 @@ import numpy as np
 
 from inertia_gym.discrepancy.analysis import BEYOND_CATALOGUE, NOISE_READ_HIGH, NOT_READ
 from inertia_gym.discrepancy.effects import REGISTRY
+from inertia_gym.discrepancy.effects.base import matrix6
 from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.prepare import CLIP_ADVICE
@@ -115,6 +116,22 @@ def _damped_mode_reading(expl: list[dict]) -> str | None:
             "internal mass's lag).")
 
 
+def _loaded_mode_reading(expl: list[dict]) -> str | None:
+    """The sentence that reads flexible_mode's loaded form, or None: the moving part carries
+    mass, so the inertia changes as it moves and the rotation loads it (a propellant mass
+    pressed outwards, a panel bent back), which a mode that moves no mass leaves to a term
+    beside it.
+    """
+    mode = next((e for e in expl if e["name"] == "flexible_mode" and e.get("form") == "loaded"), None)
+    if mode is None:
+        return None
+    k = np.asarray(mode["params"]["inertia_rate"], float)
+    size = float(np.abs(np.linalg.eigvalsh(matrix6(k))).max())
+    return ("flexible_mode is loaded: the moving part carries mass, so the inertia changes by K eta "
+            f"as it moves (K's largest principal value {size:.3g} √kg·m) and the rotation presses on "
+            "it (w^T K w / 2), as on a propellant mass or an appendage of a rotating body.")
+
+
 def _flight_reading(expl: list[dict]) -> str | None:
     """The sentence that reads aero_drag's flight form in the explanation as a throw, or None: the
     plate's normal, the launch speed and how far above the horizontal it was thrown.
@@ -158,6 +175,8 @@ def _explanation_words(report: dict) -> str:
         text += f"\n\n{flight}" if flight else ""
         damped = _damped_mode_reading(expl)
         text += f"\n\n{damped}" if damped else ""
+        loaded = _loaded_mode_reading(expl)
+        text += f"\n\n{loaded}" if loaded else ""
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
         text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "

@@ -271,6 +271,21 @@ def test_a_mode_damped_past_resonance_is_read_as_internal_dissipation():
     assert "internal dissipation" not in _explanation_words(report(0.05))
 
 
+def test_a_loaded_mode_is_read_as_a_moving_mass_with_its_inertia_rate():
+    """flexible_mode's loaded form (J + K eta, loaded by w^T K w / 2) is read in words as a moving
+    mass with K's largest principal value; the mode that moves no mass is not."""
+    mode = {"name": "flexible_mode", "form": "loaded", "delta_bic": 400.0, "confounded_with": [],
+            "params": {"omega_n": 1.9, "zeta": 0.05, "coupling": [0.5, 0.2, -1.0], "eta0": 0.1,
+                       "eta_dot0": 0.0, "inertia_rate": [0.0, 0.0, 0.0, -2.0, 0.5, 0.0]}}
+    text = _explanation_words({"explanation": [mode], "left_out": {}, "scale_identified": True})
+    largest = np.abs(np.linalg.eigvalsh([[0.0, 0.0, 0.0], [0.0, -2.0, 0.5], [0.0, 0.5, 0.0]])).max()
+    assert "flexible_mode is loaded: the moving part carries mass" in text
+    assert f"largest principal value {largest:.3g}" in text
+    plain = dict(mode, form=None, params={k: v for k, v in mode["params"].items() if k != "inertia_rate"})
+    words = _explanation_words({"explanation": [plain], "left_out": {}, "scale_identified": True})
+    assert "is loaded" not in words
+
+
 def test_summary_words_shorten_profiles_and_drop_intervals_of_held_values():
     """A time-varying momentum in words: held knot times without an interval, a 20-knot profile
     by its count and range, and (varying form only) its confounding with an external torque said

@@ -72,6 +72,21 @@ class FlexibleMode(EffectModel):
                 "eta0": 0.0, "eta_dot0": 0.0}
 
     @override
+    def implausible(self, params, meta, d):
+        # the loaded form linearises a mass on a spring in the turning body: the rotation also
+        # softens the spring by about |w|^2, a term of relative size (|w| / omega_n)^2 that the
+        # model leaves out, so it describes a moving mass only while the body turns slower than
+        # the mode swings (a mass on a softer spring would be flung out)
+        if "inertia_rate" not in params:
+            return None
+        omega, fastest = float(params["omega_n"]), float(np.max(np.linalg.norm(d.w, axis=1)))
+        if omega > fastest:
+            return None
+        return (f"a mass that swings at {omega:.3g} rad/s cannot stay on its spring in a body turning "
+                f"at up to {fastest:.3g} rad/s: the rotation's centrifugal softening, which the loaded "
+                "mode leaves out, outweighs the spring")
+
+    @override
     def forms(self, d):  # "": the mode alone; "loaded": also moving the body's mass (K)
         return ("", "loaded")
 
