@@ -59,17 +59,18 @@ def test_held_out_rows_are_predicted_at_the_noise_by_the_true_model_and_far_wors
 def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racquet_toss):
     """Racquet round 2 segment 3: the selection adds a varying momentum to the varying drag (it
     gains in BIC on the rows it is fitted to); it fits the stretches held out in turn worse than
-    the drag alone, so the explanation leaves it out and says why."""
+    the drag alone, so the explanation leaves it out, says why, and is selected again without it."""
     found = _fits(prepared(racquet_toss("round2", 3)))
     selected = select(found.data, found.nominal, found.singles)
     assert "internal_momentum" in selected.fit.names  # what the BIC alone chose
-    assert found.chosen.fit.names == ("viscous_damping",)
+    assert "internal_momentum" not in found.chosen.fit.names
+    assert found.chosen.fit.names[0] in ("viscous_damping", "aero_drag")  # the air leads
     assert "does not predict" in found.chosen.dropped["internal_momentum"]
     report = diagnose(racquet_toss("round2", 3)).report
-    assert [e["name"] for e in report["explanation"]] == ["viscous_damping"]
+    assert "internal_momentum" not in [e["name"] for e in report["explanation"]]
     assert "does not predict" in report["left_out"]["internal_momentum"]
-    [left] = report["unpredictive"]
-    assert left["name"] == "internal_momentum" and left["held_out_ratio"] > 1.0
+    left = {e["name"]: e for e in report["unpredictive"]}
+    assert left["internal_momentum"]["held_out_ratio"] > 1.0
     assert report["beyond_catalogue"]  # the misfit it followed is structure the catalogue lacks
     words = "\n".join(_beyond_words(report))
     assert "`internal_momentum`" in words and "held out in turn" in words
