@@ -46,8 +46,7 @@ def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
     varying factor at 1 is its constant drag) extends it: it is fitted only where the first form
     improves the nominal's BIC by SIGNIFICANT_DELTA_BIC (a drag that changes in time, where a
     drag is seen at all), started from the first form's fit (and, on a record of few segments,
-    where starts matter more, from its own starts as well, unless they are the first form's:
-    EffectModel.nested_restarts).
+    where starts matter more, from its own starts as well).
     """
     model = REGISTRY[name]
     forms = model.forms(d)
@@ -60,7 +59,7 @@ def fit_effect(name: str, d: Data, nominal: Fit) -> Fit:
             fits.append(fit_model((name,), (form,), d, nominal))
         elif nominal.bic - first.bic > SIGNIFICANT_DELTA_BIC:
             extended = np.concatenate([first.x[:span.start], inner, first.x[span.stop:]])
-            if d.segments < SHORT_SEGMENTS and model.nested_restarts:
+            if d.segments < SHORT_SEGMENTS:
                 fits.append(fit_model((name,), (form,), d, nominal, extra_starts=[extended]))
             else:
                 fits.append(fit_model((name,), (form,), d, nominal, start=extended))

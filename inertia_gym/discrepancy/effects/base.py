@@ -112,10 +112,6 @@ class EffectModel:
     KNOTS: ClassVar[tuple[int, int]] = (0, 0)
     varying_ambiguities: ClassVar[tuple[tuple[str, str], ...]] = ()
     restarts_on_base: ClassVar[tuple[str, ...]] = ()
-    #: Whether a form that nests the first (nested) is also fitted from its own starts on a
-    #: record of few segments (selection.fit_effect): not where those starts are the first
-    #: form's own, from which the first form's fit already descended.
-    nested_restarts: ClassVar[bool] = True
     optional: ClassVar[dict] = {}
     keeps_invariants: ClassVar[bool] = False
     #: Each parameter's unit, as reports print it ("" where it has none).

@@ -54,7 +54,6 @@ class FlexibleMode(EffectModel):
     as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode",
                  "loaded": "an oscillating unmodelled torque, fitted as a damped mode"}
     restarts_on_base = ("", "loaded")
-    nested_restarts = False  # the loaded form's own starts are the plain form's screen, K at zero
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises
     # and falls along d (a simulated rotor's spin-up and brake, 0.5 (1 - cos 2 pi t / T), reads
