@@ -32,6 +32,10 @@ def flex_floor_hz(d) -> float:
 MODE_MASS_LIMIT = 0.9
 #: Length of the loaded form's p: the mode's seven and its inertia rate K (6).
 LOADED_SIZE = 13
+#: The damping ratio from which a fitted mode reads as dissipation (summary's reading): 1/sqrt(2),
+#: where a second-order system stops amplifying any forcing (no resonant peak). Past it the
+#: mode is a damper's time constant, not a mass swinging on a spring.
+DISSIPATIVE_ZETA = 1.0 / np.sqrt(2.0)
 
 
 @register
@@ -76,8 +80,10 @@ class FlexibleMode(EffectModel):
         # the loaded form linearises a mass on a spring in the turning body: the rotation also
         # softens the spring by about |w|^2, a term of relative size (|w| / omega_n)^2 that the
         # model leaves out, so it describes a moving mass only while the body turns slower than
-        # the mode swings (a mass on a softer spring would be flung out)
-        if "inertia_rate" not in params:
+        # the mode swings (a mass on a softer spring would be flung out). A mode damped past
+        # DISSIPATIVE_ZETA is read as a damper: its omega_n, traded against zeta at the bound,
+        # sets a time constant, not a spring
+        if "inertia_rate" not in params or float(params["zeta"]) >= DISSIPATIVE_ZETA:
             return None
         omega, fastest = float(params["omega_n"]), float(np.max(np.linalg.norm(d.w, axis=1)))
         if omega > fastest:
