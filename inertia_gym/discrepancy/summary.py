@@ -12,7 +12,6 @@ import numpy as np
 from inertia_gym.discrepancy.analysis import BEYOND_CATALOGUE, NOISE_READ_HIGH, NOT_READ
 from inertia_gym.discrepancy.effects import REGISTRY
 from inertia_gym.discrepancy.effects.base import matrix6
-from inertia_gym.discrepancy.effects.flexible_mode import DISSIPATIVE_ZETA
 from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.prepare import CLIP_ADVICE
@@ -94,6 +93,9 @@ def _rotor_reading(expl: list[dict], duration: float | None) -> str | None:
             "along that axis, a rotor spinning up and down where the body has one.")
 
 
+#: The damping ratio from which a fitted mode reads as dissipation (_damped_mode_reading):
+#: 1/sqrt(2), where a second-order system stops amplifying any forcing (no resonant peak).
+DISSIPATIVE_ZETA = 1.0 / np.sqrt(2.0)
 
 
 def _damped_mode_reading(expl: list[dict]) -> str | None:

@@ -4,7 +4,6 @@ against an independent integration of each effect's stated equations."""
 from __future__ import annotations
 
 import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -85,22 +84,6 @@ def test_a_loaded_mode_round_trips_its_inertia_rate_with_the_coupling_sign():
     np.testing.assert_allclose(back["eta0"] * back["inertia_rate"],
                                params["eta0"] * np.asarray(params["inertia_rate"]))
     assert model.nested("loaded", None, p[:7]).tolist() == [*p[:7], 0, 0, 0, 0, 0, 0]
-
-
-def test_a_loaded_mode_is_a_moving_mass_only_while_the_body_turns_slower_than_it_swings():
-    """The loaded mode leaves out the rotation's softening of its spring, (|w| / omega_n)^2 of
-    it: a loaded mode at or below the record's largest rate is implausible as a moving mass, one
-    above it is not, and neither a mode that moves no mass nor one damped past resonance (read as
-    a damper) is judged so."""
-    model = REGISTRY["flexible_mode"]
-    d = types.SimpleNamespace(w=np.array([[3.0, 0.0, 4.0], [0.0, 1.0, 0.0]]))  # fastest 5 rad/s
-    mode = {"omega_n": 4.0, "zeta": 0.02, "coupling": [0.3, 0.1, 0.0], "eta0": 0.0, "eta_dot0": 0.0}
-    loaded = dict(mode, inertia_rate=[0.1, 0.0, 0.0, 0.2, 0.0, -0.1])
-    why = model.implausible(loaded, {}, d)
-    assert why is not None and "4 rad/s" in why and "up to 5 rad/s" in why
-    assert model.implausible(dict(loaded, omega_n=6.0), {}, d) is None
-    assert model.implausible(mode, {}, d) is None
-    assert model.implausible(dict(loaded, zeta=1.0), {}, d) is None  # a damper's time constant
 
 
 def test_varying_internal_momentum_round_trip():

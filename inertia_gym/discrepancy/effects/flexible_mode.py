@@ -32,10 +32,6 @@ def flex_floor_hz(d) -> float:
 MODE_MASS_LIMIT = 0.9
 #: Length of the loaded form's p: the mode's seven and its inertia rate K (6).
 LOADED_SIZE = 13
-#: The damping ratio from which a fitted mode reads as dissipation (summary's reading): 1/sqrt(2),
-#: where a second-order system stops amplifying any forcing (no resonant peak). Past it the
-#: mode is a damper's time constant, not a mass swinging on a spring.
-DISSIPATIVE_ZETA = 1.0 / np.sqrt(2.0)
 
 
 @register
@@ -74,23 +70,6 @@ class FlexibleMode(EffectModel):
         return {"omega_n": 2 * np.pi * rng.uniform(0.5, 2.0), "zeta": rng.uniform(0.01, 0.05),
                 "coupling": _unit(rng) * np.sqrt(rng.uniform(0.02, 0.06) * body.j),
                 "eta0": 0.0, "eta_dot0": 0.0}
-
-    @override
-    def implausible(self, params, meta, d):
-        # the loaded form linearises a mass on a spring in the turning body: the rotation also
-        # softens the spring by about |w|^2, a term of relative size (|w| / omega_n)^2 that the
-        # model leaves out, so it describes a moving mass only while the body turns slower than
-        # the mode swings (a mass on a softer spring would be flung out). A mode damped past
-        # DISSIPATIVE_ZETA is read as a damper: its omega_n, traded against zeta at the bound,
-        # sets a time constant, not a spring
-        if "inertia_rate" not in params or float(params["zeta"]) >= DISSIPATIVE_ZETA:
-            return None
-        omega, fastest = float(params["omega_n"]), float(np.max(np.linalg.norm(d.w, axis=1)))
-        if omega > fastest:
-            return None
-        return (f"a mass that swings at {omega:.3g} rad/s cannot stay on its spring in a body turning "
-                f"at up to {fastest:.3g} rad/s: the rotation's centrifugal softening, which the loaded "
-                "mode leaves out, outweighs the spring")
 
     @override
     def forms(self, d):  # "": the mode alone; "loaded": also moving the body's mass (K)
