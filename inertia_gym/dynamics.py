@@ -198,21 +198,11 @@ def _root_compiled(x):
 
 @nb.njit(cache=True)
 def inv3(m):
-    """Inverse of a 3x3 matrix by its adjugate (closed form)."""
-    c00 = m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]
-    c01 = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
-    c02 = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
-    det = m[0, 0] * c00 + m[0, 1] * c01 + m[0, 2] * c02
+    """Inverse of a 3x3 matrix by its adjugate (closed form, :func:`inv3_entries`)."""
+    e = inv3_entries(mat3_entries(m))
     out = np.empty((3, 3), dtype=m.dtype)
-    out[0, 0] = c00 / det
-    out[1, 0] = c01 / det
-    out[2, 0] = c02 / det
-    out[0, 1] = (m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]) / det
-    out[1, 1] = (m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]) / det
-    out[2, 1] = (m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]) / det
-    out[0, 2] = (m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]) / det
-    out[1, 2] = (m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]) / det
-    out[2, 2] = (m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]) / det
+    for k in range(9):
+        out[k // 3, k % 3] = e[k]
     return out
 
 
@@ -503,14 +493,16 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
 
 @nb.njit(cache=True, forceinline=True)
 def inv3_entries(j):
-    """The inverse of a 3x3 matrix given and returned as row-major 9-tuples (its adjugate)."""
+    """The inverse of a 3x3 matrix given and returned as row-major 9-tuples, by its adjugate
+    (closed form): a loop that changes the matrix per stage keeps it in registers.
+    """
     c0 = j[4] * j[8] - j[5] * j[7]
     c1 = j[5] * j[6] - j[3] * j[8]
     c2 = j[3] * j[7] - j[4] * j[6]
-    f = 1.0 / (j[0] * c0 + j[1] * c1 + j[2] * c2)
-    return (c0 * f, (j[2] * j[7] - j[1] * j[8]) * f, (j[1] * j[5] - j[2] * j[4]) * f,
-            c1 * f, (j[0] * j[8] - j[2] * j[6]) * f, (j[2] * j[3] - j[0] * j[5]) * f,
-            c2 * f, (j[1] * j[6] - j[0] * j[7]) * f, (j[0] * j[4] - j[1] * j[3]) * f)
+    det = j[0] * c0 + j[1] * c1 + j[2] * c2
+    return (c0 / det, (j[2] * j[7] - j[1] * j[8]) / det, (j[1] * j[5] - j[2] * j[4]) / det,
+            c1 / det, (j[0] * j[8] - j[2] * j[6]) / det, (j[2] * j[3] - j[0] * j[5]) / det,
+            c2 / det, (j[1] * j[6] - j[0] * j[7]) / det, (j[0] * j[4] - j[1] * j[3]) / det)
 
 
 @nb.njit(cache=True, forceinline=True)

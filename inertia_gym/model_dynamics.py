@@ -124,11 +124,7 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
     n_seg = seg_pos.size - 1
     for task in nb.prange(y0.shape[0] * n_seg):
         b, s = task // n_seg, task % n_seg
-        coupled = False
-        for c in range(3):
-            coupled = coupled or dist[b, _D_DELTA + c] != 0.0
-        for c in range(6):
-            coupled = coupled or dist[b, _D_K0 + c] != 0.0
+        coupled = np.any(dist[b, _D_DELTA:_D_DELTA + 3] != 0.0) or np.any(dist[b, _D_K0:_D_K0 + 6] != 0.0)
         if coupled and s > 0:
             continue  # the task of segment 0 runs them all
         rest = 0.0 * dist[b, _D_ETA0]  # a mode at rest, of the state's own type

@@ -52,8 +52,7 @@ class FlexibleMode(EffectModel):
     units = {"omega_n": "rad/s", "zeta": "", "coupling": "√kg·m", "eta0": "√kg·m", "eta_dot0": "√kg·m/s",
              "inertia_rate": "√kg·m"}
     hardware, hardware_words = ("appendages", "propellant"), "flexible appendage or liquid"
-    as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode",
-                 "loaded": "an oscillating unmodelled torque, fitted as a damped mode"}
+    as_fitted = {"": "an oscillating unmodelled torque, fitted as a damped mode"}  # either form
     restarts_on_base = ("", "loaded")
     # d eta_dot enters the body's equation as a momentum along d does: an undamped mode of about
     # one cycle in the record beside a constant momentum along d is exactly a momentum that rises
