@@ -18,10 +18,6 @@ SMALL = ["--agents", "bo,random,ppo,grid", "--seeds", "2", "--budget", "10", "--
          "--eval-seeds", "2", "--val-seeds", "2", "--val-duration", "150", "--no-progress"]
 N_TASKS = 7
 WALL_KEYS = {"wall_s", "score_wall_s"}
-# meant to keep the module on one xdist worker, so that `sequential` (a sweep of 7-15 s here) is built
-# once; under pytest 9.2, xdist 3.8's loadgroup does not group (pytest-xdist issue #1386: its nodeid
-# suffix is ignored), and each worker that runs one of these tests builds it
-pytestmark = pytest.mark.xdist_group("benchmark_sweep")
 
 
 def without_wall_times(obj):
@@ -38,7 +34,7 @@ def run_cli(out: Path, *extra: str) -> dict:
     return json.loads((out / "benchmark.json").read_text())
 
 
-@pytest.fixture(scope="session")  # built once per worker, not again when xdist switches modules
+@pytest.fixture(scope="session")  # one sweep for every test here (make test keeps a module on one worker)
 def sequential(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("bench") / "sequential"
     run_cli(out, "--workers", "1")
