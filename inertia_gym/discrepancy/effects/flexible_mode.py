@@ -42,7 +42,7 @@ class FlexibleMode(EffectModel):
     moves mass, so the body's inertia is J + K eta and the rotation loads the mode by
     w^T K w / 2 (inertia_rate K = dJ/d eta, (xx, xy, xz, yy, yz, zz) sqrt(kg)·m;
     dynamics.Disturbance): a propellant mass on a spring at r along p has d = sqrt(m) r x p and
-    K = sqrt(m) (2 (r . p) I - r p^T - p r^T), whose size is at least sqrt(2) |d|, and the
+    K = sqrt(m) (2 (r . p) I - r p^T - p r^T), whose Frobenius norm is at least sqrt(2) |d|, and the
     rotation holds it out by about |w|^2 |r| / omega_n^2: a centimetre for a mass 0.4 m out on a
     0.3-Hz spring in a body turning at 0.3 rad/s.
     """
