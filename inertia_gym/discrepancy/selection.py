@@ -80,10 +80,17 @@ def fit_all(d: Data, nominal: Fit) -> tuple[list[Fit], dict]:
 
 def ranked(fits: list[Fit]) -> list[Fit]:
     """Single-effect fits best first; BICs within TIE_BIC (two solver runs of equivalent models
-    differ below it) in the catalogue's order.
+    differ below it) in the catalogue's order: each place goes to the earliest in the catalogue
+    of the fits left within TIE_BIC of the best left, fits without a finite BIC last.
     """
     order = {name: i for i, name in enumerate(REGISTRY)}
-    return sorted(fits, key=lambda f: (np.round(f.bic / TIE_BIC), order[f.name]))
+    left = sorted(fits, key=lambda f: order[f.name])
+    out = []
+    while left:
+        best = min((f.bic for f in left if np.isfinite(f.bic)), default=None)
+        i = 0 if best is None else next(i for i, f in enumerate(left) if f.bic <= best + TIE_BIC)
+        out.append(left.pop(i))
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,6 +13,7 @@ from inertia_gym.discrepancy.analysis import BEYOND_CATALOGUE, NOISE_READ_HIGH, 
 from inertia_gym.discrepancy.effects import REGISTRY
 from inertia_gym.discrepancy.effects.base import matrix6
 from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
+from inertia_gym.discrepancy.selection import TIE_BIC
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
 from inertia_gym.prepare import CLIP_ADVICE
 from inertia_gym.recordings import retimed_note, window_note
@@ -530,7 +531,8 @@ def markdown(report: dict, plots: list[str]) -> str:
         lines.append(f"- {note}")
     lines += ["", "## Every effect tried", "",
               "Each effect fitted alone, by how much it improves the BIC (over 10: very strong "
-              "evidence); its fitted values are in report.json.", "",
+              f"evidence), best first; BICs within {TIE_BIC} of each other are a tie, listed in "
+              "the catalogue's order. Its fitted values are in report.json.", "",
               "| effect | delta BIC | significant |", "|---|---|---|"]
     for e in report["effects"]:
         delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
