@@ -531,8 +531,8 @@ def markdown(report: dict, plots: list[str]) -> str:
         lines.append(f"- {note}")
     lines += ["", "## Every effect tried", "",
               "Each effect fitted alone, by how much it improves the BIC (over 10: very strong "
-              f"evidence), best first; BICs within {TIE_BIC} of each other are a tie, listed in "
-              "the catalogue's order. Its fitted values are in report.json.", "",
+              f"evidence), best first; effects within {TIE_BIC} in BIC of the best left are a "
+              "tie, listed in the catalogue's order. Its fitted values are in report.json.", "",
               "| effect | delta BIC | significant |", "|---|---|---|"]
     for e in report["effects"]:
         delta = "no valid fit" if e["delta_bic"] is None else f"{e['delta_bic']:.1f}"
