@@ -125,6 +125,18 @@ def rotor_throw():
     return lambda stem: read_recordings(ROTOR_THROWS / f"{stem}.csv")[0]
 
 
+@pytest.fixture
+def kept_fits(monkeypatch) -> list:
+    """The fits of every diagnosis the test runs, as report._fits returns them (data, nominal,
+    singles, chosen), kept in this list: a test reads them beside the report of one diagnosis
+    instead of fitting the record again."""
+    from inertia_gym.discrepancy import report
+
+    kept, fits = [], report._fits
+    monkeypatch.setattr(report, "_fits", lambda prep: kept.append(fits(prep)) or kept[-1])
+    return kept
+
+
 #: The header of phyphox's gyro export (its "Absolute" column after the recordings' own).
 PHYPHOX_HEADER = ",".join(f'"{name}"' for name in (*PHYPHOX_COLUMNS, "Absolute (rad/s)"))
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy import selection
 from inertia_gym.discrepancy.crossval import FOLDS, folds, held_out_sums
 from inertia_gym.discrepancy.fit import fit_effect, fit_nominal, prepare
@@ -57,16 +56,14 @@ def test_held_out_rows_are_predicted_at_the_noise_by_the_true_model_and_far_wors
     assert rigid > 3.0 * with_bias
 
 
-def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racquet_toss, monkeypatch):
+def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racquet_toss, kept_fits):
     """Racquet round 2 segment 3: the selection adds a varying momentum to the varying drag (it
     gains in BIC on the rows it is fitted to); it fits the stretches held out in turn worse than
     the drag alone, so the explanation leaves it out, says why, and is selected again without it.
     One diagnosis: the fits are kept as _fits returns them (the selection repeated on its rows
     reads their cache)."""
-    kept = []
-    monkeypatch.setattr(report_module, "_fits", lambda prep: kept.append(_fits(prep)) or kept[-1])
     report = diagnose(racquet_toss("round2", 3)).report
-    found, = kept
+    found, = kept_fits
     selected = select(found.data, found.nominal, found.singles)
     assert "internal_momentum" in selected.fit.names  # what the BIC alone chose
     assert "internal_momentum" not in found.chosen.fit.names

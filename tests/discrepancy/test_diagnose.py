@@ -17,7 +17,6 @@ import pytest
 from inertia_gym.cli import main
 from inertia_gym.commands.common import check_physical_inertia
 from inertia_gym.discrepancy import analysis as analysis_module
-from inertia_gym.discrepancy import report as report_module
 from inertia_gym.discrepancy.effects import REGISTRY, random_params
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
@@ -669,7 +668,7 @@ def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
     assert _led_by_best_single(led, d, nominal, singles) is led
 
 
-def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, monkeypatch):
+def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, kept_fits):
     """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the selection's explanation,
     a constant torque and the time-varying momentum, is listed led by the effect of the best
     single-effect fit among those it holds, the momentum, which alone explains far more (the
@@ -678,10 +677,8 @@ def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_thro
     added after it is then cross-validated). One diagnosis: the fits are kept as _fits returns
     them."""
     rec = dataclasses.replace(rotor_throw("Empty_LOG00180"), h=None)
-    kept = []
-    monkeypatch.setattr(report_module, "_fits", lambda r: kept.append(_fits(r)) or kept[-1])
     report = diagnose(rec).report
-    d, nominal, singles = kept[0].data, kept[0].nominal, kept[0].singles
+    d, nominal, singles = kept_fits[0].data, kept_fits[0].nominal, kept_fits[0].singles
     chosen = select(d, nominal, singles)
     listed = [name for name, _ in chosen.added]
     assert listed[0] == singles[0].name == "internal_momentum"
