@@ -291,9 +291,12 @@ class Probe:
         return starts
 
     def momentum_estimate(self, tk, axes=None, with_inertia: bool = True, keep: int = 1,
-                          unknowns: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                          unknowns: int | None = None,
+                          from_start: bool = True) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Linear estimates (tk, H, J): at the knot times tk (K,) s (one: a constant momentum),
-        an unknown internal momentum H (K, 3) kg·m²/s piecewise linear through them, and the
+        an unknown internal momentum H (K, 3) kg·m²/s piecewise linear through them (with several
+        knots, zero at the first where not from_start: the momentum's change from the record's
+        start), and the
         inertia (3, 3) estimated with it (the base's where the nominal is held, or with_inertia is
         False). The modulating windows span a third of a turn at most, and at least 8 samples,
         and are short enough for four times as many equations as `unknowns` (default: those of
@@ -305,7 +308,12 @@ class Probe:
         h = axis m(t) along each in turn (linear in theta and m): the `keep` axes (at least
         MOMENTUM_AXES_APART deg apart) that explain most are returned, best first. A momentum
         changing along one fixed axis is not confused with an inertia error J w(t), which a free
-        three-axis h(t) could partly absorb.
+        three-axis h(t) could partly absorb. Without from_start the momentum at the start is left
+        to the inertia (and to the nonlinear fit that starts here): while the rates stay near
+        their mean w_m, a constant momentum h0 and an inertia error dJ with dJ w_m = h0 act alike,
+        and solved together the two take large values of opposite sign whose remainder distorts
+        the change; where the rates sweep widely, h0 is seen apart from the inertia and
+        from_start estimates it.
         """
         d, base = self.d, self.base
         tk = np.asarray(tk, float)
@@ -318,10 +326,13 @@ class Probe:
         known = np.zeros_like(w) if d.h is None else d.h
         fit_j = d.inertia0 is None and with_inertia
         mom = known if fit_j else w @ base.inertia.T + known
-        basis = (np.stack([np.interp(d.t, tk, e) for e in np.eye(knots)], 1) if knots > 1
+        first = 0 if from_start else 1  # the first knot's column: the momentum at the start
+        basis = (np.stack([np.interp(d.t, tk, e) for e in np.eye(knots)[first:]], 1) if knots > 1
                  else np.ones((d.t.size, 1)))
+        free_knots = basis.shape[1]
         op = quad[:, None, None] * (-dphi[:, None, None] * np.eye(3) + phi[:, None, None] * skew(w))
-        a_h = np.add.reduceat(np.einsum("nij,nk->nikj", op, basis), edges[:-1], axis=0)  # (win, 3, K, 3)
+        # (win, 3, free_knots, 3)
+        a_h = np.add.reduceat(np.einsum("nij,nk->nikj", op, basis), edges[:-1], axis=0)
         a_j = np.add.reduceat(op @ omega_matrix(w), edges[:-1], axis=0).reshape(-1, 6) if fit_j else None
         g = -dphi[:, None] * mom + phi[:, None] * (np.cross(w, mom) - d.tau)
         rhs = -np.add.reduceat(quad[:, None] * g, edges[:-1], axis=0).ravel()
@@ -349,14 +360,17 @@ class Probe:
 
         def result(sol, u=None):
             tail = sol[6 if fit_j else 0:]
-            hk = tail.reshape(knots, 3) if u is None else np.outer(tail, u)
+            hk = tail.reshape(free_knots, 3) if u is None else np.outer(tail, u)
+            if free_knots < knots:
+                hk = np.vstack([np.zeros((1, 3)), hk])
             trace = d.trace0 if d.scale_fixed else None
             inertia = interior(inertia_from_theta(valid_theta(sol[:6], trace))) if fit_j else base.inertia
             return tk, hk, inertia
 
         if axes is None:
-            return [result(solve_for(with_j(a_h.reshape(-1, 3 * knots)))[0])]
-        sols, costs = solve_for(with_j(np.einsum("wikj,aj->awik", a_h, axes).reshape(len(axes), -1, knots)))
+            return [result(solve_for(with_j(a_h.reshape(-1, 3 * free_knots)))[0])]
+        along = np.einsum("wikj,aj->awik", a_h, axes).reshape(len(axes), -1, free_knots)
+        sols, costs = solve_for(with_j(along))
         out, kept = [], []
         for i in np.argsort(costs):
             u = axes[i]
@@ -427,9 +441,11 @@ class Probe:
         return d.cache[key]
 
     def momentum_starts(self, knots: int) -> list[np.ndarray]:
-        """Start of internal_momentum (with the inertia estimated beside it): constant (knots 0),
-        or varying along the axis, of those searched, that explains most (momentum_estimate);
-        each kept only where it beats no momentum at all.
+        """Starts of internal_momentum (with the inertia estimated beside it, and with the base's):
+        constant (knots 0), or varying along the three axes, of those searched, that explain most
+        (momentum_estimate), its momentum at the start estimated and left to the inertia (which
+        of the two the record separates depends on how widely its rates sweep: the fits decide);
+        ranked by cost, with no momentum at all among them.
         """
         model = REGISTRY["internal_momentum"]
         starts = []
@@ -439,8 +455,8 @@ class Probe:
                 (_, hk, inertia), = self.momentum_estimate(self.d.t[:1], with_inertia=with_inertia)
                 starts.append(self.x(hk[0], inertia))
                 continue
-            for tk, hk, inertia in self.momentum_estimate(knot_t, hemisphere(MOMENTUM_AXES), with_inertia,
-                                                          keep=3):
+            for tk, hk, inertia in (est for from_start in (True, False) for est in self.momentum_estimate(
+                    knot_t, hemisphere(MOMENTUM_AXES), with_inertia, keep=3, from_start=from_start)):
                 change = hk - hk[0]
                 axis = np.linalg.svd(change, full_matrices=False)[2][0]
                 starts.append(self.x(model.pack({"h": hk[0], "axis": axis, "profile_t": tk,
