@@ -27,14 +27,15 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/inertia-gym optimize --agent bo --budget 100 --seed 0 --out runs/optimize
 
-# --dist loadfile: a module's tests share one worker, so a module's fixtures (a benchmark sweep,
-# a set of simulated spacecraft diagnosed) are built once, not once per worker.
+# --dist worksteal: each worker starts on its own share of the tests and takes over the rest of
+# the other's when it runs out, so neither idles while a long module finishes on the other (a
+# module's fixtures may then be built on both; the balance gains more than that costs).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 -m "not science"
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=15 -m "not science"
 
 # The long studies (statistical sweeps, real-data tables): on demand, not in CI.
 check-science: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 -m science
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=15 -m science
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
