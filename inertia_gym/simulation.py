@@ -607,13 +607,17 @@ def _call_kernel(kernel, args) -> None:
         _ready.add(name)
 
 
-def compile_loop() -> None:
-    """Compile (or load) every kernel of the simulation loop now, each on a tiny batch, rather
-    than on first use; later calls return at once. For a process that will run batches of
-    every size (a test session's warm-up, a service).
+def compile_loop(kernels: tuple[str, ...] = KERNELS) -> None:
+    """Compile (or load) the simulation loop's kernels now (default all of :data:`KERNELS`), each
+    on a tiny batch, rather than on first use; later calls return at once. For a process that
+    will run batches of every size (a test session's warm-up, a service); processes that compile
+    different kernels side by side share the compiled callees through numba's on-disk cache.
     """
+    unknown = set(kernels) - set(KERNELS)
+    if unknown:
+        raise ConfigError(f"kernels must be among {KERNELS}, got {sorted(unknown)}")
     sc = Scenario()
-    for name in KERNELS:
+    for name in kernels:
         if name in _ready:
             continue
         batch = 1 if name == "_segment_one" else 2

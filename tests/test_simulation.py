@@ -107,6 +107,18 @@ def test_a_kernel_too_small_for_the_batch_or_unknown_is_refused():
                         np.eye(3)[0], rngs, kernel=kernel)
 
 
+def test_compile_loop_compiles_the_kernels_named_and_refuses_an_unknown_one():
+    """compile_loop(kernels) readies exactly those named (a warm-up splits the four between
+    processes); a name outside KERNELS is refused."""
+    from inertia_gym import simulation
+
+    simulation.compile_loop(("_segment_lanes",))
+    assert "_segment_lanes" in simulation._ready
+    assert simulation._segment_lanes.signatures
+    with pytest.raises(ConfigError, match="kernels must be among"):
+        simulation.compile_loop(("_segment_lanes", "_segment_none"))
+
+
 def test_a_failure_while_compiling_a_kernel_reaches_the_caller():
     """An error inside the first call's thread is raised in the caller's, and the kernel is not
     marked ready (the next call tries again)."""

@@ -460,7 +460,7 @@ def test_the_diagnosis_does_not_depend_on_the_units_of_mass_and_time(in_other_un
                                    rtol=1e-3)
 
 
-@pytest.mark.slow
+@pytest.mark.science
 def test_600s_10hz_diagnosis_is_fast(tmp_path):
     import time
 
@@ -474,8 +474,8 @@ def test_600s_10hz_diagnosis_is_fast(tmp_path):
     t0 = time.perf_counter()
     (loaded,) = read_recordings(path)
     report = diagnose(loaded).report
-    # issue 11 asks <= 10 s (scripts/bench_diagnose.py measures it); a timed test on a shared
-    # CI machine guards it with 5x headroom only
+    # the limit is 10 s on a 2-core machine (scripts/bench_diagnose.py measures it beside a peer);
+    # this study (make check-science) guards it with 5x headroom for a shared machine
     assert time.perf_counter() - t0 < 50.0
     assert report["best_effect"] == "internal_momentum"
 
