@@ -8,7 +8,9 @@ physics the body has: it makes the residual whiter, but it does not carry over t
 seen. Each segment's rows are cut into FOLDS + 1 contiguous blocks; the first (where the
 segment's initial state is fitted) always stays, and block k after it of every segment is held
 out in turn. The explanation is refitted on the rest (from its own fit: the inertia, the initial
-states and the tested effect move) and scored on the rows held out. An added effect stays only
+states and the tested effect move; a tested time profile's knots inside the block first drawn
+through its knots outside, since their fitted values saw the rows held out) and scored on the
+rows held out. An added effect stays only
 where the explanation with it predicts the held-out rows better than the explanation without it
 (the smaller held-out residual sum: the held-out Gaussian likelihood with the variance profiled
 out). The leader is not judged here: it clears its margin against the rigid model alone.
@@ -58,9 +60,39 @@ def _held_out_sum(fit: Fit, d: Data, fold: np.ndarray, k: int, tested: str | Non
     for name, part in zip(fit.layout.names, fit.layout.slices()):
         if name != tested:
             free[part] = False
-    x, _ = solve(np.clip(fit.x, lb, ub), free, fit.layout, train, lb, ub, FULL_ITER)
+    x0 = _profile_from_rows_kept(fit, d, held, tested)
+    x, _ = solve(np.clip(x0, lb, ub), free, fit.layout, train, lb, ub, FULL_ITER)
     z = whitened(np.asarray(x, float)[None], fit.layout, d)[0]
     return float(np.sum(z[held] ** 2)) if np.all(np.isfinite(z[held])) else np.inf
+
+
+def _profile_from_rows_kept(fit: Fit, d: Data, held: np.ndarray, tested: str | None) -> np.ndarray:
+    """fit.x with the tested effect's time profile (a varying form's knot values) at the knots
+    inside the rows held out (held (n_rows,) bool) drawn through the knots outside them
+    (linearly): those values were fitted to the held-out rows, which the refit does not see, so
+    kept they would carry the held-out rows into their own prediction. fit.x itself where the
+    effect has no profile or too few knots outside.
+    """
+    x = np.array(fit.x, float)
+    if tested is None:
+        return x
+    part = fit.layout.slices()[fit.layout.names.index(tested)]
+    model = fit.layout.models[fit.layout.names.index(tested)]
+    params = model.unpack(x[part])
+    if "profile" not in params:
+        return x
+    knot_t = np.asarray(params["profile_t"], float)
+    profile = np.array(params["profile"], float).reshape(knot_t.size, -1)
+    sample_held = np.zeros(d.t.size, bool)
+    kept_row = d.row >= 0
+    sample_held[kept_row] = held[d.row[kept_row]]
+    inside = sample_held[np.clip(np.searchsorted(d.t, knot_t), 0, d.t.size - 1)]
+    if not inside.any() or (~inside).sum() < 2:
+        return x
+    for col in range(profile.shape[1]):
+        profile[inside, col] = np.interp(knot_t[inside], knot_t[~inside], profile[~inside, col])
+    x[part.stop - profile.size:part.stop] = profile.ravel()  # the profile closes each varying vector
+    return x
 
 
 def held_out_sums(fits: list[Fit], d: Data, tested: list) -> list[float]:
