@@ -1,8 +1,8 @@
 """What an explanation adds after its leader must predict the record where it was not fitted
 (discrepancy/crossval.py and selection.predictive): the folds against their definition, held-out
-sums at the noise for the true model and far above it without the effect, a tested profile
-predicted without its values fitted to the rows held out, and a real toss whose leftover misfit a
-rotor's momentum follows in-sample but does not predict."""
+sums at the noise for the true model and far above it without the effect, and a tested profile
+predicted without its values fitted to the rows held out (a real toss's case:
+test_selection.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from inertia_gym.discrepancy import selection
 from inertia_gym.discrepancy.crossval import (
     FOLDS,
     _held_out_sum,
@@ -20,19 +19,7 @@ from inertia_gym.discrepancy.crossval import (
     held_out_sums,
 )
 from inertia_gym.discrepancy.fit import fit_effect, fit_model, fit_nominal, prepare
-from inertia_gym.discrepancy.report import _fits, diagnose
-from inertia_gym.discrepancy.selection import (
-    Explanation,
-    _added,
-    _alone,
-    _chain,
-    _led_by_best_single,
-    predictive,
-    select,
-)
-from inertia_gym.discrepancy.summary import _beyond_words
 from inertia_gym.discrepancy.synthetic import simulate_recording
-from inertia_gym.prepare import prepared
 from inertia_gym.scenario import Scenario
 
 
@@ -93,55 +80,3 @@ def test_a_profile_held_out_is_predicted_from_its_knots_outside_the_rows_held_ou
     moved = dataclasses.replace(fit, x=x)
     assert _held_out_sum(moved, d, fold, k, "internal_momentum") == _held_out_sum(
         fit, d, fold, k, "internal_momentum")
-
-
-def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(racquet_toss, kept_fits):
-    """Racquet round 2 segment 3: the selection adds a varying momentum to the varying drag (it
-    gains in BIC on the rows it is fitted to); it fits the stretches held out in turn worse than
-    the drag alone, so the explanation leaves it out, says why, and is selected again without it.
-    One diagnosis: the fits are kept as _fits returns them (the selection repeated on its rows
-    reads their cache)."""
-    report = diagnose(racquet_toss("round2", 3)).report
-    found, = kept_fits
-    selected = select(found.data, found.nominal, found.singles)
-    assert "internal_momentum" in selected.fit.names  # what the BIC alone chose
-    assert "internal_momentum" not in found.chosen.fit.names
-    assert found.chosen.fit.names[0] in ("viscous_damping", "aero_drag")  # the air leads
-    assert "does not predict" in found.chosen.dropped["internal_momentum"]
-    assert "internal_momentum" not in [e["name"] for e in report["explanation"]]
-    assert "does not predict" in report["left_out"]["internal_momentum"]
-    left = {e["name"]: e for e in report["unpredictive"]}
-    assert left["internal_momentum"]["held_out_ratio"] > 1.0
-    assert report["beyond_catalogue"]  # the misfit it followed is structure the catalogue lacks
-    words = "\n".join(_beyond_words(report))
-    assert "`internal_momentum`" in words and "held out in turn" in words
-
-
-def test_the_effect_tested_is_the_one_added_after_the_listed_leader(monkeypatch):
-    """An explanation whose compound fit holds its effects in another order than it lists them
-    (led by the best single effect: _led_by_best_single keeps the fit, changes the listing): the
-    cross-validation tests the effect listed second, never the leader, and keeps the listing."""
-    rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
-                                seed=1000)
-    found = _fits(prepared(rec))
-    d, nominal, singles = found.data, found.nominal, found.singles
-    listed = select(d, nominal, singles)
-    names, forms = listed.fit.names[::-1], listed.fit.forms[::-1]
-    by_name = {f.name: f for f in singles}
-    chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
-    backwards = Explanation(tuple(chain), _added(nominal, chain, names), {})
-    led = _led_by_best_single(backwards, d, nominal, singles)
-    lead, second = (name for name, _ in led.added)
-    assert led.fit.names == (second, lead)  # the fit's own order is the other one
-    asked = []
-    real = selection.held_out_sums
-
-    def spy(fits, data, tested):
-        asked.append(list(tested))
-        return real(fits, data, tested)
-
-    monkeypatch.setattr(selection, "held_out_sums", spy)
-    kept = predictive(led, d, nominal, singles)
-    assert asked == [[second, None]]
-    assert [name for name, _ in kept.added] == [lead, second]  # both predict: nothing left out
-    assert kept.unpredictive == {}

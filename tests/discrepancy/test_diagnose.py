@@ -20,16 +20,12 @@ from inertia_gym.discrepancy import analysis as analysis_module
 from inertia_gym.discrepancy.effects import REGISTRY, random_params
 from inertia_gym.discrepancy.fit import (
     AMBIGUOUS_DELTA_BIC,
-    MAX_EFFECTS,
     SIGNIFICANT_DELTA_BIC,
-    TIE_BIC,
-    Explanation,
     Layout,
     fit_effect,
     fit_nominal,
     initial_rates,
     prepare,
-    search,
     select,
     whitened,
 )
@@ -45,7 +41,6 @@ from inertia_gym.discrepancy.report import (
     inertia_comparison,
     markdown,
 )
-from inertia_gym.discrepancy.selection import _added, _alone, _chain, _claims_cost, _led_by_best_single
 from inertia_gym.discrepancy.synthetic import parse_effect, racquet_flip, simulate_recording
 from inertia_gym.errors import ConfigError, RecordingError
 from inertia_gym.estimation.inertia_param import phi_from_inertia
@@ -626,56 +621,14 @@ def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss
     assert max(report["fit_after"]["rms_over_noise"]) < 0.3 * max(report["fit_before"]["rms_over_noise"])
 
 
-def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(racquet_toss):
-    """Racquet round 2 segment 3: the searches led by the best single effect (the varying drag)
-    and by the runner-up; select keeps an explanation at least as good as either, listed led by
-    the best single effect. Both end at the varying drag and the varying momentum, 476.6 in BIC
-    with each named effect's margin (the rows recounted), below the 483.1 of the better search
-    with a piecewise-linear momentum profile (the runner-up's; the other's 516.1). The
-    runner-up's search finding the better explanation is tested on a rotor throw below and on
-    Basilisk's slosh with a hidden torque (test_basilisk.py)."""
-    found = _fits(prepared(racquet_toss("round2", 3)))
-    d, nominal, singles = found.data, found.nominal, found.singles
-    chosen = select(d, nominal, singles)
-    first = search(d, nominal, singles, MAX_EFFECTS)
-    runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
-    assert first.fit.names[0] == singles[0].name
-    cost = _claims_cost(chosen.fit, d)
-    assert cost <= min(_claims_cost(first.fit, d), _claims_cost(runner_up.fit, d)) + TIE_BIC
-    assert cost < 483.1  # better than either search with a piecewise-linear momentum profile
-    assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
-
-
-def test_an_explanation_in_any_order_is_listed_led_by_its_best_single_effect():
-    """The same compound explanation listed the other way round (as another search, or a
-    backward check that dropped the first search's lead, can leave it) is listed again led by its
-    effect ranked first among the single fits: the compound fit kept, the prefix refitted, and
-    the ΔBICs along the new chain adding up to the whole gain."""
-    rec, _ = simulate_recording(Scenario(tau_max=50.0), 40.0, ["gyro_bias", "constant_body_torque"],
-                                seed=1000)
-    found = _fits(prepared(_concealed(rec)))
-    d, nominal, singles, chosen = found.data, found.nominal, found.singles, found.chosen
-    assert sorted(chosen.fit.names) == ["constant_body_torque", "gyro_bias"]
-    assert chosen.fit.names[0] == singles[0].name  # the selection's own listing
-    names, forms = chosen.fit.names[::-1], chosen.fit.forms[::-1]
-    by_name = {f.name: f for f in singles}
-    chain = _chain(names, forms, d, {names[0]: _alone(by_name[names[0]], forms[0], d, nominal)})
-    backwards = Explanation(tuple(chain), _added(nominal, chain, names), {})
-    led = _led_by_best_single(backwards, d, nominal, singles)
-    assert [name for name, _ in led.added] == list(chosen.fit.names)
-    assert led.fit is backwards.fit  # the compound fit kept, only its listing changed
-    assert sum(gain for _, gain in led.added) == pytest.approx(nominal.bic - backwards.fit.bic)
-    assert _led_by_best_single(led, d, nominal, singles) is led
-
-
 def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, kept_fits):
     """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the selection's explanation,
     a constant torque and the time-varying momentum, is listed led by the effect of the best
     single-effect fit among those it holds, the momentum, which alone explains far more (the
     first search finds it in this order; one found in the other order is listed so by
-    _led_by_best_single, tested above). The report's explanation keeps that lead (the torque
-    added after it is then cross-validated). One diagnosis: the fits are kept as _fits returns
-    them."""
+    _led_by_best_single, as test_selection.py specifies). The report's explanation keeps that
+    lead (the torque added after it is then cross-validated). One diagnosis: the fits are kept as
+    _fits returns them."""
     rec = dataclasses.replace(rotor_throw("Empty_LOG00180"), h=None)
     report = diagnose(rec).report
     d, nominal, singles = kept_fits[0].data, kept_fits[0].nominal, kept_fits[0].singles
