@@ -1,6 +1,7 @@
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -48,15 +49,25 @@ WARM_UP = (
 def pytest_sessionstart(session):
     """Warm numba's cache (:data:`WARM_UP`) when the run fans out over xdist workers; a worker
     (which has ``workerinput``) and a one-process run compile as they go. A warm-up that fails
-    changes nothing: the tests that need the kernel compile it and report any error themselves."""
+    changes no result (the tests that need the kernel compile it and report any error
+    themselves), but the run is slower: its last error line is printed."""
     config = session.config
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     env = dict(os.environ, MPLBACKEND="Agg")
+    # each process's errors go to a file of its own: a pipe left unread while the other process
+    # is awaited could fill and stall it
+    logs = [tempfile.TemporaryFile("w+") for _ in WARM_UP]
     procs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL) for code in WARM_UP]
-    for proc in procs:
+                              stderr=log) for code, log in zip(WARM_UP, logs)]
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    for i, (proc, log) in enumerate(zip(procs, logs)):
         proc.wait()
+        log.seek(0)
+        lines = log.read().strip().splitlines() or ["no error output"]
+        log.close()
+        if proc.returncode and reporter is not None:
+            reporter.write_line(f"warm-up {i} failed (the workers compile its kernels): {lines[-1]}")
 
 
 def pytest_collection_modifyitems(config, items):
