@@ -10,10 +10,10 @@ segment's initial state is fitted) always stays, and block k after it of every s
 out in turn. The explanation is refitted on the rest (from its own fit: the inertia, the initial
 states and the tested effect move; a tested time profile's knots inside the block first drawn
 through its knots outside, since their fitted values saw the rows held out) and scored on the
-rows held out. An added effect stays only
-where the explanation with it predicts the held-out rows better than the explanation without it
-(the smaller held-out residual sum: the held-out Gaussian likelihood with the variance profiled
-out). The leader is not judged here: it clears its margin against the rigid model alone.
+rows held out. An added effect stays only where the explanation with it predicts the held-out
+rows better than the explanation without it (the smaller held-out residual sum: the held-out
+Gaussian likelihood with the variance profiled out). The leader is not judged here: it clears
+its margin against the rigid model alone.
 """
 
 from __future__ import annotations
@@ -69,9 +69,10 @@ def _held_out_sum(fit: Fit, d: Data, fold: np.ndarray, k: int, tested: str | Non
 def _profile_from_rows_kept(fit: Fit, d: Data, held: np.ndarray, tested: str | None) -> np.ndarray:
     """fit.x with the tested effect's time profile (a varying form's knot values) at the knots
     inside the rows held out (held (n_rows,) bool) drawn through the knots outside them
-    (linearly): those values were fitted to the held-out rows, which the refit does not see, so
-    kept they would carry the held-out rows into their own prediction. fit.x itself where the
-    effect has no profile or too few knots outside.
+    (linearly between them, held at the nearest one beyond them): those values were fitted to
+    the held-out rows, which the refit does not see, so kept they would carry the held-out rows
+    into their own prediction. fit.x itself where the effect has no profile or fewer than two
+    knots outside.
     """
     x = np.array(fit.x, float)
     if tested is None:

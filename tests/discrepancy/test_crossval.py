@@ -78,5 +78,6 @@ def test_a_profile_held_out_is_predicted_from_its_knots_outside_the_rows_held_ou
     stop = fit.layout.slices()[0].stop
     x[stop - profile.size:stop][inside] += 10.0 * np.ptp(profile)  # another value fitted there
     moved = dataclasses.replace(fit, x=x)
-    assert _held_out_sum(moved, d, fold, k, "internal_momentum") == _held_out_sum(
-        fit, d, fold, k, "internal_momentum")
+    # the same start, so the same refit (with the knots kept, moving them changes the sum by 0.5 %)
+    assert _held_out_sum(moved, d, fold, k, "internal_momentum") == pytest.approx(
+        _held_out_sum(fit, d, fold, k, "internal_momentum"), rel=1e-6)
