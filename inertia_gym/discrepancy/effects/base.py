@@ -89,7 +89,8 @@ class EffectModel:
     the effect's own starts found on top of the fit it is added to, and refits it jointly
     wherever structure is left: a mode's frequency screen, which a larger effect beside it
     leads astray when run on the nominal fit alone; a momentum's equation-error estimate, which
-    a screen from its single fit's parameters, biased by the effect beside it, does not reach),
+    a screen from its single fit's parameters, biased by the effect beside it, does not reach; a
+    gyro bias, whose screen holds the rates it shifts),
     ``optional`` (parameters a truth Effect may leave out, with the value they then take),
     ``keeps_invariants`` (the effect acts on the body only as a torque, or as dissipation inside
     it: |J w + h| and w.J w / 2 of the measured rates stay the body's momentum and energy, so
