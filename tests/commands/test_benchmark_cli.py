@@ -34,7 +34,7 @@ def run_cli(out: Path, *extra: str) -> dict:
     return json.loads((out / "benchmark.json").read_text())
 
 
-@pytest.fixture(scope="session")  # one sweep for every test here (make test keeps a module on one worker)
+@pytest.fixture(scope="session")  # one sweep per worker for every test here that reads it
 def sequential(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("bench") / "sequential"
     run_cli(out, "--workers", "1")
