@@ -534,6 +534,11 @@ def test_beyond_catalogue_words_say_what_is_left_and_what_the_effects_named_are(
     assert "none of its effects accounts for any of it" in words
     (words,) = _beyond_words(report(None, valid=False))
     assert "is not a valid fit" in words
+    left = {**report([1.1, 2.0, 1.5]), "beyond_catalogue": True,
+            "unpredictive": [{"name": "internal_momentum", "held_out_ratio": 35.05}]}
+    (words,) = _beyond_words(left)
+    assert "`internal_momentum`" in words and "held out in turn 35.05x as badly" in words
+    assert "so it is left out" in words and "[1.1, 2.0, 1.5] times the noise" in words
 
 
 def test_a_real_spin_about_the_handle_is_read_as_the_air_of_its_flight(racquet_toss):

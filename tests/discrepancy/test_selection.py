@@ -31,7 +31,6 @@ from inertia_gym.discrepancy.selection import (
     search,
     select,
 )
-from inertia_gym.discrepancy.summary import _beyond_words
 from inertia_gym.discrepancy.synthetic import simulate_recording
 from inertia_gym.prepare import prepared
 from inertia_gym.scenario import Scenario
@@ -150,40 +149,39 @@ def real_toss(racquet_toss):
 
 
 def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(real_toss):
-    """Racquet round 2 segment 3: the searches led by the best single effect (the varying drag)
-    and by the runner-up; select keeps an explanation at least as good as either, listed led by
-    the best single effect. Both end at the varying drag and the varying momentum, 476.6 in BIC
-    with each named effect's margin (the rows recounted), below the 483.1 of the better search
-    with a piecewise-linear momentum profile (the runner-up's; the other's 516.1). The
-    runner-up's search finding the better explanation is tested on Basilisk's slosh with a
-    hidden torque (test_basilisk.py)."""
+    """Racquet round 2 segment 3, whose explanations of nearly equal BIC (varying drag and
+    momentum; flat-plate drag and a mode) are reached by different searches: select keeps an
+    explanation at least as good as the search led by the best single effect and the one led by
+    the runner-up, each named effect charged its margin, and lists it led by the best single
+    effect wherever it holds that effect."""
     found = real_toss[1]
     d, nominal, singles = found.data, found.nominal, found.singles
     chosen = select(d, nominal, singles)
     first = search(d, nominal, singles, MAX_EFFECTS)
     runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
     assert first.fit.names[0] == singles[0].name
+    assert runner_up.fit.names[0] == singles[1].name
     cost = _claims_cost(chosen.fit, d)
     assert cost <= min(_claims_cost(first.fit, d), _claims_cost(runner_up.fit, d)) + TIE_BIC
-    assert cost < 483.1  # better than either search with a piecewise-linear momentum profile
-    assert chosen.fit.names[0] == singles[0].name  # listed first: what explains most alone
+    assert cost < _claims_cost(nominal, d) - 500.0  # the air's share of the misfit is explained
+    if singles[0].name in chosen.fit.names:
+        assert [name for name, _ in chosen.added][0] == singles[0].name
 
 
 def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(real_toss):
-    """Racquet round 2 segment 3: the selection adds a varying momentum to the varying drag (it
-    gains in BIC on the rows it is fitted to); it fits the stretches held out in turn worse than
-    the drag alone, so the explanation leaves it out, says why, and is selected again without it.
-    The selection repeated on the fits' rows reads their cache."""
+    """Racquet round 2 segment 3: the search led by the varying drag adds a varying momentum (it
+    gains in BIC on the rows it is fitted to); it fits the stretches held out in turn many times
+    worse than the drag alone, so predictive leaves it out and says why, and no explanation of
+    the toss names a rotor."""
     report, found = real_toss
-    selected = select(found.data, found.nominal, found.singles)
-    assert "internal_momentum" in selected.fit.names  # what the BIC alone chose
+    d, nominal, singles = found.data, found.nominal, found.singles
+    first = search(d, nominal, singles, MAX_EFFECTS)
+    assert first.fit.names[0] in ("viscous_damping", "aero_drag")  # the air leads
+    assert "internal_momentum" in first.fit.names  # what the BIC alone adds
+    kept = predictive(first, d, nominal, singles)
+    assert "internal_momentum" not in kept.fit.names
+    assert kept.unpredictive["internal_momentum"] > 3.0
+    assert "does not predict" in kept.dropped["internal_momentum"]
     assert "internal_momentum" not in found.chosen.fit.names
-    assert found.chosen.fit.names[0] in ("viscous_damping", "aero_drag")  # the air leads
-    assert "does not predict" in found.chosen.dropped["internal_momentum"]
+    assert found.chosen.fit.names[0] in ("viscous_damping", "aero_drag")
     assert "internal_momentum" not in [e["name"] for e in report["explanation"]]
-    assert "does not predict" in report["left_out"]["internal_momentum"]
-    left = {e["name"]: e for e in report["unpredictive"]}
-    assert left["internal_momentum"]["held_out_ratio"] > 1.0
-    assert report["beyond_catalogue"]  # the misfit it followed is structure the catalogue lacks
-    words = "\n".join(_beyond_words(report))
-    assert "`internal_momentum`" in words and "held out in turn" in words
