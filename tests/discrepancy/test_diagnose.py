@@ -626,6 +626,7 @@ def test_an_explanation_naming_one_more_effect_must_earn_the_margin(racquet_toss
     assert max(report["fit_after"]["rms_over_noise"]) < 0.3 * max(report["fit_before"]["rms_over_noise"])
 
 
+@pytest.mark.science  # 22 s; make test keeps the listing on a simulated record (test_selection.py)
 def test_a_real_throws_explanation_is_led_by_what_explains_most_alone(rotor_throw, kept_fits):
     """Rotor throw Empty_LOG00180 with the rotor's momentum withheld: the selection's explanation,
     a constant torque and the time-varying momentum, is listed led by the effect of the best
