@@ -160,7 +160,6 @@ def test_select_keeps_the_best_of_its_searches_on_a_racquet_toss(real_toss):
     first = search(d, nominal, singles, MAX_EFFECTS)
     runner_up = search(d, nominal, singles, MAX_EFFECTS, lead=1)
     assert first.fit.names[0] == singles[0].name
-    assert runner_up.fit.names[0] == singles[1].name
     cost = _claims_cost(chosen.fit, d)
     assert cost <= min(_claims_cost(first.fit, d), _claims_cost(runner_up.fit, d)) + TIE_BIC
     assert cost < _claims_cost(nominal, d) - 500.0  # the air's share of the misfit is explained
