@@ -51,15 +51,16 @@ def test_rotor_throw_table(tmp_path):
     assert all(abs(e) < 0.015 for e in report["joint"]["Empty"]["moment_errors"])
 
 
-def test_the_paired_comparison_counts_the_better_throws_and_tests_their_differences():
+def test_the_paired_comparison_counts_the_better_throws_and_tests_their_differences(monkeypatch):
     """paired against its definition: the throws where the first estimator's error is the
     smaller, and scipy's two-sided Wilcoxon signed-rank p of the differences; identical errors
     give p = 1."""
-    sys.path.insert(0, str(SCRIPTS))
-    try:
-        from identify_tables import paired
-    finally:
-        sys.path.remove(str(SCRIPTS))
+    # the script pins numba to one thread on import (os.environ), which numba refuses to change
+    # in a process whose threads run: the variable is restored when the test ends
+    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    monkeypatch.syspath_prepend(str(SCRIPTS))
+    from identify_tables import paired
+
     rng = np.random.default_rng(0)
     first, second = rng.uniform(0.01, 0.03, (2, 10, 2))
     rows = [{"identify": a.tolist(), "classic": b.tolist()} for a, b in zip(first, second)]
