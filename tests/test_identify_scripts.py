@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -56,11 +57,17 @@ def test_the_paired_comparison_counts_the_better_throws_and_tests_their_differen
     smaller, and scipy's two-sided Wilcoxon signed-rank p of the differences; identical errors
     give p = 1."""
     # the script pins numba to one thread on import (os.environ), which numba refuses to change
-    # in a process whose threads run: the variable is restored when the test ends
-    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    # in a worker whose threads run: the variable is put back as it was before any kernel compiles
+    before = os.environ.get("NUMBA_NUM_THREADS")
     monkeypatch.syspath_prepend(str(SCRIPTS))
-    from identify_tables import paired
-
+    try:
+        from identify_tables import paired
+    finally:
+        if before is None:
+            os.environ.pop("NUMBA_NUM_THREADS", None)
+        else:
+            os.environ["NUMBA_NUM_THREADS"] = before
+    assert os.environ.get("NUMBA_NUM_THREADS") == before
     rng = np.random.default_rng(0)
     first, second = rng.uniform(0.01, 0.03, (2, 10, 2))
     rows = [{"identify": a.tolist(), "classic": b.tolist()} for a, b in zip(first, second)]
