@@ -164,6 +164,7 @@ def test_the_ratios_intervals_are_the_delta_methods_where_the_ratios_are_linear(
     assert np.mean(ci[1]) == pytest.approx(ratios[1], abs=0.1 * half)
 
 
+@pytest.mark.science  # 20 fits, 13 s; make test checks the widening's formula (test_statistics.py)
 def test_the_shapes_intervals_count_the_residuals_correlation(monkeypatch):
     """A 1-s racquet flip with quadratic drag at 100 Hz whose gyro noise is AR(1), 0.9 from row
     to row, at the stated level: rows correlated over tau of them inform as 1/tau as many. The
