@@ -56,18 +56,12 @@ def test_the_paired_comparison_counts_the_better_throws_and_tests_their_differen
     """paired against its definition: the throws where the first estimator's error is the
     smaller, and scipy's two-sided Wilcoxon signed-rank p of the differences; identical errors
     give p = 1."""
-    # the script pins numba to one thread on import (os.environ), which numba refuses to change
-    # in a worker whose threads run: the variable is put back as it was before any kernel compiles
-    before = os.environ.get("NUMBA_NUM_THREADS")
+    before = dict(os.environ)
     monkeypatch.syspath_prepend(str(SCRIPTS))
-    try:
-        from identify_tables import paired
-    finally:
-        if before is None:
-            os.environ.pop("NUMBA_NUM_THREADS", None)
-        else:
-            os.environ["NUMBA_NUM_THREADS"] = before
-    assert os.environ.get("NUMBA_NUM_THREADS") == before
+    from identify_tables import paired
+
+    # imported, the script leaves the worker's environment (its numba thread count) alone
+    assert dict(os.environ) == before
     rng = np.random.default_rng(0)
     first, second = rng.uniform(0.01, 0.03, (2, 10, 2))
     rows = [{"identify": a.tolist(), "classic": b.tolist()} for a, b in zip(first, second)]
