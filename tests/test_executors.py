@@ -63,9 +63,7 @@ def test_diagnose_fits_with_blas_on_one_thread_and_restores_after_an_error(two_b
     assert max(blas_threads()) == 2
 
 
-def test_pool_workers_run_blas_on_one_thread():
-    if max(blas_threads(), default=1) < 2:
-        pytest.skip("BLAS runs one thread here by default: a worker would too, limited or not")
+def test_pool_workers_run_blas_on_one_thread(two_blas_threads):
     results = [threads for _, threads in map_unordered(blas_threads, [0, 1], workers=2)]
     assert len(results) == 2
     assert all(threads and set(threads) == {1} for threads in results)

@@ -170,10 +170,20 @@ def test_a_batch_runs_each_run_exactly_as_alone(estimator, tasks):
     gives bit for bit what it gives alone."""
     import numba
 
+    threads = numba.get_num_threads()
+    if tasks in ("HALF_LANES", "one run"):  # split only over two or more threads
+        if numba.config.NUMBA_NUM_THREADS < 2:
+            pytest.skip("a batch of at most LANES runs is split only over two or more threads")
+        numba.set_num_threads(2)
+    try:
+        _batch_against_alone(estimator, tasks)
+    finally:
+        numba.set_num_threads(threads)
+
+
+def _batch_against_alone(estimator, tasks):
     from inertia_gym.simulation import HALF_LANES, LANES
 
-    if tasks in ("HALF_LANES", "one run") and numba.get_num_threads() < 2:
-        pytest.skip("a batch of at most LANES runs is split only over two or more threads")
     sc = Scenario(estimator=estimator)
     batch = {"LANES": LANES + 3, "HALF_LANES": HALF_LANES + 3, "one run": HALF_LANES,
              "one task": LANES - 1}[tasks]
