@@ -304,16 +304,19 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
 
 def test_a_mode_damped_past_resonance_is_read_as_internal_dissipation():
     """A fitted flexible_mode with zeta >= 1/sqrt(2) (no resonant peak: a heavily damped slosh
-    mass's reading, zeta 1.0 and period 3.7 s on a Basilisk smallsat) is read as dissipation in
-    words; a lightly damped one (a panel, zeta 0.05) is not."""
+    mass's reading) is read as dissipation in words, with its energy's time constant: half the
+    inverse of its slowest decay rate, zeta omega_n up to critical damping and the slow pole
+    omega_n (zeta - sqrt(zeta^2 - 1)) past it; a lightly damped one (a panel, zeta 0.05) is not."""
     def report(zeta):
         mode = {"name": "flexible_mode", "form": None, "delta_bic": 400.0, "confounded_with": [],
                 "params": {"omega_n": 1.7, "zeta": zeta, "coupling": [-0.6, 0.36, 1.6],
                            "eta0": 0.02, "eta_dot0": 0.0}}
         return {"explanation": [mode], "left_out": {}, "scale_identified": True}
     text = _explanation_words(report(1.0))
-    assert "damping ratio 1 is at or above 1/√2" in text and "period (3.7 s)" in text
+    assert "damping ratio 1 is at or above 1/√2" in text and f"time constant of {0.5 / 1.7:.3g} s" in text
     assert "Read it as internal dissipation" in text
+    overdamped = _explanation_words(report(3.0))
+    assert f"time constant of {0.5 / (1.7 * (3.0 - np.sqrt(8.0))):.3g} s" in overdamped  # 1.71 s
     assert "internal dissipation" not in _explanation_words(report(0.05))
 
 
