@@ -178,11 +178,13 @@ class Probe:
         with a modal displacement and three with a modal velocity (eta0 = eps, eta_dot0 = eps
         omega: as small as the coupling eps, which is sized to the body, so the probe stays
         linear on a body of any mass) a's and b's, and one least-squares solve the twelve that
-        explain most at that frequency and damping ratio. Over a geometric
-        grid of frequencies (MODE_GRID apart) in the band at each of `zetas`, then finer around the
-        best, the `keep` best (frequency, damping ratio) pairs give delta = sqrt(lambda) v from M's leading eigenpair (size within the
-        room J leaves: J - delta delta^T stays positive) or, where M has none, along a and b's
-        leading direction at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
+        explain most at that frequency and damping ratio. Over a geometric grid of frequencies
+        (MODE_GRID apart) in the band at each of `zetas`, then finer around the best, the first
+        ratio's `keep` best frequencies and each other ratio's best (an overdamped mode's lag is a
+        response of its own, which a start at a light ratio does not reach) give
+        delta = sqrt(lambda) v from M's leading eigenpair (size within the room J leaves:
+        J - delta delta^T stays positive) or, where M has none, along a and b's leading direction
+        at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
         A loaded mode (flexible_mode's "loaded" form) starts with its inertia rate K at zero.
         """
         d, base = self.d, self.base

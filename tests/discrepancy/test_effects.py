@@ -417,7 +417,8 @@ def test_a_modes_damping_ratio_reaches_past_critical_until_its_poles_span_the_ba
     from inertia_gym.discrepancy.effects import flex_floor_hz
     from inertia_gym.discrepancy.effects.flexible_mode import mode_band, zeta_max
 
-    for duration, rate, dt in [(40.0, 10.0, 0.1), (1.0, 20.0, 0.01), (0.5, 30.0, 2.5e-4), (1200.0, 0.02, 0.5)]:
+    records = [(40.0, 10.0, 0.1), (1.0, 20.0, 0.01), (0.5, 30.0, 2.5e-4), (1200.0, 0.02, 0.5)]
+    for duration, rate, dt in records:
         d = SimpleNamespace(duration=duration, omega_ref=rate, dt=dt)
         lo, hi = mode_band(d)
         zeta = zeta_max(d)

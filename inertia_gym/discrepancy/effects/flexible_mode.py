@@ -35,7 +35,8 @@ MODE_ZETAS = (0.03, 1.0, 3.0)
 
 def mode_band(d) -> tuple[float, float]:
     """The modal frequencies a fit may take (rad/s): half the screened floor (at least one cycle in
-    the record) up to FLEX_BAND[1] of the sampling rate."""
+    the record) up to FLEX_BAND[1] of the sampling rate.
+    """
     return 2 * np.pi * 0.5 * flex_floor_hz(d), 2 * np.pi * FLEX_BAND[1] / d.dt
 
 
@@ -43,7 +44,8 @@ def zeta_max(d) -> float:
     """The largest damping ratio a fit may take: an overdamped mode's poles lie about 4 zeta^2
     apart, so beyond 0.5 sqrt(band) they cannot both lie in the band of mode_band; one is then
     unseen and only omega_n / (2 zeta), the other, is fitted, along a ridge of (omega_n, zeta)
-    that the bound cuts off. At least 1: a critically damped mode is always allowed."""
+    that the bound cuts off. At least 1: a critically damped mode is always allowed.
+    """
     lo, hi = mode_band(d)
     return max(1.0, 0.5 * np.sqrt(hi / lo))
 
