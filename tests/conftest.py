@@ -73,7 +73,7 @@ def pytest_sessionstart(session):
 def pytest_configure(config):
     """An xdist worker runs its compiled loops, BLAS and torch on its share of the cores: two
     workers each running two threads on two cores time-slice every parallel section (the suite
-    takes about 15 % longer so). Tests that need more threads raise the limit around themselves."""
+    takes about 10 % longer so). Tests that need more threads raise the limit around themselves."""
     workers = getattr(config, "workerinput", {}).get("workercount")
     if not workers:
         return
