@@ -168,8 +168,8 @@ class Probe:
         """The `keep` candidate vectors p of the new effect of lowest cost (everything else the base's)."""
         return [ps[i] for i in np.argsort(self.costs([self.x(p) for p in ps]))[:keep]]
 
-    def mode_starts(self, keep: int = 3, zeta: float = 0.03) -> list[np.ndarray]:
-        """Starts of flexible_mode from a linear screen over the modal frequency.
+    def mode_starts(self, keep: int = 3, zetas: tuple = (0.03,)) -> list[np.ndarray]:
+        """Starts of flexible_mode from a linear screen over the modal frequency and damping ratio.
 
         To first order the mode's effect on the predicted rates is linear in M = delta delta^T
         (a symmetric 3x3; what the body's motion excites) and in a = delta eta0, b = delta
@@ -178,11 +178,14 @@ class Probe:
         with a modal displacement and three with a modal velocity (eta0 = eps, eta_dot0 = eps
         omega: as small as the coupling eps, which is sized to the body, so the probe stays
         linear on a body of any mass) a's and b's, and one least-squares solve the twelve that
-        explain most at that frequency. Over a geometric
-        grid of frequencies (MODE_GRID apart) in the band, then finer around the best, the `keep`
-        best frequencies give delta = sqrt(lambda) v from M's leading eigenpair (size within the
-        room J leaves: J - delta delta^T stays positive) or, where M has none, along a and b's
-        leading direction at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
+        explain most at that frequency and damping ratio. Over a geometric grid of frequencies
+        at each of `zetas` (MODE_GRID apart in the band for a light ratio; for an overdamped one
+        MODE_REACH apart where both its poles lie in the band), then finer around the best, the
+        first ratio's `keep` best frequencies and each other ratio's best (an overdamped mode's lag
+        is a response of its own, which a start at a light ratio does not reach) give
+        delta = sqrt(lambda) v from M's leading eigenpair (size within the room J leaves:
+        J - delta delta^T stays positive) or, where M has none, along a and b's leading direction
+        at a fifth of that room; eta0, eta_dot0 follow from a and b along delta.
         A loaded mode (flexible_mode's "loaded" form) starts with its inertia rate K at zero.
         """
         d, base = self.d, self.base
@@ -197,7 +200,7 @@ class Probe:
         rest = np.zeros(part.stop - part.start - 7)  # a loaded mode's K: of second order in the couplings
         r0 = objective(self.x(np.zeros(7 + rest.size))[None], self.layout, self.d)[0]
 
-        def screen(omega):
+        def screen(omega, zeta):
             layout = dataclasses.replace(self.layout, omega_max=omega)
             xs = [self.x(np.r_[omega, zeta, eps * v, 0.0, 0.0, rest]) for v in directions]
             xs += [self.x(np.r_[omega, zeta, eps * e, eps, 0.0, rest]) for e in np.eye(3)]
@@ -209,17 +212,29 @@ class Probe:
                             + [(resp[6 + i] - eps ** 2 * excite[i % 3]) / eps ** 2 for i in range(6)], 1)
             m = np.linalg.lstsq(cols, -r0, rcond=None)[0]
             gain = float(r0 @ r0 - np.sum((r0 + cols @ m) ** 2))
-            return gain, omega, m
+            return gain, omega, m, zeta
 
-        grid = np.geomspace(lo, hi, max(2, int(np.log(hi / lo) / np.log(MODE_GRID)) + 1))
-        scan = [screen(om) for om in grid]
+        def grid(zeta):
+            # an overdamped mode's poles lie a factor r = zeta + sqrt(zeta^2 - 1) either side of
+            # omega_n (r = 1 up to critical damping): both lie in the band for omega_n in
+            # [lo r, hi / r]. Damped past resonance it
+            # has no peak to miss between grid points: screened MODE_REACH apart, the factor a fit
+            # moves a start by.
+            r = zeta + np.sqrt(zeta ** 2 - 1.0) if zeta > 1.0 else 1.0
+            a, b = lo * r, max(hi / r, lo * r)
+            step = MODE_GRID if zeta < 1.0 else MODE_REACH
+            return np.geomspace(a, b, max(2, int(np.log(b / a) / np.log(step)) + 1))
+
+        scan = [screen(om, z) for z in zetas for om in grid(z)]
         best = sorted(scan, key=lambda g: -g[0])[:keep]
-        for _, om, _ in list(best):
-            scan += [screen(om * f) for f in MODE_GRID ** np.linspace(-1, 1, 5)[[1, 3]]]
+        for _, om, _, z in list(best):
+            scan += [screen(om * f, z) for f in MODE_GRID ** np.linspace(-1, 1, 5)[[1, 3]]]
         out = []
         room = 0.7 * np.sqrt(lam_min)
-        for gain, om, m in sorted(scan, key=lambda g: -g[0]):
-            if gain <= 0 or any(abs(om - o) < 0.02 * om for o in [x[0] for x in out]):
+        taken = {z: 0 for z in zetas}  # the first ratio's `keep` best frequencies, each other's best
+        for gain, om, m, zeta in sorted(scan, key=lambda g: -g[0]):
+            if (gain <= 0 or taken[zeta] == (keep if zeta == zetas[0] else 1)
+                    or any(abs(om - x[0]) < 0.02 * om and x[1] == zeta for x in out)):
                 continue
             vals, vecs = np.linalg.eigh(matrix6(m[:6]))
             state = np.stack([m[6:9], m[9:12]], 1)  # (3, 2): a, b
@@ -231,8 +246,7 @@ class Probe:
                 continue
             a, b = state.T @ delta / (delta @ delta)
             out.append(np.r_[om, zeta, delta, a, b * om, rest])
-            if len(out) == keep:
-                break
+            taken[zeta] += 1
         return out
 
     def change_starts(self, keep: int = 2) -> list[np.ndarray]:

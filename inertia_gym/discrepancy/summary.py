@@ -102,7 +102,7 @@ DISSIPATIVE_ZETA = 1.0 / np.sqrt(2.0)
 def _damped_mode_reading(expl: list[dict]) -> str | None:
     """The sentence that reads a flexible mode of damping ratio at least DISSIPATIVE_ZETA as
     internal dissipation, or None. Such a mode has no resonance and sheds its energy within
-    about one period while the body's angular momentum is kept: the physics of a nutation
+    its slowest time constant while the body's angular momentum is kept: the physics of a nutation
     damper or a heavily damped slosh mass, of which internal_dissipation's torque is the
     quasi-steady limit (the mode keeps the internal mass's lag, which that torque leaves out).
     """
@@ -110,8 +110,11 @@ def _damped_mode_reading(expl: list[dict]) -> str | None:
     if mode is None or float(mode["params"]["zeta"]) < DISSIPATIVE_ZETA:
         return None
     zeta, omega = float(mode["params"]["zeta"]), float(mode["params"]["omega_n"])
+    # the slowest decay rate of the mode's free motion: zeta omega while it oscillates, the slow
+    # pole omega (zeta - sqrt(zeta^2 - 1)) when overdamped
+    rate = omega * (zeta - np.sqrt(zeta ** 2 - 1.0)) if zeta > 1.0 else zeta * omega
     return (f"flexible_mode's damping ratio {zeta:.2g} is at or above 1/√2: the internal motion has "
-            f"no resonance and loses its energy within about one period ({2 * np.pi / omega:.3g} s) "
+            f"no resonance and its energy decays with a time constant of {0.5 / rate:.3g} s "
             "while the angular momentum is kept. Read it as internal dissipation: a damper or a "
             "heavily damped slosh mass (internal_dissipation is the same physics without the "
             "internal mass's lag).")

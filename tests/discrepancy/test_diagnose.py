@@ -134,6 +134,29 @@ def _particle_mode_record(seed: int, loaded: bool):
                               sample_dt=0.1)[0]
 
 
+def test_an_overdamped_internal_mass_is_read_as_a_damper():
+    """A mode damped three times past critical (1 Hz, zeta 3: a mass on a damper, a slosh in a
+    baffled tank) is a lag of time constant 1 / (omega_n (zeta - sqrt(zeta^2 - 1))), 0.92 s, not a
+    ringing: the explanation is the mode alone, damped past resonance, its slow pole (what the
+    record fixes; omega_n and zeta trade along it) within 20 % of the truth's (measured 2 %), and
+    the summary reads it as internal dissipation."""
+    from inertia_gym.discrepancy.summary import DISSIPATIVE_ZETA
+
+    omega, zeta = 2 * np.pi, 3.0
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, "flexible_mode",
+                                overrides={"zeta": zeta, "omega_n": omega}, seed=2)
+    report = diagnose(_concealed(rec)).report
+    (mode,) = report["explanation"]
+    assert mode["name"] == "flexible_mode" and mode["params"]["zeta"] >= DISSIPATIVE_ZETA
+
+    def slow_pole(omega_n, ratio):
+        return omega_n * (ratio - np.sqrt(max(ratio ** 2 - 1.0, 0.0)))
+
+    fitted = slow_pole(mode["params"]["omega_n"], mode["params"]["zeta"])
+    assert abs(fitted / slow_pole(omega, zeta) - 1.0) < 0.2
+    assert "Read it as internal dissipation" in markdown(report, [])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("loaded", [True, False])
 def test_a_mode_that_moves_mass_is_told_from_one_that_does_not(loaded):
@@ -281,16 +304,19 @@ def test_summary_says_torques_scale_with_an_unknown_inertia():
 
 def test_a_mode_damped_past_resonance_is_read_as_internal_dissipation():
     """A fitted flexible_mode with zeta >= 1/sqrt(2) (no resonant peak: a heavily damped slosh
-    mass's reading, zeta 1.0 and period 3.7 s on a Basilisk smallsat) is read as dissipation in
-    words; a lightly damped one (a panel, zeta 0.05) is not."""
+    mass's reading) is read as dissipation in words, with its energy's time constant: half the
+    inverse of its slowest decay rate, zeta omega_n up to critical damping and the slow pole
+    omega_n (zeta - sqrt(zeta^2 - 1)) past it; a lightly damped one (a panel, zeta 0.05) is not."""
     def report(zeta):
         mode = {"name": "flexible_mode", "form": None, "delta_bic": 400.0, "confounded_with": [],
                 "params": {"omega_n": 1.7, "zeta": zeta, "coupling": [-0.6, 0.36, 1.6],
                            "eta0": 0.02, "eta_dot0": 0.0}}
         return {"explanation": [mode], "left_out": {}, "scale_identified": True}
     text = _explanation_words(report(1.0))
-    assert "damping ratio 1 is at or above 1/√2" in text and "period (3.7 s)" in text
+    assert "damping ratio 1 is at or above 1/√2" in text and f"time constant of {0.5 / 1.7:.3g} s" in text
     assert "Read it as internal dissipation" in text
+    overdamped = _explanation_words(report(3.0))
+    assert f"time constant of {0.5 / (1.7 * (3.0 - np.sqrt(8.0))):.3g} s" in overdamped  # 1.71 s
     assert "internal dissipation" not in _explanation_words(report(0.05))
 
 

@@ -408,6 +408,29 @@ def test_the_modal_screen_reaches_down_to_what_a_long_record_of_a_slow_body_show
     assert floor(60.0, 0.3) == pytest.approx(0.3 / (2 * np.pi))
 
 
+def test_a_modes_damping_ratio_reaches_past_critical_until_its_poles_span_the_band():
+    """flexible_mode's damping ratio is bounded by zeta_max: an overdamped mode's two poles
+    omega_n (zeta -+ sqrt(zeta^2 - 1)) are as far apart as the band of modal frequencies the fit
+    may take (mode_band) at zeta_max, and never less than critical damping."""
+    from types import SimpleNamespace
+
+    from inertia_gym.discrepancy.effects import flex_floor_hz
+    from inertia_gym.discrepancy.effects.flexible_mode import mode_band, zeta_max
+
+    records = [(40.0, 10.0, 0.1), (1.0, 20.0, 0.01), (0.5, 30.0, 2.5e-4), (1200.0, 0.02, 0.5)]
+    for duration, rate, dt in records:
+        d = SimpleNamespace(duration=duration, omega_ref=rate, dt=dt)
+        lo, hi = mode_band(d)
+        zeta = zeta_max(d)
+        assert lo == pytest.approx(np.pi * flex_floor_hz(d)) and hi == pytest.approx(0.5 * np.pi / dt)
+        slow, fast = zeta - np.sqrt(zeta ** 2 - 1.0), zeta + np.sqrt(zeta ** 2 - 1.0)
+        assert hi / lo - 2.5 < fast / slow <= hi / lo  # 4 zeta^2 - 2 + O(1 / zeta^2) at zeta_max
+        lb, ub = REGISTRY["flexible_mode"].bounds("", d)
+        assert (lb[1], ub[1]) == (0.0, zeta) and (lb[0], ub[0]) == (lo, hi)
+    tiny = SimpleNamespace(duration=1.0, omega_ref=20.0, dt=0.2)  # a band narrower than 4:1
+    assert zeta_max(tiny) == 1.0
+
+
 def test_varying_viscous_damping_matches_its_stated_equation():
     """-s(t) C w, s piecewise linear through its knots: the truth simulator (the model diagnose
     fits; s held over each step at the step's mean) against the reference with s(t) exact."""

@@ -68,3 +68,34 @@ def test_the_varying_momentum_is_started_with_its_start_estimated_and_left_to_th
     left_to_inertia = [np.all(p["h"] == 0.0) for p in estimated]
     assert any(left_to_inertia) and not all(left_to_inertia)
     assert any(not np.any(p["profile"]) and np.all(p["h"] == 0.0) for p in starts)
+
+
+def test_the_modal_screen_starts_a_mode_at_each_damping_ratio_it_screens():
+    """mode_starts screens every damping ratio it is given: the first's `keep` best frequencies
+    and each other ratio's best are started (an overdamped response is a lag, not a ringing, and
+    a start at a light ratio does not reach it), each inside the mode's bounds, an overdamped one
+    with both its poles in the screened band."""
+    from inertia_gym.discrepancy.effects import flex_floor_hz
+    from inertia_gym.discrepancy.effects.flexible_mode import FLEX_BAND, MODE_ZETAS, zeta_max
+    from inertia_gym.discrepancy.synthetic import simulate_recording
+    from inertia_gym.scenario import Scenario
+
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, "flexible_mode",
+                                overrides={"zeta": 3.0, "omega_n": 2 * np.pi}, seed=2)
+    d = F.prepare(rec)
+    layout = F.Layout.of(("flexible_mode",), ("",), d)
+    probe = F.Probe(layout, d, F.fit_nominal(d))
+    zetas = tuple(min(z, zeta_max(d)) for z in MODE_ZETAS)
+    starts = probe.mode_starts(keep=3, zetas=zetas)
+    ratios = [float(p[1]) for p in starts]
+    assert sorted(set(ratios)) == sorted(zetas)
+    assert ratios.count(zetas[0]) == 3 and all(ratios.count(z) == 1 for z in zetas[1:])
+    lb, ub = REGISTRY["flexible_mode"].bounds("", d)
+    assert all(np.all(p[:2] >= lb[:2]) and np.all(p[:2] <= ub[:2]) for p in starts)
+    assert [float(p[1]) for p in REGISTRY["flexible_mode"].starts("", d, probe)] == ratios
+    # an overdamped start has both poles omega_n (zeta -+ sqrt(zeta^2 - 1)) in the screened band
+    # (up to the finer screen's step around the best)
+    lo, hi = 2 * np.pi * flex_floor_hz(d), 2 * np.pi * FLEX_BAND[1] / d.dt
+    for omega, zeta in [(float(p[0]), float(p[1])) for p in starts if p[1] > 1.0]:
+        slow, fast = omega * (zeta - np.sqrt(zeta ** 2 - 1.0)), omega * (zeta + np.sqrt(zeta ** 2 - 1.0))
+        assert lo / F.MODE_GRID <= slow and fast <= hi * F.MODE_GRID

@@ -27,6 +27,30 @@ def flex_floor_hz(d) -> float:
     return max(MODE_MIN_CYCLES / max(d.duration, 1e-9), min(FLEX_BAND[0], d.omega_ref / (2 * np.pi)))
 
 
+#: Damping ratios the modal frequency is screened at: light (a panel's or a free liquid's: a
+#: ringing) and heavy (a liquid in a baffled tank, a mass on a damper: overdamped, a lag whose two
+#: poles lie 34x apart); each draws a response of its own shape, which a start at the other ratio
+#: does not reach. A fit moves a start's ratio anywhere within its bounds, critical damping included.
+MODE_ZETAS = (0.03, 3.0)
+
+
+def mode_band(d) -> tuple[float, float]:
+    """The modal frequencies a fit may take (rad/s): half the screened floor (at least one cycle in
+    the record) up to FLEX_BAND[1] of the sampling rate.
+    """
+    return 2 * np.pi * 0.5 * flex_floor_hz(d), 2 * np.pi * FLEX_BAND[1] / d.dt
+
+
+def zeta_max(d) -> float:
+    """The largest damping ratio a fit may take: an overdamped mode's poles lie about 4 zeta^2
+    apart, so beyond 0.5 sqrt(band) they cannot both lie in the band of mode_band; one is then
+    unseen and only omega_n / (2 zeta), the other, is fitted, along a ridge of (omega_n, zeta)
+    that the bound cuts off. At least 1: a critically damped mode is always allowed.
+    """
+    lo, hi = mode_band(d)
+    return max(1.0, 0.5 * np.sqrt(hi / lo))
+
+
 #: The largest modal mass fraction delta^T J^-1 delta a fitted flexible_mode may take (1 makes
 #: the body and mode's joint mass matrix singular; drawn modes take up to about 0.1).
 MODE_MASS_LIMIT = 0.9
@@ -100,10 +124,9 @@ class FlexibleMode(EffectModel):
         return np.r_[p, np.asarray(params["inertia_rate"], float)] if "inertia_rate" in params else p
 
     @override
-    def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, 1]
+    def bounds(self, form, d):  # a mode inside the sampled band, damping in [0, zeta_max]
         lb, ub = np.full(self.form_size(form, d), -np.inf), np.full(self.form_size(form, d), np.inf)
-        lb[:2] = 2 * np.pi * 0.5 * flex_floor_hz(d), 0.0
-        ub[:2] = 2 * np.pi * FLEX_BAND[1] / d.dt, 1.0
+        (lb[0], ub[0]), lb[1], ub[1] = mode_band(d), 0.0, zeta_max(d)
         return lb, ub
 
     @override
@@ -117,7 +140,7 @@ class FlexibleMode(EffectModel):
 
     @override
     def starts(self, form, d, probe):
-        return probe.mode_starts()
+        return probe.mode_starts(zetas=tuple(min(z, zeta_max(d)) for z in MODE_ZETAS))
 
     @override
     def feasible(self, p, inertia):
