@@ -357,12 +357,13 @@ def test_a_panel_swinging_at_the_start_is_named_beside_its_mass(tmp_path):
 
 
 @requires_bsk
-@pytest.mark.slow
-def test_a_slosh_damped_past_resonance_reads_as_dissipation_once_a_padding_profile_is_left_out(tmp_path):
-    """A small satellite's slosh particle, damping ratio 1, bursts over 60 s: the selection first
-    adds a free momentum profile after the inertia offset, which the held-out rows reject; the
-    selection resumed without it finds the damped mode, which reads as internal dissipation (its
-    fitted damping ratio at least 1/sqrt(2)), and the rates are explained to within 1.5x the noise."""
+@pytest.mark.science
+def test_a_critically_damped_slosh_reads_as_dissipation(tmp_path):
+    """A small satellite's slosh particle, damping ratio 1, bursts over 60 s, against the hub-only
+    nominal: the explanation leads with the inertia offset and a damped mode that reads as internal
+    dissipation (its fitted damping ratio at least 1/sqrt(2)), and the rates are explained to
+    within 1.5x the noise. (24 s: on demand; make test keeps the reading on a simulated
+    overdamped mode, test_diagnose.py.)"""
     row = harness.run_case(_case("slosh_damped_smallsat_bursts", duration=60.0), tmp_path)
     assert row["named"][:2] == ["inertia_offset", "flexible_mode"], row["named"]
     assert row["reads_dissipation"], row["named"]
