@@ -217,9 +217,8 @@ class Probe:
         def grid(zeta):
             # an overdamped mode's poles lie a factor r = zeta + sqrt(zeta^2 - 1) either side of
             # omega_n (r = 1 up to critical damping): both lie in the band for omega_n in
-            # [lo r, hi / r]. Damped past resonance it
-            # has no peak to miss between grid points: screened MODE_REACH apart, the factor a fit
-            # moves a start by.
+            # [lo r, hi / r]. Damped past resonance it has no peak to miss between grid points: it
+            # is screened MODE_REACH apart, the factor a fit moves a start by.
             r = zeta + np.sqrt(zeta ** 2 - 1.0) if zeta > 1.0 else 1.0
             a, b = lo * r, max(hi / r, lo * r)
             step = MODE_GRID if zeta < 1.0 else MODE_REACH
