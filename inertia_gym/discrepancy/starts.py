@@ -14,6 +14,7 @@ import numpy as np
 
 from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import FLEX_BAND, REGISTRY, flex_floor_hz, matrix6
+from inertia_gym.discrepancy.effects.flexible_mode import MODE_ZETAS, pole_spread
 from inertia_gym.discrepancy.objective import Fit, Layout, _penalty_rows, jacobian, objective, whitened
 from inertia_gym.dynamics import skew
 from inertia_gym.estimation import solver
@@ -168,7 +169,7 @@ class Probe:
         """The `keep` candidate vectors p of the new effect of lowest cost (everything else the base's)."""
         return [ps[i] for i in np.argsort(self.costs([self.x(p) for p in ps]))[:keep]]
 
-    def mode_starts(self, keep: int = 3, zetas: tuple = (0.03,)) -> list[np.ndarray]:
+    def mode_starts(self, keep: int = 3, zetas: tuple = MODE_ZETAS[:1]) -> list[np.ndarray]:
         """Starts of flexible_mode from a linear screen over the modal frequency and damping ratio.
 
         To first order the mode's effect on the predicted rates is linear in M = delta delta^T
@@ -215,11 +216,10 @@ class Probe:
             return gain, omega, m, zeta
 
         def grid(zeta):
-            # an overdamped mode's poles lie a factor r = zeta + sqrt(zeta^2 - 1) either side of
-            # omega_n (r = 1 up to critical damping): both lie in the band for omega_n in
+            # both poles of the mode (omega_n r and omega_n / r) lie in the band for omega_n in
             # [lo r, hi / r]. Damped past resonance it has no peak to miss between grid points: it
             # is screened MODE_REACH apart, the factor a fit moves a start by.
-            r = zeta + np.sqrt(zeta ** 2 - 1.0) if zeta > 1.0 else 1.0
+            r = pole_spread(zeta)
             a, b = lo * r, max(hi / r, lo * r)
             step = MODE_GRID if zeta < 1.0 else MODE_REACH
             return np.geomspace(a, b, max(2, int(np.log(b / a) / np.log(step)) + 1))

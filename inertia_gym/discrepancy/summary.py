@@ -12,6 +12,7 @@ import numpy as np
 from inertia_gym.discrepancy.analysis import BEYOND_CATALOGUE, NOISE_READ_HIGH, NOT_READ
 from inertia_gym.discrepancy.effects import REGISTRY
 from inertia_gym.discrepancy.effects.base import matrix6
+from inertia_gym.discrepancy.effects.flexible_mode import pole_spread
 from inertia_gym.discrepancy.fit import LATTICE_REPLAYS
 from inertia_gym.discrepancy.selection import TIE_BIC
 from inertia_gym.estimation.uncertainty import SCALE_SIGMA_IDENTIFIED
@@ -111,8 +112,8 @@ def _damped_mode_reading(expl: list[dict]) -> str | None:
         return None
     zeta, omega = float(mode["params"]["zeta"]), float(mode["params"]["omega_n"])
     # the slowest decay rate of the mode's free motion: zeta omega while it oscillates, the slow
-    # pole omega (zeta - sqrt(zeta^2 - 1)) when overdamped
-    rate = omega * (zeta - np.sqrt(zeta ** 2 - 1.0)) if zeta > 1.0 else zeta * omega
+    # pole omega / r when overdamped
+    rate = omega / pole_spread(zeta) if zeta > 1.0 else zeta * omega
     return (f"flexible_mode's damping ratio {zeta:.2g} is at or above 1/√2: the internal motion has "
             f"no resonance and its energy decays with a time constant of {0.5 / rate:.3g} s "
             "while the angular momentum is kept. Read it as internal dissipation: a damper or a "

@@ -431,6 +431,21 @@ def test_a_modes_damping_ratio_reaches_past_critical_until_its_poles_span_the_ba
     assert zeta_max(tiny) == 1.0
 
 
+def test_the_pole_spread_is_where_the_modes_characteristic_roots_lie():
+    """pole_spread(zeta) = r: the roots of s^2 + 2 zeta omega_n s + omega_n^2 are -omega_n r and
+    -omega_n / r past critical damping, and both have magnitude omega_n (r = 1) below it."""
+    from inertia_gym.discrepancy.effects.flexible_mode import pole_spread
+
+    omega = 2.5
+    for zeta in (0.03, 0.7, 1.0, 1.5, 3.0, 11.0):
+        roots = np.roots([1.0, 2 * zeta * omega, omega ** 2])
+        r = pole_spread(zeta)
+        if zeta > 1.0:
+            assert sorted(-roots.real) == pytest.approx([omega / r, omega * r], rel=1e-9)
+        else:
+            assert r == 1.0 and np.abs(roots) == pytest.approx([omega, omega], rel=1e-6)
+
+
 def test_varying_viscous_damping_matches_its_stated_equation():
     """-s(t) C w, s piecewise linear through its knots: the truth simulator (the model diagnose
     fits; s held over each step at the step's mean) against the reference with s(t) exact."""

@@ -34,6 +34,13 @@ def flex_floor_hz(d) -> float:
 MODE_ZETAS = (0.03, 3.0)
 
 
+def pole_spread(zeta: float) -> float:
+    """The factor r = zeta + sqrt(zeta^2 - 1) by which an overdamped mode's poles lie either side
+    of omega_n (omega_n r and omega_n / r); 1 up to critical damping, where both sit at omega_n.
+    """
+    return float(zeta + np.sqrt(zeta ** 2 - 1.0)) if zeta > 1.0 else 1.0
+
+
 def mode_band(d) -> tuple[float, float]:
     """The modal frequencies a fit may take (rad/s): half the screened floor (at least one cycle in
     the record) up to FLEX_BAND[1] of the sampling rate.
