@@ -185,25 +185,34 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
 
 
 def _row_means(d: Data, values) -> np.ndarray:
-    """(..., n, 3) per-sample values -> (..., n_rows, 3) their means over each row's samples."""
+    """(..., n, 3) per-sample values -> (..., n_rows, 3) their means over each row's samples
+    (values itself where every sample is a row of its own).
+    """
     if d.cache.get("rows", (None,))[0] is not d.row:  # (resegmented data share the cache)
         idx = np.flatnonzero(d.row >= 0)
         starts = np.flatnonzero(np.r_[True, np.diff(d.row[idx]) != 0])
-        d.cache["rows"] = (d.row, idx, None if starts.size == idx.size else starts,
+        d.cache["rows"] = (d.row, None if idx.size == d.row.size else idx,
+                           None if starts.size == idx.size else starts,
                            np.bincount(d.row[idx])[:, None])
     _, idx, starts, counts = d.cache["rows"]
+    kept = values if idx is None else values[..., idx, :]
     if starts is None:  # a sample a row: the rows are the kept samples
-        return values[..., idx, :]
-    return np.add.reduceat(values[..., idx, :], starts, axis=-2) / counts
+        return kept
+    return np.add.reduceat(kept, starts, axis=-2) / counts
 
 
 def whitened(xs, layout: Layout, d: Data) -> np.ndarray:
     """(B, n_rows, 3) residual rows (predicted - measured) in units of their noise; a model that
     blew up gives non-finite rows, silently (objective and finish price them).
     """
+    # (data replaced with another noise level or other rows share the cache: both are checked)
+    held = d.cache.get("row_weight", (None, None, None))
+    if held[0] is not d.row_scale or held[1] is not d.sigma:
+        held = d.cache["row_weight"] = (d.row_scale, d.sigma, d.sigma * d.row_scale[:, None])
     with np.errstate(over="ignore", invalid="ignore"):
-        diff = predict(xs, layout, d) - d.w
-        return _row_means(d, diff) / (d.sigma * d.row_scale[:, None])
+        rows = _row_means(d, np.subtract(predict(xs, layout, d), d.w))
+        rows /= held[2]
+        return rows
 
 
 def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
@@ -217,7 +226,9 @@ def _penalty_rows(x, layout: Layout, d: Data, n_res: int) -> np.ndarray:
 def objective(xs, layout: Layout, d: Data) -> np.ndarray:
     """(B, N) the least-squares vector: whitened residual rows, then any constraint rows."""
     z = whitened(xs, layout, d).reshape(len(xs), -1)
-    z = np.clip(np.nan_to_num(z, nan=1e6), -1e6, 1e6)  # a model that blew up costs a lot, finitely
+    # a model that blew up costs a lot, finitely: inf is clipped, nan priced at the clip
+    np.clip(z, -1e6, 1e6, out=z)
+    z[np.isnan(z)] = 1e6
     if not layout.has_penalty:
         return z
     pen = [_penalty_rows(x, layout, d, z.shape[1]) for x in xs]
