@@ -37,7 +37,8 @@ def test_the_simulated_racquet_is_the_measured_one_and_keeps_its_momentum_withou
     assert simulate_toss(1000, "flip")[1]["momentum_lost"] > 0.1
 
 
-@pytest.mark.parametrize("seed, kind, with_air", [(1000, "flip", True), (1004, "flip", True),
+@pytest.mark.parametrize("seed, kind, with_air", [(1000, "flip", True),
+                                                  pytest.param(1004, "flip", True, marks=pytest.mark.science),
                                                   (4000, "flip", False)])
 def test_diagnose_reads_an_independent_racquets_air_as_drag_and_a_clean_toss_as_nothing(tmp_path, seed, kind,
                                                                                         with_air):

@@ -195,7 +195,7 @@ def test_a_script_without_a_main_guard_is_not_run_again_by_the_helpers(tmp_path)
 def test_diagnose_reports_the_same_with_helpers(helpers, monkeypatch):
     """Where a fit runs changes nothing: the report with helpers is the report without, to the
     last digit (a compound explanation: forward steps, refits and the backward check)."""
-    rec, _ = simulate_recording(Scenario(tau_max=50.0), 20.0, ["gyro_bias", "actuator_misalignment"], seed=7)
+    rec, _ = simulate_recording(Scenario(tau_max=50.0), 10.0, ["gyro_bias", "actuator_misalignment"], seed=7)
     rec = dataclasses.replace(rec, meta={k: v for k, v in rec.meta.items() if k not in ("effect", "effects")})
     sent = executors._Helpers.sent
     with_helpers = json.dumps(report.diagnose(rec).report, sort_keys=True, default=str)

@@ -77,7 +77,11 @@ def test_output_error_vanishes_at_the_noise_free_truth():
 @pytest.mark.parametrize("name", [None, "gyro_bias", "gyro_scale", "internal_momentum",
                                   "actuator_misalignment", "actuator_delay", "inertia_change"])
 def test_concealed_effect_is_found(name):
-    rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0, name, seed=7)
+    """Each effect concealed in a 20-s record is named, fitted to the noise and its parameters
+    within 20 %; a mass change, whose size is read from the motion on both of its sides (each
+    6-14 s at this length), in a 40-s record."""
+    duration = 40.0 if name == "inertia_change" else 20.0
+    rec, side = simulate_recording(Scenario(tau_max=50.0), duration, name, seed=7)
     report = diagnose(_concealed(rec)).report
     assert REPORT_KEYS <= set(report)
     assert report["best_effect"] == name
@@ -433,7 +437,7 @@ def test_compound_effects_are_both_explained():
     """Two concealed effects, the second weak beside the first: alone it ranks below effects
     that merely absorb part of the first (internal momentum, drag, a mode), yet the forward
     selection screens every effect on top of the first and names both."""
-    rec, side = simulate_recording(Scenario(tau_max=50.0), 40.0,
+    rec, side = simulate_recording(Scenario(tau_max=50.0), 20.0,
                                    ["gyro_bias", "actuator_misalignment"], seed=7)
     report = diagnose(_concealed(rec)).report
     names = [e["name"] for e in report["explanation"]]
@@ -449,8 +453,7 @@ def test_compound_effects_are_both_explained():
         lo, hi = np.asarray(e["ci95"][key]["lo"]), np.asarray(e["ci95"][key]["hi"])
         assert np.all(lo < hi)
         a, b = np.ravel(truth[key]), np.ravel(e["params"][key])
-        # 0.3: on this 40-s seed the misalignment is off by 23 % (the bias by 3 %)
-        assert np.linalg.norm(a - b) <= 0.3 * np.linalg.norm(a)
+        assert np.linalg.norm(a - b) <= 0.2 * np.linalg.norm(a)
 
 
 def test_the_diagnosis_does_not_depend_on_the_units_of_mass_and_time(in_other_units):
@@ -599,7 +602,7 @@ def test_a_nearly_flat_real_toss_is_fitted_as_a_body_that_exists(racquet_toss):
     assert max(report["fit_after"]["rms_over_noise"]) < 0.1 * max(report["fit_before"]["rms_over_noise"])
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.science)])
 def test_a_drag_that_changes_over_a_toss_is_named_with_its_profile(seed):
     """A nearly flat body tossed about its intermediate axis, gyro only, no nominal: a viscous
     drag whose coefficient rises threefold mid-flight and falls back (a plate's damping follows
@@ -736,7 +739,7 @@ def test_the_scale_statement_is_the_same_with_the_nominal_given_or_not():
     and its sigma, come from the explanation's effects fitted with the inertia free, so a
     nominal in the sidecar changes neither (the nominal's own model, which lacks the torque,
     would widen the sigma by its misfit)."""
-    rec, _ = simulate_recording(Scenario.load("cubesat-6u"), 150.0, "constant_body_torque", seed=1,
+    rec, _ = simulate_recording(Scenario.load("cubesat-6u"), 75.0, "constant_body_torque", seed=1,
                                 sample_dt=0.1)
     with_nominal = _concealed(rec)
     without = {k: v for k, v in with_nominal.meta.items() if k != "inertia_nominal"}

@@ -127,7 +127,7 @@ def thrown_plate(path: Path, seed: int, air: bool = True) -> np.ndarray:
     return normal
 
 
-@pytest.mark.parametrize("seed", [0, 2, 3])
+@pytest.mark.parametrize("seed", [0, pytest.param(2, marks=pytest.mark.science), 3])
 def test_a_thrown_plate_is_read_as_the_air_of_its_flight(tmp_path, seed):
     """An independent simulator's thrown plate: aero_drag in its flight form leads the explanation,
     the fit reaches the noise, and the plate's normal comes out within 5 deg."""
