@@ -16,7 +16,8 @@ $(STAMP): pyproject.toml
 	# --no-compile: pip would compile all ~16,000 files of the environment one at a time; Python
 	# compiles the modules a command imports on first use instead (see unexport above).
 	$(BIN)/pip install -q --no-compile torch==2.13.0
-	$(BIN)/pip install -q --no-compile -e '.[optimize,rl,dev,ray,parquet,xlsx]'
+	# Ray (the benchmark's cluster backend, 20 s of the install) only where a study needs it
+	$(BIN)/pip install -q --no-compile -e '.[optimize,rl,dev,parquet,xlsx]'
 	# Basilisk, the independent simulator of the diagnose harness, without pip resolving its pins
 	# (they would downgrade matplotlib and others); where it cannot be
 	# had, its tests skip.
@@ -35,6 +36,7 @@ test: $(STAMP)
 
 # The long studies (statistical sweeps, real-data tables): on demand, not in CI.
 check-science: $(STAMP)
+	$(BIN)/pip install -q --no-compile -e '.[ray]'
 	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=15 -m science
 
 docs: $(STAMP)

@@ -344,7 +344,11 @@ _RAY_SINGLE_MACHINE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 def _map_ray(fn, tasks, workers, address):
     if address is None and "ray" not in sys.modules:
         os.environ.setdefault(_RAY_SINGLE_MACHINE, "0")
-    import ray
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("the Ray backend needs Ray, an optional extra: pip install "
+                          "'inertia-gym[ray]'") from exc
 
     started_here = not ray.is_initialized()
     if started_here:

@@ -190,3 +190,11 @@ def test_foreign_settings_file_is_refused(tmp_path, capsys, content):
 def test_bad_options_end_in_a_clear_error(tmp_path, capsys, argv, match):
     assert main(["benchmark", *SMALL, "--out", str(tmp_path / "o"), *argv]) == 2
     assert match in capsys.readouterr().err
+
+
+def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, capsys, monkeypatch):
+    """Ray is an optional extra: asked for without it, the sweep ends in one line naming the
+    extra, not a traceback."""
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as where it is not installed
+    assert main(["benchmark", *SMALL, "--out", str(tmp_path / "o"), "--backend", "ray"]) == 2
+    assert "pip install 'inertia-gym[ray]'" in capsys.readouterr().err
