@@ -232,7 +232,8 @@ def test_software_time_stamps_do_not_change_the_diagnosis(tmp_path, name):
 
 @requires_bsk
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["control_smallsat_bursts", "wheels_smallsat_free", "scale_bus_bursts"])
+@pytest.mark.parametrize("name", ["control_smallsat_bursts", "wheels_smallsat_free",
+                                  pytest.param("scale_bus_bursts", marks=pytest.mark.science)])
 def test_telemetry_read_in_steps_of_20x_the_noise_keeps_controls_clean_and_names_the_effect(tmp_path, name):
     """Basilisk's rates rounded to a lattice of 20x the gyro's noise (the sidecar keeps its
     gyro_sigma): the samples repeat in runs, the rounding error follows the rate, and the

@@ -38,7 +38,7 @@ def test_the_lack_of_fit_test_holds_a_segmented_fit_to_the_noise_like_a_single_o
         assert all(p_value(1.1 * e, segments) < 1e-6 for e in draws)
 
 
-@pytest.mark.parametrize("seed", [3, 5])
+@pytest.mark.parametrize("seed", [3, pytest.param(5, marks=pytest.mark.science)])
 def test_a_bias_that_explains_the_first_fits_misfit_is_kept_and_no_other_basin_is_searched(monkeypatch, seed):
     """Gyro only, torque bursts, a bias of (0.02, -0.01, 0.015) rad/s under 0.03 rad/s noise: the
     fit from the equation error's inertia fails the lack-of-fit test; the bias added to it passes,
