@@ -635,7 +635,8 @@ def rk4_lanes(y, j, j_inv, tau, dist, dt, on):
 def _propagate_into(y0, torque, dt, inertia, dist, gauss, out):
     inertia_inv = inv3(inertia)
     work = np.empty((4, 7))
-    out[0] = y0
+    for i in range(7):
+        out[0, i] = y0[i]
     for k in range(torque.shape[0]):
         if gauss:
             gauss_legendre_step_into(out[k], dt, inertia, inertia_inv, torque[k], dist,

@@ -90,7 +90,9 @@ def window_grams_into(w_hat, w_dot_hat, starts, n_window, epsilon, out):
     last = starts[n_win - 1] + n_window
     for t in range(last + 1):
         if opened < n_win and starts[opened] == t:
-            low[opened] = c
+            for i in range(6):
+                for j in range(6):
+                    low[opened, i, j] = c[i, j]
             opened += 1
         if closed < n_win and starts[closed] + n_window == t:
             for i in range(6):

@@ -36,7 +36,8 @@ def body_vector_and_jacobian(q, v):
     sq = q0 * q0 - (qv[0] ** 2 + qv[1] ** 2 + qv[2] ** 2)
     out = sq * v + 2.0 * dot * qv - 2.0 * q0 * cr
     jac = np.empty((3, 4))
-    jac[:, 0] = 2.0 * q0 * v - 2.0 * cr
+    for i in range(3):
+        jac[i, 0] = 2.0 * q0 * v[i] - 2.0 * cr[i]
     skew_v = np.array(((0.0, -v[2], v[1]), (v[2], 0.0, -v[0]), (-v[1], v[0], 0.0)))
     for i in range(3):
         for j in range(3):
@@ -65,10 +66,12 @@ def measurement_model(x, cfg):
     if cfg.use_vector_sensors > 0:
         g_b, g_jac = body_vector_and_jacobian(x[0:4], cfg.gravity)
         m_b, m_jac = body_vector_and_jacobian(x[0:4], cfg.mag_reference)
-        h[row:row + 3] = g_b
-        h[row + 3:row + 6] = m_b
-        big_h[row:row + 3, 0:4] = g_jac
-        big_h[row + 3:row + 6, 0:4] = m_jac
+        for i in range(3):
+            h[row + i] = g_b[i]
+            h[row + 3 + i] = m_b[i]
+            for c in range(4):
+                big_h[row + i, c] = g_jac[i, c]
+                big_h[row + 3 + i, c] = m_jac[i, c]
     return h, big_h
 
 

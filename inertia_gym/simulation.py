@@ -6,6 +6,10 @@ the torque of eq. (18) computed from the filter's rate at each burst start and h
 burst. All randomness is drawn beforehand from explicit numpy Generators, so a run is a pure
 function of its inputs. Per step it records w_hat and w_dot_hat of eq. (12) for the information
 metric; per measurement it records the estimate for plots and validation.
+
+The compiled code here and in the kernels it calls copies arrays element by element: numba
+compiles a shape-check error path for each signature of an array assigned into a slice, 2-4 s
+of every process's first compile.
 """
 
 from __future__ import annotations
@@ -314,8 +318,12 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
             fresh, sigma_fresh[r] = sigma_fresh[r], False
             if not fresh:  # carry on with the points propagated in the last segment
                 for i in range(n_sigma):
-                    sigma_inertia[lane, i] = inertia_from_phi(est.sigma[r, i, 7:13])
-                    sigma_inertia_inv[lane, i] = inv3(sigma_inertia[lane, i])
+                    j = inertia_from_phi(est.sigma[r, i, 7:13])
+                    j_inv = inv3(j)
+                    for a in range(3):
+                        for b in range(3):
+                            sigma_inertia[lane, i, a, b] = j[a, b]
+                            sigma_inertia_inv[lane, i, a, b] = j_inv[a, b]
             elif not ukf.draw_sigma_points(est.x[r], est.P[r], est.sigma[r], sigma_inertia[lane],
                                            sigma_inertia_inv[lane]):
                 status[r] = STATUS_DIVERGED
@@ -374,12 +382,15 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
                                          sigma_inertia_inv[lane], tau[:, lane], dt,
                                          MODEL_DISTURBANCE)
                 ukf.sigma_mean(est.sigma[r], x_run)
-                x[:, lane] = x_run
+                for i in range(N_STATE):
+                    x[i, lane] = x_run[i]
             m = meas_i[lane]
             if m >= plan.n_meas[r] or plan.meas_at[r, m] != k + 1:
                 continue
-            y_run[:] = y[:, lane]
-            x_run[:] = x[:, lane]
+            for i in range(7):
+                y_run[i] = y[i, lane]
+            for i in range(N_STATE):
+                x_run[i] = x[i, lane]
             P = est.P[r]
             sensors.simulate_measurement(y_run, plan.z_noise[r, m], cfg, z)
             if status[r] == 0:
@@ -389,7 +400,8 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
                 status[r] = _filter_update(x_run, P, phi_run, cov_work, est.sigma[r],
                                            n_updates[r], cfg, z, logs.nis[r], m)
                 n_updates[r] += 1
-                x[:, lane] = x_run
+                for i in range(N_STATE):
+                    x[i, lane] = x_run[i]
                 for i in range(7):
                     for c in range(N_STATE):
                         phi_top[N_STATE * i + c, lane] = phi_run[i, c]
@@ -403,7 +415,8 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
                         status[r] = STATUS_DIVERGED
             _log_theta(x_run, P, logs.theta[r, m], logs.var[r, m])
             _log_measurement(y_run, z, cfg, logs.measurements[r, m])
-            logs.w_est[r, m] = x_run[4:7]
+            for i in range(3):
+                logs.w_est[r, m, i] = x_run[4 + i]
             meas_i[lane] = m + 1
     for lane in range(count):
         r = runs[lane]
@@ -497,7 +510,10 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
     EKF: P^- from the accumulated transition; UKF: from the propagated sigma points.
     """
     if cfg.ukf > 0:
-        P[:, :] = ukf.sigma_covariance(sigma, x, n_updates, cfg)
+        cov = ukf.sigma_covariance(sigma, x, n_updates, cfg)
+        for i in range(N_STATE):
+            for c in range(N_STATE):
+                P[i, c] = cov[i, c]
     if not ekf.state_is_sane(x, P):
         return 1
     try:

@@ -66,7 +66,9 @@ def dtheta_dphi(phi):
     c, l10, e1, l20, l21, e2 = math.exp(phi[0]), phi[1], math.exp(phi[2]), phi[3], phi[4], \
         math.exp(phi[5])
     d = np.zeros((6, 6))
-    d[:, 0] = theta_from_phi(phi)
+    theta = theta_from_phi(phi)
+    for i in range(6):
+        d[i, 0] = theta[i]
     d[1, 1] = c
     d[2, 3] = c
     d[3, 1] = 2 * c * l10

@@ -80,8 +80,12 @@ def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
             sigma[j, i] = x[i] + spread * low[i, j]
             sigma[N_STATE + j, i] = x[i] - spread * low[i, j]
     for k in range(N_SIGMA):
-        inertia[k] = inertia_from_phi(sigma[k, 7:13])
-        inertia_inv[k] = inv3(inertia[k])
+        j = inertia_from_phi(sigma[k, 7:13])
+        j_inv = inv3(j)
+        for a in range(3):
+            for b in range(3):
+                inertia[k, a, b] = j[a, b]
+                inertia_inv[k, a, b] = j_inv[a, b]
     return True
 
 
