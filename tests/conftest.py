@@ -29,7 +29,7 @@ os.environ["INERTIA_GYM_HELPERS"] = "0"
 #: compile time). The second runs `identify` (its three methods) and `diagnose` on the shipped
 #: examples and one step of the environment (the information metric), then the loop's fourth
 #: kernel and the batch propagator of both integrators, by when the first process has cached the
-#: callees they share: the two take about equally long (about a minute on 2 cores).
+#: callees they share: the two take about equally long (under a minute each on 2 cores, with an empty cache).
 WARM_UP = (
     "from inertia_gym.simulation import compile_loop; "
     "compile_loop(('_segment_one', '_segment_lanes', '_segment_tasks'))",
