@@ -317,13 +317,7 @@ def _advance_lanes(truth, est, plan, logs, cfg, n_updates, sigma_fresh, status, 
         if use_ukf:
             fresh, sigma_fresh[r] = sigma_fresh[r], False
             if not fresh:  # carry on with the points propagated in the last segment
-                for i in range(n_sigma):
-                    j = inertia_from_phi(est.sigma[r, i, 7:13])
-                    j_inv = inv3(j)
-                    for a in range(3):
-                        for b in range(3):
-                            sigma_inertia[lane, i, a, b] = j[a, b]
-                            sigma_inertia_inv[lane, i, a, b] = j_inv[a, b]
+                ukf.sigma_inertias(est.sigma[r], sigma_inertia[lane], sigma_inertia_inv[lane])
             elif not ukf.draw_sigma_points(est.x[r], est.P[r], est.sigma[r], sigma_inertia[lane],
                                            sigma_inertia_inv[lane]):
                 status[r] = STATUS_DIVERGED

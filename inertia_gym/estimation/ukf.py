@@ -79,6 +79,13 @@ def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
         for i in range(N_STATE):
             sigma[j, i] = x[i] + spread * low[i, j]
             sigma[N_STATE + j, i] = x[i] - spread * low[i, j]
+    sigma_inertias(sigma, inertia, inertia_inv)
+    return True
+
+
+@nb.njit(cache=True)
+def sigma_inertias(sigma, inertia, inertia_inv):
+    """Each sigma point's J and J^-1 (2n, 3, 3) from its phi (sigma (2n, 13)), in place."""
     for k in range(N_SIGMA):
         j = inertia_from_phi(sigma[k, 7:13])
         j_inv = inv3(j)
@@ -86,7 +93,6 @@ def draw_sigma_points(x, P, sigma, inertia, inertia_inv):
             for b in range(3):
                 inertia[k, a, b] = j[a, b]
                 inertia_inv[k, a, b] = j_inv[a, b]
-    return True
 
 
 @nb.njit(cache=True)

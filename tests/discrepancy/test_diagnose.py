@@ -78,8 +78,8 @@ def test_output_error_vanishes_at_the_noise_free_truth():
                                   "actuator_misalignment", "actuator_delay", "inertia_change"])
 def test_concealed_effect_is_found(name):
     """Each effect concealed in a 20-s record is named, fitted to the noise and its parameters
-    within 20 %; a mass change, whose size is read from the motion on both of its sides (each
-    6-14 s at this length), in a 40-s record."""
+    within 20 %; a mass change, whose size is read from the motion on both of its sides, in a
+    40-s record (in 20 s a side may last only 6 s)."""
     duration = 40.0 if name == "inertia_change" else 20.0
     rec, side = simulate_recording(Scenario(tau_max=50.0), duration, name, seed=7)
     report = diagnose(_concealed(rec)).report

@@ -326,7 +326,8 @@ def test_a_momentum_beside_a_gyro_bias_is_found_from_its_own_start(seed, duratio
     with the bias missing) gains too little, and a constant torque would stand in for it; its own
     start on top of the bias is tried too (restarts_on_base) and found. Seed 9 (on demand): led by
     the momentum, the bias's screen ranks below an inertia offset's; refitted jointly from its own
-    start, the bias is found. Without restarts_on_base, each names the stand-in."""
+    start, the bias is found. Without restarts_on_base, seed 0 names a constant torque in the
+    momentum's place."""
     rec, truth = slow_tumble(["internal_momentum", "gyro_bias"], seed, 300, duration=duration)
     report = diagnose(rec).report
     named = {e["name"]: e for e in report["explanation"]}

@@ -9,7 +9,7 @@ from inertia_gym.errors import ConfigError
 from inertia_gym.estimation import ukf
 from inertia_gym.estimation.config import FilterConfig
 from inertia_gym.estimation.filters import InertiaFilter
-from inertia_gym.estimation.inertia_param import phi_from_inertia
+from inertia_gym.estimation.inertia_param import inertia_from_phi, phi_from_inertia
 from inertia_gym.estimation.integrator import trajectory
 from inertia_gym.simulation import initial_state
 from inertia_gym.validation import validate
@@ -108,3 +108,16 @@ def test_the_unscented_sigma_points_keep_a_held_state_and_refuse_an_indefinite_c
     assert not ukf.covariance_root(indefinite)[1]
     assert not ukf.draw_sigma_points(x, indefinite, sigma, inertia, inertia_inv)
     assert ukf.covariance_root(np.zeros((13, 13)))[1]
+
+
+def test_each_sigma_points_inertia_and_its_inverse_come_from_its_own_phi():
+    rng = np.random.default_rng(3)
+    n = ukf.N_SIGMA
+    sigma = rng.normal(0.0, 1.0, (n, 13))
+    for k in range(n):  # phi of physical bodies near a satellite's
+        sigma[k, 7:13] = phi_from_inertia(np.diag([0.06, 0.075, 0.04]) * (1 + 0.1 * rng.random(3)))
+    inertia, inverse = np.empty((n, 3, 3)), np.empty((n, 3, 3))
+    ukf.sigma_inertias(sigma, inertia, inverse)
+    for k in range(n):
+        np.testing.assert_allclose(inertia[k], inertia_from_phi(sigma[k, 7:13]), rtol=1e-12)
+        np.testing.assert_allclose(inertia[k] @ inverse[k], np.eye(3), atol=1e-12)
