@@ -136,6 +136,8 @@ def pack_fields(fields: dict) -> np.ndarray:
     """Disturbance(**fields).pack(), the fields given as a dict (the others at their defaults),
     without building the dataclass: the diagnosis packs one per model it evaluates.
     """
+    if not fields:  # most models the diagnosis evaluates: the defaults, one read-only vector
+        return _DEFAULTS_PACKED
     v = _no_disturbance()
     for name, value in fields.items():
         if name == "aero_drag":
@@ -174,6 +176,9 @@ def _shaped(value, shape, name) -> np.ndarray:
 
 
 NO_DISTURBANCE = _no_disturbance()
+#: The packed defaults again, read-only: what pack_fields gives every model without a term.
+_DEFAULTS_PACKED = _no_disturbance()
+_DEFAULTS_PACKED.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------

@@ -149,41 +149,66 @@ class EffectTerms:
         return Terms(inertia, after, self.change_t, self.tau, self.h, self.dist, self.damping)
 
 
-def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
-                 commanded=None, motion: Motion | None = None) -> EffectTerms:
-    """model_terms' inputs that do not depend on the body's inertia (the same arguments but it):
-    computed once for models that differ in their inertia alone.
+@dataclasses.dataclass(frozen=True)
+class OwnTerms:
+    """What one effect gives the integrator from its own parameters alone (None: nothing): the
+    inertia it sets, its disturbance fields, an inertia change (t, size), a momentum and a
+    damping factor at the grid points, and the torque the body's motion sets at the grid points.
     """
+
+    true_inertia: np.ndarray | None
+    fields: dict
+    inertia_change: tuple | None
+    momentum: np.ndarray | None
+    damping: np.ndarray | None
+    motion_torque: np.ndarray | None
+
+    @staticmethod
+    def of(model: EffectModel, params: dict, grid: Grid, motion: Motion | None = None) -> "OwnTerms":
+        """The terms of `model` with its named `params` on the grid (motion: as in model_terms)."""
+        return OwnTerms(model.true_inertia(params), model.disturbance(params), model.inertia_change(params),
+                        model.momentum(params, grid.t), model.damping_factor(params, grid.t),
+                        model.motion_torque(params, motion))
+
+
+def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=None,
+                 commanded=None, motion: Motion | None = None, own=None) -> EffectTerms:
+    """model_terms' inputs that do not depend on the body's inertia (the same arguments but it):
+    computed once for models that differ in their inertia alone. own: each effect's OwnTerms
+    where already computed (models that share an effect's parameters share them).
+    """
+    if own is None:
+        own = [OwnTerms.of(model, params, grid, motion) for model, params in effects]
     fields: dict = {}
     change_t, change, true_inertia = np.inf, None, None
     h = h_known
     damping = _ones(grid.steps)
     moved = None  # the torques the body's motion sets, at the grid points
-    for model, params in effects:
-        true = model.true_inertia(params)
+    for part in own:
+        true = part.true_inertia
         true_inertia = true_inertia if true is None else np.asarray(true, float)
     applied = cumulative
     if h is not None:
         for model, params in effects:
             h = model.known_momentum(params, h)
-    for model, params in effects:
-        hook = model.disturbance(params)
+    for (model, params), part in zip(effects, own):
+        hook = part.fields
         clash = set(hook) & set(fields)
         if clash:
             raise ValueError(f"effects set the same disturbance term {sorted(clash)}")
         fields.update(hook)
-        step = model.inertia_change(params)
+        step = part.inertia_change
         if step is not None:
             change_t, change = float(step[0]), np.asarray(step[1], float)
-        extra = model.momentum(params, grid.t)
+        extra = part.momentum
         if extra is not None:
             h = extra if h is None else h + extra
-        factor = model.damping_factor(params, grid.t)
+        factor = part.damping
         if factor is not None:  # held over each interval at its mean
             damping = damping * 0.5 * (factor[1:] + factor[:-1])
         if applied is not None:
             applied = model.applied(params, applied)
-        torque = model.motion_torque(params, motion)
+        torque = part.motion_torque
         if torque is not None:
             moved = torque if moved is None else moved + torque
     if applied is None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import REGISTRY, EffectModel
-from inertia_gym.discrepancy.model import effect_terms, gyro_output, simulate
+from inertia_gym.discrepancy.model import OwnTerms, effect_terms, gyro_output, simulate
 from inertia_gym.estimation.inertia_param import PHI_BOUND, inertia_from_phi, realizable_face, realizable_phi
 
 # ------------------------------------------------------------------------------------------
@@ -164,16 +164,30 @@ def predict(xs, layout: Layout, d: Data) -> np.ndarray:
     motion = d.motion(grid) if "flight" in layout.forms else None  # what a flight's air reads
     effects: dict = {}  # effect key -> (its parts, EffectTerms, the indices of xs that have it)
     built: dict = {}  # the whole model's key -> its Terms
+    inertias: dict = {}  # x[:6]'s bytes -> base_inertia: the columns of the effects share it
     terms = []
+    own: dict = {}  # (effect index, its part of x's bytes) -> its named params and OwnTerms
     for i, (effect_key, x) in enumerate(zip(effect_keys, xs)):
         if effect_key not in effects:
-            p = layout.parts(x, d)
-            effects[effect_key] = p, effect_terms(p, grid, cumulative, h_known, commanded, motion), []
+            # a column of one effect's parameter leaves the others' terms as they are
+            parts = []
+            for j, (m, s) in enumerate(zip(layout.models, layout.slices())):
+                part_key = (j, x[s].tobytes())
+                if part_key not in own:
+                    params = named_params(m, x[s], d)
+                    own[part_key] = params, OwnTerms.of(m, params, grid, motion)
+                parts.append(own[part_key])
+            p = [(m, params) for m, (params, _) in zip(layout.models, parts)]
+            effects[effect_key] = (p, effect_terms(p, grid, cumulative, h_known, commanded, motion,
+                                                   [o for _, o in parts]), [])
         p, shared, members = effects[effect_key]
         members.append(i)
-        key = x[:6].tobytes() + effect_key
+        phi_key = x[:6].tobytes()
+        key = phi_key + effect_key
         if key not in built:
-            built[key] = shared.on(base_inertia(x, d))
+            if phi_key not in inertias:
+                inertias[phi_key] = base_inertia(x, d)
+            built[key] = shared.on(inertias[phi_key])
         terms.append(built[key])
     w0 = xs[:, layout.n_global:].reshape(len(xs), -1, 3)
     y0 = np.concatenate([np.broadcast_to(q0, (len(xs), *q0.shape)), w0], axis=2)

@@ -235,7 +235,7 @@ class NormalBlocks:
         damp = math.sqrt(lam) * np.diag(np.sqrt(np.maximum(seen, 1e-12)))
         if self.r0 is None:
             lhs = np.vstack([self.qr_r, damp]) if lam > 0 else self.qr_r
-            rhs = np.r_[self.qr_b, np.zeros(p)] if lam > 0 else self.qr_b
+            rhs = np.concatenate([self.qr_b, np.zeros(p)]) if lam > 0 else self.qr_b
             if not (np.all(np.isfinite(lhs)) and np.all(np.isfinite(rhs))):
                 return np.zeros(p), np.zeros((0, 3))
             return -np.linalg.lstsq(lhs, rhs, rcond=None)[0], np.zeros((0, 3))
@@ -257,7 +257,7 @@ class NormalBlocks:
         dg_sc = np.zeros(p)
         if p:
             lhs = np.vstack([self.qr_r, w.reshape(-1, p), damp])
-            rhs = np.r_[self.qr_b, wv.ravel(), np.zeros(p)]
+            rhs = np.concatenate([self.qr_b, wv.ravel(), np.zeros(p)])
             if not (np.all(np.isfinite(lhs)) and np.all(np.isfinite(rhs))):
                 return np.zeros(p), zero
             dg_sc = -np.linalg.lstsq(lhs, rhs, rcond=None)[0]

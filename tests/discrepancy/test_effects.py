@@ -483,3 +483,11 @@ def test_varying_viscous_damping_round_trip_and_its_fitted_layout():
     p = np.r_[model.pack({"c": -DRAG})[:6], model.neutral("varying", d, None)[6:]]
     assert np.all(np.linalg.eigvalsh(model.unpack(model.feasible(p, None))["c"]) >= -1e-12)
     np.testing.assert_array_equal(model.feasible(p, None)[6:], p[6:])  # the profile untouched
+
+
+def test_the_flights_cross_product_is_numpys():
+    """aero_drag's flight torque takes n x (K u) row by row: the same numbers as np.cross."""
+    from inertia_gym.discrepancy.effects.aero_drag import _cross
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=3), rng.normal(size=(50, 3)) * 10.0 ** rng.uniform(-8, 8, (50, 1))
+    np.testing.assert_array_equal(_cross(a, b), np.cross(a, b))

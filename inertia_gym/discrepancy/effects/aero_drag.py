@@ -37,6 +37,17 @@ def direction_angles(v) -> tuple[float, float]:
     return float(np.arccos(np.clip(v[2], -1.0, 1.0))), float(np.arctan2(v[1], v[0]))
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.cross(a, b) of one vector a (3,) with rows b (n, 3), the same products in the same
+    order, without np.cross's axis handling: the flight's torque takes it at every evaluation.
+    """
+    out = np.empty(b.shape)
+    np.subtract(a[1] * b[:, 2], a[2] * b[:, 1], out=out[:, 0])
+    np.subtract(a[2] * b[:, 0], a[0] * b[:, 2], out=out[:, 1])
+    np.subtract(a[0] * b[:, 1], a[1] * b[:, 0], out=out[:, 2])
+    return out
+
+
 def _in_plane(e: np.ndarray, a: float, b: float, c: float) -> np.ndarray:
     """The symmetric (3, 3) matrix E [[a, c], [c, b]] E^T of a plane's basis e (3, 2)."""
     return e @ np.array([[a, c], [c, b]]) @ e.T
@@ -244,7 +255,7 @@ class AeroDrag(_Drag):
                     * (motion.t - motion.t[0])[:, None])
         u = np.einsum("kji,kj->ki", motion.rotation, velocity)  # R^T v: in the body's axes
         normal_speed = u @ n
-        return (normal_speed[:, None] * np.cross(n, u @ np.asarray(params["static"], float))
+        return (normal_speed[:, None] * _cross(n, u @ np.asarray(params["static"], float))
                 + (normal_speed * np.abs(normal_speed))[:, None] * np.asarray(params["arm"], float)[None]
                 + (normal_speed ** 2)[:, None] * np.asarray(params["arm_sided"], float)[None]
                 - np.abs(normal_speed)[:, None] * (motion.rates @ np.asarray(params["flow_damping"], float)))
