@@ -163,6 +163,12 @@ class OwnTerms:
     damping: np.ndarray | None
     motion_torque: np.ndarray | None
 
+    @functools.cached_property
+    def packed(self) -> np.ndarray:
+        """Its fields packed (pack_fields): the disturbance of every model where it is the only
+        effect with fields."""
+        return pack_fields(self.fields)
+
     @staticmethod
     def of(model: EffectModel, params: dict, grid: Grid, motion: Motion | None = None) -> "OwnTerms":
         """The terms of `model` with its named `params` on the grid (motion: as in model_terms)."""
@@ -221,7 +227,9 @@ def effect_terms(effects, grid: Grid, cumulative: Cumulative | None, h_known=Non
         tau = tau + 0.5 * (moved[1:] + moved[:-1])
     if h is None:
         h = _zeros(grid.t.size)
-    return EffectTerms(true_inertia, change_t, change, tau, h, pack_fields(fields), damping)
+    with_fields = [part for part in own if part.fields]
+    dist = with_fields[0].packed if len(with_fields) == 1 else pack_fields(fields)
+    return EffectTerms(true_inertia, change_t, change, tau, h, dist, damping)
 
 
 @functools.lru_cache(maxsize=8)
