@@ -144,10 +144,11 @@ def base_inertia(x, d: Data) -> np.ndarray:
 
 def model_inertia(layout: Layout, x, d: Data) -> np.ndarray:
     """The model's inertia (3, 3) kg·m²: an effect's (inertia_offset) where one sets it."""
-    for model, params in layout.parts(x, d):
-        j = model.true_inertia(params)
-        if j is not None:
-            return np.asarray(j, float)
+    for model, s in zip(layout.models, layout.slices()):
+        if model.sets_inertia:  # (only such an effect has a true_inertia)
+            j = model.true_inertia(named_params(model, x[s], d))
+            if j is not None:
+                return np.asarray(j, float)
     return base_inertia(x, d)
 
 

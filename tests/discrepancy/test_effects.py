@@ -70,6 +70,14 @@ def test_draw_pack_unpack_round_trip(name):
                                   params[model.params[0]])
 
 
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_only_an_effect_that_sets_the_inertia_has_one(name):
+    """The model's inertia is read from the effects flagged sets_inertia alone."""
+    model = REGISTRY[name]
+    params = model.draw(np.random.default_rng(3), BODY)
+    assert (model.true_inertia(params) is not None) == model.sets_inertia
+
+
 def test_a_loaded_mode_round_trips_its_inertia_rate_with_the_coupling_sign():
     """flexible_mode's loaded form: K (6) after the mode's seven; the model depends on delta eta
     and K eta, so K flips with delta when delta's sign is made canonical."""
