@@ -9,6 +9,9 @@ dynamics.py's rk4_augmented, the one RK4 step of the rigid body and its effect s
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numba as nb
 import numpy as np
 
@@ -113,16 +116,17 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     return y[7], y[8]
 
 
-@nb.njit(cache=True, parallel=True)
-def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_after, change_t, tau,
-                 tau_index, h, h_index, dist, damping, damping_index, out):
-    """Every (trajectory, segment) pair as one task, in parallel: multiple shooting makes the
-    segments of a trajectory independent, except that a flexible mode's state carries from one
-    segment into the next; a trajectory with a mode runs its segments in order, in one task.
-    seg_sample (S,): index of each segment's first sample.
+@nb.njit(cache=True, nogil=True)
+def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_after,
+                 change_t, tau, tau_index, h, h_index, dist, damping, damping_index, out):
+    """Tasks first .. last - 1 of a batch, each a (trajectory, segment) pair: multiple shooting
+    makes the segments of a trajectory independent, except that a flexible mode's state carries
+    from one segment into the next; a trajectory with a mode runs its segments in order, in the
+    task of its first. seg_sample (S,): index of each segment's first sample. The GIL is
+    released: threads run disjoint task ranges of one batch side by side (_run_tasks).
     """
     n_seg = seg_pos.size - 1
-    for task in nb.prange(y0.shape[0] * n_seg):
+    for task in range(first, last):
         b, s = task // n_seg, task % n_seg
         coupled = np.any(dist[b, _D_DELTA:_D_DELTA + 3] != 0.0) or np.any(dist[b, _D_K0:_D_K0 + 6] != 0.0)
         if coupled and s > 0:
@@ -134,6 +138,40 @@ def _model_batch(grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_a
                                        r == n_seg - 1, y0[b, r], eta, etad, inertia[b],
                                        inertia_after[b], change_t[b], tau[tau_index[b]],
                                        h[h_index[b]], dist[b], damping[damping_index[b]], out[b])
+
+
+#: RK4 steps a thread must have before a batch is split over threads: handing a range to another
+#: thread costs tens of microseconds, the time of a few thousand steps.
+STEPS_PER_THREAD = 5000
+_POOL: dict = {}  # process id -> the threads that run a batch's other task ranges (made on
+# first use; a forked child, whose copy of the pool has no threads, makes its own)
+
+
+def _pool() -> ThreadPoolExecutor:
+    pid = os.getpid()
+    if pid not in _POOL:
+        _POOL.clear()
+        _POOL[pid] = ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
+                                        thread_name_prefix="model-batch")
+    return _POOL[pid]
+
+
+def _run_tasks(steps: int, args: tuple) -> None:
+    """Run every task of a batch of `steps` RK4 steps in all (_model_tasks' arguments after the
+    range in args), split into equal ranges over numba's thread count (numba.get_num_threads:
+    what the caller allows, 1 while helper processes run), each range STEPS_PER_THREAD steps or
+    more.
+    """
+    tasks = args[4].shape[0] * (args[2].size - 1)  # trajectories x segments
+    threads = min(nb.get_num_threads(), tasks, steps // STEPS_PER_THREAD)
+    if threads <= 1:
+        _model_tasks(0, tasks, *args)
+        return
+    bounds = [tasks * k // threads for k in range(threads + 1)]
+    others = [_pool().submit(_model_tasks, bounds[k], bounds[k + 1], *args) for k in range(1, threads)]
+    _model_tasks(bounds[0], bounds[1], *args)
+    for future in others:
+        future.result()
 
 
 def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
@@ -185,11 +223,12 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     kind = np.result_type(float, y0, inertia, inertia_after, dist)
     out = np.empty((batch, sample_pos.size, 7), dtype=kind)
     sample_pos, seg_pos = np.asarray(sample_pos, np.int64), np.asarray(seg_pos, np.int64)
-    _model_batch(np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
-                 np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=kind),
-                 np.ascontiguousarray(inertia, dtype=kind), np.ascontiguousarray(inertia_after, dtype=kind),
-                 np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
-                 tau_index, np.ascontiguousarray(h, dtype=float), h_index,
-                 np.ascontiguousarray(dist, dtype=kind), np.ascontiguousarray(damping, dtype=float),
-                 damping_index, out)
+    _run_tasks(batch * (np.asarray(grid_t).size - 1),
+               (np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
+                np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=kind),
+                np.ascontiguousarray(inertia, dtype=kind), np.ascontiguousarray(inertia_after, dtype=kind),
+                np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
+                tau_index, np.ascontiguousarray(h, dtype=float), h_index,
+                np.ascontiguousarray(dist, dtype=kind), np.ascontiguousarray(damping, dtype=float),
+                damping_index, out))
     return out

@@ -248,6 +248,46 @@ def test_model_segments_are_independent_but_a_flexible_mode_carries_over(rng):
             assert np.abs(whole[1, rows, 4:] - alone[1, :(None if s == 2 else -1), 4:]).max() > 1e-6
 
 
+def test_a_batch_split_over_threads_is_the_batch_run_in_one(rng, monkeypatch):
+    """propagate_model_batch hands equal task ranges to threads: the trajectories, a flexible
+    mode's (whose segments run in its first segment's task) and a complex step's included, are
+    the one-thread run's bit for bit."""
+    import numba
+
+    import inertia_gym.model_dynamics as model_dynamics
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one thread on this machine: no batch to split")
+    n, batch = 400, 7
+    grid_t = np.linspace(0.0, 4.0, n)
+    sample_pos = np.arange(0, n, 3)
+    sample_pos[-1] = n - 1
+    seg_pos = np.r_[sample_pos[[0, 40, 90]], n - 1]
+    y0 = np.zeros((batch, 3, 7))
+    y0[..., 0] = 1.0
+    y0[..., 4:] = rng.normal(0.0, 1.0, (batch, 3, 3))
+    inertia = np.tile(np.diag([3.0, 2.0, 1.5]), (batch, 1, 1))
+    dist = np.zeros((batch, DISTURBANCE_SIZE))
+    dist[2] = Disturbance(flex_omega=6.0, flex_zeta=0.05, flex_coupling=(0.3, 0.1, 0.0)).pack()
+    dist[5] = Disturbance(constant_torque=(0.1, 0.0, -0.2)).pack()
+    tau = rng.normal(0.0, 0.1, (1, n - 1, 3))
+    h = rng.normal(0.0, 0.1, (1, n, 3))
+    for kind in (float, complex):
+        args = (grid_t, sample_pos, seg_pos, y0.astype(kind), inertia.astype(kind),
+                inertia.astype(kind), np.full(batch, np.inf), tau, h, dist.astype(kind))
+        before = numba.get_num_threads()
+        try:
+            numba.set_num_threads(1)
+            alone = propagate_model_batch(*args)
+            numba.set_num_threads(2)
+            monkeypatch.setattr(model_dynamics, "STEPS_PER_THREAD", 1)
+            split = propagate_model_batch(*args)
+        finally:
+            numba.set_num_threads(before)
+        assert np.array_equal(split, alone)
+        assert np.all(np.isfinite(split))
+
+
 def test_skew_is_the_cross_product_matrix(rng):
     """skew(v) @ u = v x u for single vectors and stacks of them."""
     from inertia_gym.dynamics import skew

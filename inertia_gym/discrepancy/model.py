@@ -166,7 +166,8 @@ class OwnTerms:
     @functools.cached_property
     def packed(self) -> np.ndarray:
         """Its fields packed (pack_fields): the disturbance of every model where it is the only
-        effect with fields."""
+        effect with fields.
+        """
         return pack_fields(self.fields)
 
     @staticmethod

@@ -284,7 +284,8 @@ class EffectModel:
 
     def true_inertia(self, params: dict):
         """The body's inertia (3, 3) when this effect sets it (not the nominal), or None; only an
-        effect with sets_inertia sets it."""
+        effect with sets_inertia sets it.
+        """
         return None
 
     def inertia_change(self, params: dict):
