@@ -116,14 +116,16 @@ def _model_segment(grid_t, sample_pos, a, b, i, last, y0, eta, etad, inertia, in
     return y[7], y[8]
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inertia, inertia_after,
                  change_t, tau, tau_index, h, h_index, dist, damping, damping_index, out):
     """Tasks first .. last - 1 of a batch, each a (trajectory, segment) pair: multiple shooting
     makes the segments of a trajectory independent, except that a flexible mode's state carries
     from one segment into the next; a trajectory with a mode runs its segments in order, in the
     task of its first. seg_sample (S,): index of each segment's first sample. The GIL is
-    released: threads run disjoint task ranges of one batch side by side (_run_tasks).
+    released: threads run disjoint task ranges of one batch side by side (_run_tasks). A model
+    that blows up divides by zero: numpy's error model (inherited by the callees) gives inf or
+    nan, which its caller prices, where Python's would raise.
     """
     n_seg = seg_pos.size - 1
     for task in range(first, last):

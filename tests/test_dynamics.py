@@ -288,6 +288,22 @@ def test_a_batch_split_over_threads_is_the_batch_run_in_one(rng, monkeypatch):
         assert np.all(np.isfinite(split))
 
 
+def test_a_model_that_blows_up_gives_non_finite_rates_not_an_error():
+    """A trajectory the integrator cannot carry (here a zero quaternion, which it divides by its
+    norm) comes back non-finite, for its caller to price; the others in the batch are unaffected."""
+    n = 50
+    grid_t = np.linspace(0.0, 1.0, n)
+    y0 = np.zeros((2, 1, 7))
+    y0[1, 0, 0] = 1.0
+    y0[:, 0, 4:] = (0.3, 1.0, -0.2)
+    inertia = np.tile(np.diag([3.0, 2.0, 1.5]), (2, 1, 1))
+    out = propagate_model_batch(grid_t, np.arange(n), np.array([0, n - 1]), y0, inertia, inertia,
+                                np.full(2, np.inf), np.zeros((1, n - 1, 3)), np.zeros((1, n, 3)),
+                                np.tile(Disturbance().pack(), (2, 1)))
+    assert not np.all(np.isfinite(out[0]))
+    assert np.all(np.isfinite(out[1]))
+
+
 def test_skew_is_the_cross_product_matrix(rng):
     """skew(v) @ u = v x u for single vectors and stacks of them."""
     from inertia_gym.dynamics import skew
