@@ -10,6 +10,7 @@ dynamics.py's rk4_augmented, the one RK4 step of the rigid body and its effect s
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
@@ -124,8 +125,9 @@ def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inert
     from one segment into the next; a trajectory with a mode runs its segments in order, in the
     task of its first. seg_sample (S,): index of each segment's first sample. The GIL is
     released: threads run disjoint task ranges of one batch side by side (_run_tasks). A model
-    that blows up divides by zero: numpy's error model (inherited by the callees) gives inf or
-    nan, which its caller prices, where Python's would raise.
+    that blows up divides by zero: numpy's error model gives inf or nan, which its caller
+    prices, where Python's would raise (the callees compiled here take this error model; one
+    already compiled elsewhere for the same argument types keeps its own).
     """
     n_seg = seg_pos.size - 1
     for task in range(first, last):
@@ -149,20 +151,24 @@ _POOL: dict = {}  # process id -> the threads that run a batch's other task rang
 # first use; a forked child, whose copy of the pool has no threads, makes its own)
 
 
+_POOL_LOCK = threading.Lock()
+
+
 def _pool() -> ThreadPoolExecutor:
     pid = os.getpid()
-    if pid not in _POOL:
-        _POOL.clear()
-        _POOL[pid] = ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
-                                        thread_name_prefix="model-batch")
-    return _POOL[pid]
+    with _POOL_LOCK:
+        if pid not in _POOL:
+            _POOL.clear()
+            _POOL[pid] = ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
+                                            thread_name_prefix="model-batch")
+        return _POOL[pid]
 
 
 def _run_tasks(steps: int, args: tuple) -> None:
     """Run every task of a batch of `steps` RK4 steps in all (_model_tasks' arguments after the
-    range in args), split into equal ranges over numba's thread count (numba.get_num_threads:
-    what the caller allows, 1 while helper processes run), each range STEPS_PER_THREAD steps or
-    more.
+    range in args), split into ranges of equal task counts over numba's thread count
+    (numba.get_num_threads: what the caller allows, 1 while helper processes run), where the
+    batch has STEPS_PER_THREAD steps or more a thread on average.
     """
     tasks = args[4].shape[0] * (args[2].size - 1)  # trajectories x segments
     threads = min(nb.get_num_threads(), tasks, steps // STEPS_PER_THREAD)

@@ -268,8 +268,17 @@ def test_a_batch_split_over_threads_is_the_batch_run_in_one(rng, monkeypatch):
     y0[..., 4:] = rng.normal(0.0, 1.0, (batch, 3, 3))
     inertia = np.tile(np.diag([3.0, 2.0, 1.5]), (batch, 1, 1))
     dist = np.zeros((batch, DISTURBANCE_SIZE))
-    dist[2] = Disturbance(flex_omega=6.0, flex_zeta=0.05, flex_coupling=(0.3, 0.1, 0.0)).pack()
+    # a mode on trajectory 3 (tasks 9-11): its segments run in task 9, the split falls at task 10
+    dist[3] = Disturbance(flex_omega=6.0, flex_zeta=0.05, flex_coupling=(0.3, 0.1, 0.0)).pack()
     dist[5] = Disturbance(constant_torque=(0.1, 0.0, -0.2)).pack()
+    ranges = []
+    compiled = model_dynamics._model_tasks
+
+    def recorded(first, last, *rest):
+        ranges.append((first, last))
+        compiled(first, last, *rest)
+
+    monkeypatch.setattr(model_dynamics, "_model_tasks", recorded)
     tau = rng.normal(0.0, 0.1, (1, n - 1, 3))
     h = rng.normal(0.0, 0.1, (1, n, 3))
     for kind in (float, complex):
@@ -281,9 +290,11 @@ def test_a_batch_split_over_threads_is_the_batch_run_in_one(rng, monkeypatch):
             alone = propagate_model_batch(*args)
             numba.set_num_threads(2)
             monkeypatch.setattr(model_dynamics, "STEPS_PER_THREAD", 1)
+            ranges.clear()
             split = propagate_model_batch(*args)
         finally:
             numba.set_num_threads(before)
+        assert sorted(ranges) == [(0, 10), (10, 21)]
         assert np.array_equal(split, alone)
         assert np.all(np.isfinite(split))
 

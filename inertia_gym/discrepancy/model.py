@@ -149,7 +149,7 @@ class EffectTerms:
         return Terms(inertia, after, self.change_t, self.tau, self.h, self.dist, self.damping)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class OwnTerms:
     """What one effect gives the integrator from its own parameters alone (None: nothing): the
     inertia it sets, its disturbance fields, an inertia change (t, size), a momentum and a
@@ -165,10 +165,12 @@ class OwnTerms:
 
     @functools.cached_property
     def packed(self) -> np.ndarray:
-        """Its fields packed (pack_fields): the disturbance of every model where it is the only
-        effect with fields.
+        """Its fields packed (pack_fields), read-only: the disturbance of every model where it
+        is the only effect with fields.
         """
-        return pack_fields(self.fields)
+        out = pack_fields(self.fields)
+        out.flags.writeable = False
+        return out
 
     @staticmethod
     def of(model: EffectModel, params: dict, grid: Grid, motion: Motion | None = None) -> "OwnTerms":

@@ -81,24 +81,29 @@ def test_a_model_that_blew_up_costs_the_clip_on_every_row(blocked):
     np.testing.assert_allclose(z[0], whitened(xs[:1], layout, d).ravel(), rtol=1e-12)
 
 
-def test_a_batch_predicts_each_point_as_it_would_alone(blocked):
+@pytest.mark.parametrize("names, parts", [
+    (("constant_body_torque", "gyro_bias"), ([1e-3, -2e-3, 5e-4], [2e-3, 1e-3, -1e-3])),
+    # array-valued terms (a momentum on the grid, an inertia change) shared between points
+    (("internal_momentum", "inertia_change"), ([0.5, -0.3, 1.0], [2.0, 0.8, 0.1, -0.2, 0.5, 0.05, 0.3])),
+])
+def test_a_batch_predicts_each_point_as_it_would_alone(blocked, names, parts):
     """Points that share one effect's parameters and differ in another's (a Jacobian's columns)
     share the terms of the effect they agree on: each point's prediction is the one it has
     alone, bit for bit."""
     d, layout, xs = blocked
-    two = Layout.of(("constant_body_torque", "gyro_bias"), ("", ""), d)
-    assert two.sizes == (3, 3)
-    base = np.r_[xs[1, :6], 1e-3 * np.array([1.0, -2.0, 0.5]), 1e-3 * np.array([2.0, 1.0, -1.0]),
-                 xs[1, 6:]]
+    two = Layout.of(names, ("", ""), d)
+    assert two.sizes == tuple(len(p) for p in parts)
+    first, second = two.slices()
+    base = np.r_[xs[1, :6], parts[0], parts[1], xs[1, 6:]]
     batch = np.repeat(base[None], 5, axis=0)
-    batch[1, 6] *= 1.5  # the torque moved, the bias shared
-    batch[2, 10] *= -1.0  # the bias moved, the torque shared
-    batch[3, 0] *= 1.01  # the inertia moved, both effects shared
-    batch[4, 6:12] = 0.0  # neither effect: the rigid body
+    batch[1, first.start] *= 1.5  # the first effect moved, the second shared
+    batch[2, second.stop - 1] *= -1.0  # the second moved, the first shared
+    batch[3, 0] *= 1.01  # the fitted inertia moved (unread: the record's nominal is the base)
+    batch[4, first] = 0.0  # the first effect off
     together = predict(batch, two, d)
     for i, x in enumerate(batch):
         np.testing.assert_array_equal(together[i], predict(x[None], two, d)[0])
-    rigid = np.r_[base[:6], base[12:]]
-    np.testing.assert_allclose(together[4], predict(rigid[None], layout, d)[0], rtol=0, atol=1e-12)
-    assert not np.array_equal(together[1], together[0])
-    assert not np.array_equal(together[2], together[0])
+    assert d.inertia0 is not None
+    np.testing.assert_array_equal(together[3], together[0])
+    for i in (1, 2, 4):
+        assert not np.array_equal(together[i], together[0])
