@@ -9,10 +9,6 @@ dynamics.py's rk4_augmented, the one RK4 step of the rigid body and its effect s
 
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
-
 import numba as nb
 import numpy as np
 
@@ -31,6 +27,7 @@ from inertia_gym.dynamics import (
     rk4_augmented,
     root,
 )
+from inertia_gym.task_threads import run_split
 
 
 @nb.njit(cache=True, forceinline=True)
@@ -147,21 +144,6 @@ def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inert
 #: RK4 steps a thread must have before a batch is split over threads: handing a range to another
 #: thread costs tens of microseconds, the time of a few thousand steps.
 STEPS_PER_THREAD = 5000
-_POOL: dict = {}  # process id -> the threads that run a batch's other task ranges (made on
-# first use; a forked child, whose copy of the pool has no threads, makes its own)
-
-
-_POOL_LOCK = threading.Lock()
-
-
-def _pool() -> ThreadPoolExecutor:
-    pid = os.getpid()
-    with _POOL_LOCK:
-        if pid not in _POOL:
-            _POOL.clear()
-            _POOL[pid] = ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
-                                            thread_name_prefix="model-batch")
-        return _POOL[pid]
 
 
 def _run_tasks(steps: int, args: tuple) -> None:
@@ -171,15 +153,7 @@ def _run_tasks(steps: int, args: tuple) -> None:
     batch has STEPS_PER_THREAD steps or more a thread on average.
     """
     tasks = args[4].shape[0] * (args[2].size - 1)  # trajectories x segments
-    threads = min(nb.get_num_threads(), tasks, steps // STEPS_PER_THREAD)
-    if threads <= 1:
-        _model_tasks(0, tasks, *args)
-        return
-    bounds = [tasks * k // threads for k in range(threads + 1)]
-    others = [_pool().submit(_model_tasks, bounds[k], bounds[k + 1], *args) for k in range(1, threads)]
-    _model_tasks(bounds[0], bounds[1], *args)
-    for future in others:
-        future.result()
+    run_split(_model_tasks, tasks, min(nb.get_num_threads(), steps // STEPS_PER_THREAD), args)
 
 
 def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
