@@ -48,7 +48,6 @@ from inertia_gym.estimation.inertia_param import (
 )
 from inertia_gym.excitation import burst_torque_into
 from inertia_gym.scenario import Scenario
-from inertia_gym.task_threads import run_split
 
 STATUS_OK, STATUS_DIVERGED = 0, 1
 
@@ -523,61 +522,69 @@ def _filter_update(x, P, phi_top, cov_work, sigma, n_updates, cfg, z, log_nis, m
     return 0 if ekf.state_is_sane(x, P) else 1
 
 
-@nb.njit(cache=True, nogil=True)
-def _runs_one_lane(first_task, last_task, truth, est, plan, logs, cfg_array, n_updates, sigma_fresh,
-                   status):
-    """Advance runs first_task .. last_task - 1 of the batch, one at a time on one lane (a lone
-    run, or a few runs over the threads: LANES - 1 idle lanes would cost more).
+@nb.njit(cache=True, parallel=True)
+def _segment_tasks(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status, per_task):
+    """Advance every run of the batch on LANES lanes, per_task runs per task (per_task <=
+    LANES), tasks in parallel.
 
-    cfg_array : (1,) array of the filter configuration record.
+    cfg_array : (1,) array of the filter configuration record (a record is handed to the
+    parallel loop inside an array: numba cannot pass a bare record into a parfor).
     n_updates, sigma_fresh, status : (B,) per-run counters and flags, updated in place.
     """
-    for task in range(first_task, last_task):
-        first = np.int64(task)
-        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
-                       first, first + 1, 1)
-
-
-@nb.njit(cache=True, nogil=True)
-def _runs_on_lanes(first_task, last_task, truth, est, plan, logs, cfg_array, n_updates, sigma_fresh,
-                   status, per_task):
-    """Advance tasks first_task .. last_task - 1 of the batch, each per_task runs (per_task <=
-    LANES) in lock-step on LANES lanes; arguments as for :func:`_runs_one_lane`.
-    """
     batch = truth.y.shape[0]
-    for task in range(first_task, last_task):
+    for task in nb.prange((batch + per_task - 1) // per_task):
         first = np.int64(task * per_task)
         stop = min(first + per_task, batch)
         _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
                        first, stop, LANES)
 
 
+@nb.njit(cache=True, parallel=True)
+def _segment_tasks_one_lane(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """:func:`_segment_tasks` with one run per task, on one lane (a few runs over the cores)."""
+    for task in nb.prange(truth.y.shape[0]):
+        first = np.int64(task)
+        _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                       first, first + 1, 1)
+
+
+@nb.njit(cache=True)
+def _segment_one(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A lone run, on one lane, without the threading layer's launch cost."""
+    first = np.int64(0)
+    _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                   first, first + 1, 1)
+
+
+@nb.njit(cache=True)
+def _segment_lanes(truth, est, plan, logs, cfg_array, n_updates, sigma_fresh, status):
+    """A batch of at most LANES runs as one task on LANES lanes (one thread)."""
+    first = np.int64(0)
+    _advance_lanes(truth, est, plan, logs, cfg_array[0], n_updates, sigma_fresh, status,
+                   first, first + truth.y.shape[0], LANES)
+
+
 def _kernel_for(batch: int, threads: int) -> tuple:
-    """(kernel, its extra arguments, tasks, threads) that advance a batch of `batch` runs with
-    `threads` threads: more than LANES runs go LANES per task; a few runs over several threads
-    one per task (or HALF_LANES per task on LANES lanes); otherwise one task.
+    """(kernel, its extra arguments) that advances a batch of `batch` runs with `threads`
+    threads: more than LANES runs go LANES per task; a few runs over several threads one per
+    task (or HALF_LANES per task on LANES lanes); otherwise one task.
     """
     if batch > LANES:
-        return _runs_on_lanes, (LANES,), -(-batch // LANES), threads
+        return _segment_tasks, (LANES,)
     if batch > 1 and threads > 1:  # the cores share a batch one task would hold
-        if batch <= HALF_LANES:
-            return _runs_one_lane, (), batch, threads
-        return _runs_on_lanes, (HALF_LANES,), 2, threads
-    return (_runs_one_lane, (), 1, 1) if batch == 1 else (_runs_on_lanes, (LANES,), 1, 1)
+        return (_segment_tasks_one_lane, ()) if batch <= HALF_LANES else (_segment_tasks, (HALF_LANES,))
+    return (_segment_one, ()) if batch == 1 else (_segment_lanes, ())
 
 
-#: The loop's kernels, each compiled (or loaded from numba's on-disk cache) on its first use:
-#: one lane, and LANES lanes (each lane count is a compile of its own).
-KERNELS = ("_runs_one_lane", "_runs_on_lanes")
+#: The loop's kernels, each compiled (or loaded from numba's on-disk cache) on its first use.
+KERNELS = ("_segment_one", "_segment_lanes", "_segment_tasks_one_lane", "_segment_tasks")
 #: Names of the kernels that have run in this process (under _loop_lock on first use).
 _ready: set[str] = set()
 _loop_lock = threading.Lock()
 
 
-def _call_kernel(kernel, tasks: int, threads: int, args) -> None:
-    """kernel(first, last, *args) over the tasks 0 .. tasks - 1, split over `threads` threads
-    (task_threads.run_split); its first call in this process runs every task in a thread of its
-    own.
+def _call_kernel(kernel, args) -> None:
+    """kernel(*args); its first call in this process runs in a thread of its own.
 
     Why a thread: numba compiles recursively, and CPython 3.11 frees a frame-stack chunk each
     time the stack pops back over the chunk's start. Started deep in a caller's stack (the
@@ -588,17 +595,17 @@ def _call_kernel(kernel, tasks: int, threads: int, args) -> None:
     """
     name = kernel.__name__
     if name in _ready:
-        run_split(kernel, tasks, threads, args)
+        kernel(*args)
         return
     with _loop_lock:
         if name in _ready:
-            run_split(kernel, tasks, threads, args)
+            kernel(*args)
             return
         failure: list[BaseException] = []
 
         def first_call():
             try:
-                kernel(0, tasks, *args)
+                kernel(*args)
             except BaseException as exc:  # re-raised in the caller's thread
                 failure.append(exc)
 
@@ -623,7 +630,7 @@ def compile_loop(kernels: tuple[str, ...] = KERNELS) -> None:
     for name in kernels:
         if name in _ready:
             continue
-        batch = 1 if name == "_runs_one_lane" else 2
+        batch = 1 if name == "_segment_one" else 2
         rngs = [np.random.default_rng(r) for r in range(batch)]
         run_segment(sc, initial_state(sc, rngs), 1, np.zeros((batch, 0, 2)), [0.0, 0.0, 1.0],
                     [1.0, 0.0, 0.0], rngs, record_steps=False, kernel=name)
@@ -657,9 +664,8 @@ def run_segment(
     record_steps : keep w_hat, w_dot_hat, tau per step (needed for the information metric).
     disturbance : packed (DISTURBANCE_SIZE,) vector of dynamics.Disturbance acting on the truth,
     or None.
-    kernel : the name of one of :data:`KERNELS` to run the batch with, its tasks split over
-    numba's threads (any of them gives the same result); by default the one suited to the
-    batch's size and the threads.
+    kernel : the name of one of :data:`KERNELS` to run the batch with (any of them gives the
+    same result); by default the one suited to the batch's size and the threads.
     impulse_spent : (B,) N·m·s of sc.impulse_budget already spent before this segment (a budget
     that spans several segments); zero by default. trace.impulse includes it.
     Runs that had diverged are left untouched. The kernel is compiled on its first use in the
@@ -725,16 +731,17 @@ def run_segment(
              impulse, demand, rate_peak, cuts),
         np.array([cfg]), n_updates, sigma_fresh, status,
     )
-    threads = nb.get_num_threads()
     if kernel is None:
-        chosen, extra, tasks, threads = _kernel_for(batch, threads)
-    elif kernel == "_runs_one_lane":
-        chosen, extra, tasks = _runs_one_lane, (), batch
-    elif kernel == "_runs_on_lanes":
-        chosen, extra, tasks = _runs_on_lanes, (LANES,), -(-batch // LANES)
+        chosen, extra = _kernel_for(batch, nb.get_num_threads())
+    elif kernel in KERNELS:
+        chosen = globals()[kernel]
+        extra = (LANES,) if kernel == "_segment_tasks" else ()
+        most = {"_segment_one": 1, "_segment_lanes": LANES}.get(kernel, batch)
+        if batch > most:
+            raise ConfigError(f"{kernel} holds at most {most} runs, got {batch}")
     else:
         raise ConfigError(f"kernel must be one of {KERNELS}, got {kernel!r}")
-    _call_kernel(chosen, tasks, threads, (*args, *extra))
+    _call_kernel(chosen, (*args, *extra))
     new_state = SimState(
         y_true=y_true, x=x, P=P, n_updates=n_updates, steps_to_meas=steps_to_meas,
         step=state.step + n_steps, diverged=status != STATUS_OK, phi_top=phi_top, sigma=sigma,

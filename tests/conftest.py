@@ -24,19 +24,22 @@ os.environ["INERTIA_GYM_HELPERS"] = "0"
 
 #: The kernels most workers need, compiled once before the workers start, in two parallel
 #: processes; each worker then loads them from numba's on-disk cache instead of compiling the
-#: same code beside the other worker. The first process compiles the simulation loop's two
-#: kernels. The second runs `identify` (its three methods) and `diagnose` on the shipped
-#: examples, one step of the environment (the information metric) and the batch propagator of
-#: both integrators: the two take about equally long (half a minute each on 2 cores, with an
-#: empty cache).
+#: same code beside the other worker. The first process compiles three of the simulation loop's
+#: four kernels (the first of them also compiles the callees all four share, most of the loop's
+#: compile time). The second runs `identify` (its three methods) and `diagnose` on the shipped
+#: examples and one step of the environment (the information metric), then the loop's fourth
+#: kernel and the batch propagator of both integrators, by when the first process has cached the
+#: callees they share: the two take about equally long (under a minute each on 2 cores, with an empty cache).
 WARM_UP = (
-    "from inertia_gym.simulation import compile_loop; compile_loop()",
+    "from inertia_gym.simulation import compile_loop; "
+    "compile_loop(('_segment_one', '_segment_lanes', '_segment_tasks'))",
     "import gymnasium as gym; import numpy as np; "
     "from inertia_gym import examples, identify, read_recordings as read; "
     "from inertia_gym.discrepancy.report import diagnose; "
     "rec = read(examples.path('thrown-rotor'))[0]; [identify(rec, m) for m in ('ml', 'ekf', 'ukf')]; "
     "diagnose(read(examples.path('phone-toss'))[0]); "
     "env = gym.make('InertiaGym/Excitation-v0'); env.reset(seed=0); env.step(env.action_space.sample()); "
+    "from inertia_gym.simulation import compile_loop; compile_loop(('_segment_tasks_one_lane',)); "
     "from inertia_gym.dynamics import propagate_batch; "
     "[propagate_batch(np.array([[1.0, 0, 0, 0]]), np.array([[0.1, 1, 0.2]]), np.eye(3), "
     "np.zeros((1, 3, 3)), 0.01, method=m) for m in ('rk4', 'gauss')]",

@@ -35,7 +35,7 @@ def test_digest_follows_every_kernel_source_and_nothing_else(tmp_path):
 def test_compiled_kernels_are_cached_under_the_source_keyed_folder():
     folder = Path(numba.config.CACHE_DIR)
     assert folder.name.endswith(kernel_cache.sources_digest())
-    for kernel in (simulation._runs_on_lanes, ekf.ekf_update):
+    for kernel in (simulation._segment_tasks, ekf.ekf_update):
         assert Path(kernel._cache._cache_path).is_relative_to(folder)
 
 

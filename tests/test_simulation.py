@@ -75,46 +75,48 @@ def test_with_rows_replaces_only_those_runs_and_copies():
 
 
 def test_each_batch_size_runs_the_kernel_made_for_it_and_compiles_nothing_after_compile_loop():
-    """A batch runs on the kernel suited to its size and the threads, its tasks split over
-    them; after compile_loop() no batch compiles anything more."""
+    """A batch runs on the kernel suited to its size and the threads; after compile_loop() no
+    batch compiles anything more."""
     from inertia_gym import simulation
-    from inertia_gym.simulation import HALF_LANES, LANES, _runs_on_lanes, _runs_one_lane
 
-    assert simulation._kernel_for(1, 2) == (_runs_one_lane, (), 1, 1)
-    assert simulation._kernel_for(3, 1) == (_runs_on_lanes, (LANES,), 1, 1)
-    assert simulation._kernel_for(HALF_LANES, 2) == (_runs_one_lane, (), HALF_LANES, 2)
-    assert simulation._kernel_for(HALF_LANES + 1, 2) == (_runs_on_lanes, (HALF_LANES,), 2, 2)
-    assert simulation._kernel_for(2 * LANES + 1, 2) == (_runs_on_lanes, (LANES,), 3, 2)
-    assert simulation._kernel_for(LANES + 1, 1) == (_runs_on_lanes, (LANES,), 2, 1)
+    assert simulation._kernel_for(1, 2)[0] is simulation._segment_one
+    assert simulation._kernel_for(3, 1)[0] is simulation._segment_lanes
+    assert simulation._kernel_for(simulation.HALF_LANES, 2)[0] is simulation._segment_tasks_one_lane
+    assert simulation._kernel_for(simulation.HALF_LANES + 1, 2) == (simulation._segment_tasks,
+                                                                    (simulation.HALF_LANES,))
+    assert simulation._kernel_for(simulation.LANES + 1, 1) == (simulation._segment_tasks,
+                                                               (simulation.LANES,))
     simulation.compile_loop()
     kernels = [getattr(simulation, name) for name in simulation.KERNELS]
     compiled = [list(k.signatures) for k in kernels]
     assert all(len(signatures) == 1 for signatures in compiled)
     sc = Scenario()
-    for batch in (1, 3, HALF_LANES + 2, LANES + 3):
+    for batch in (1, 3, simulation.HALF_LANES + 2, simulation.LANES + 3):
         rngs = [np.random.default_rng(s) for s in range(batch)]
         run_segment(sc, initial_state(sc, rngs), 5, np.zeros((batch, 1, 2)), [0.1, 1.0, 1.0],
                     np.eye(3)[0], rngs)
     assert [list(k.signatures) for k in kernels] == compiled
 
 
-def test_an_unknown_kernel_is_refused():
+def test_a_kernel_too_small_for_the_batch_or_unknown_is_refused():
     sc = Scenario()
     rngs = [np.random.default_rng(s) for s in range(2)]
-    with pytest.raises(ConfigError, match="must be one of"):
-        run_segment(sc, initial_state(sc, rngs), 5, np.zeros((2, 0, 2)), [0.1, 1.0, 1.0],
-                    np.eye(3)[0], rngs, kernel="nope")
+    for kernel, words in (("_segment_one", "holds at most 1 runs"), ("nope", "must be one of")):
+        with pytest.raises(ConfigError, match=words):
+            run_segment(sc, initial_state(sc, rngs), 5, np.zeros((2, 0, 2)), [0.1, 1.0, 1.0],
+                        np.eye(3)[0], rngs, kernel=kernel)
 
 
 def test_compile_loop_compiles_the_kernels_named_and_refuses_an_unknown_one():
-    """compile_loop(kernels) readies exactly those named; a name outside KERNELS is refused."""
+    """compile_loop(kernels) readies exactly those named (a warm-up splits the four between
+    processes); a name outside KERNELS is refused."""
     from inertia_gym import simulation
 
-    simulation.compile_loop(("_runs_on_lanes",))
-    assert "_runs_on_lanes" in simulation._ready
-    assert simulation._runs_on_lanes.signatures
+    simulation.compile_loop(("_segment_lanes",))
+    assert "_segment_lanes" in simulation._ready
+    assert simulation._segment_lanes.signatures
     with pytest.raises(ConfigError, match="kernels must be among"):
-        simulation.compile_loop(("_runs_on_lanes", "_segment_none"))
+        simulation.compile_loop(("_segment_lanes", "_segment_none"))
 
 
 def test_a_failure_while_compiling_a_kernel_reaches_the_caller():
@@ -126,7 +128,7 @@ def test_a_failure_while_compiling_a_kernel_reaches_the_caller():
         raise ConfigError("no compiler here")
 
     with pytest.raises(ConfigError, match="no compiler here"):
-        simulation._call_kernel(_broken_kernel, 1, 1, ())
+        simulation._call_kernel(_broken_kernel, ())
     assert "_broken_kernel" not in simulation._ready
 
 
@@ -197,7 +199,7 @@ def _batch_against_alone(estimator, tasks):
     v = np.eye(3)[np.arange(batch) % 3]
     end, trace = run_segment(sc, state, n_steps, bursts, xi, v,
                              [np.random.default_rng(100 + s) for s in range(batch)],
-                             kernel="_runs_on_lanes" if tasks == "one task" else None)
+                             kernel="_segment_lanes" if tasks == "one task" else None)
     for r in range(batch):
         if n_steps[r] == 0:
             continue
