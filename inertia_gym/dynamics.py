@@ -201,9 +201,14 @@ def _root_compiled(x):
     return lambda x: math.sqrt(x)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def inv3(m):
-    """Inverse of a 3x3 matrix by its adjugate (closed form, :func:`inv3_entries`)."""
+    """Inverse of a 3x3 matrix by its adjugate (closed form, :func:`inv3_entries`). A singular
+    matrix gives non-finite entries, never ZeroDivisionError, whichever kernel compiles it first
+    (numba keeps one compilation per argument type, with the error model of its first caller
+    unless it has its own): diagnose's model prices a blown-up trajectory and the filters check
+    their state for it, both by reading inf or nan.
+    """
     e = inv3_entries(mat3_entries(m))
     out = np.empty((3, 3), dtype=m.dtype)
     for k in range(9):
@@ -496,10 +501,11 @@ def augmented_rate(y0, y1, y2, y3, w0, w1, w2, eta, etad, j, j_inv, jd0, jd1, jd
     return r[0], r[1], r[2], r[3], ax, ay, az, etad, eta_dd
 
 
-@nb.njit(cache=True, forceinline=True)
+@nb.njit(cache=True, forceinline=True, error_model="numpy")
 def inv3_entries(j):
     """The inverse of a 3x3 matrix given and returned as row-major 9-tuples, by its adjugate
-    (closed form): a loop that changes the matrix per stage keeps it in registers.
+    (closed form): a loop that changes the matrix per stage keeps it in registers. A singular
+    matrix gives non-finite entries (as :func:`inv3`).
     """
     c0 = j[4] * j[8] - j[5] * j[7]
     c1 = j[5] * j[6] - j[3] * j[8]

@@ -376,3 +376,14 @@ def test_a_mode_that_moves_mass_follows_its_lagrangian(zeta, rng):
     # the centrifugal load is what the mode's inertia rate adds: without it the rates differ
     plain = _model_run(inertia, delta, np.zeros((3, 3)), omega, zeta, w0, 0.02, t)
     assert np.abs(plain - w).max() > 1e-2 * np.abs(w0).max()
+
+
+def test_the_inverse_of_a_singular_inertia_is_non_finite_not_an_error():
+    """inv3 and inv3_entries of a singular matrix (a rod: one moment zero) return inf or nan
+    entries, which their callers price or check, from Python and from a compiled caller."""
+    from inertia_gym.dynamics import inv3, inv3_entries, mat3_entries
+
+    rod = np.diag([0.0, 2.0, 2.0])
+    assert not np.all(np.isfinite(inv3(rod)))
+    assert not np.all(np.isfinite(inv3_entries(mat3_entries(rod))))
+    np.testing.assert_allclose(inv3(np.diag([1.0, 2.0, 4.0])), np.diag([1.0, 0.5, 0.25]), rtol=1e-15)
