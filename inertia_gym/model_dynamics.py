@@ -121,7 +121,7 @@ def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inert
     makes the segments of a trajectory independent, except that a flexible mode's state carries
     from one segment into the next; a trajectory with a mode runs its segments in order, in the
     task of its first. seg_sample (S,): index of each segment's first sample. The GIL is
-    released: threads run disjoint task ranges of one batch side by side (_run_tasks). A model
+    released: threads run disjoint task ranges of one batch side by side (propagate_model_batch). A model
     that blows up divides by zero: numpy's error model gives inf or nan, which its caller
     prices, where Python's would raise (the callees compiled here take this error model; one
     already compiled elsewhere for the same argument types keeps its own).
@@ -141,19 +141,10 @@ def _model_tasks(first, last, grid_t, sample_pos, seg_pos, seg_sample, y0, inert
                                        h[h_index[b]], dist[b], damping[damping_index[b]], out[b])
 
 
-#: RK4 steps a thread must have before a batch is split over threads: handing a range to another
+#: RK4 steps a thread must have on average before a batch is split over threads (numba's thread
+#: count: what the caller allows, 1 while helper processes run): handing a range to another
 #: thread costs tens of microseconds, the time of a few thousand steps.
 STEPS_PER_THREAD = 5000
-
-
-def _run_tasks(steps: int, args: tuple) -> None:
-    """Run every task of a batch of `steps` RK4 steps in all (_model_tasks' arguments after the
-    range in args), split into ranges of equal task counts over numba's thread count
-    (numba.get_num_threads: what the caller allows, 1 while helper processes run), where the
-    batch has STEPS_PER_THREAD steps or more a thread on average.
-    """
-    tasks = args[4].shape[0] * (args[2].size - 1)  # trajectories x segments
-    run_split(_model_tasks, tasks, min(nb.get_num_threads(), steps // STEPS_PER_THREAD), args)
 
 
 def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_after, change_t, tau,
@@ -205,12 +196,13 @@ def propagate_model_batch(grid_t, sample_pos, seg_pos, y0, inertia, inertia_afte
     kind = np.result_type(float, y0, inertia, inertia_after, dist)
     out = np.empty((batch, sample_pos.size, 7), dtype=kind)
     sample_pos, seg_pos = np.asarray(sample_pos, np.int64), np.asarray(seg_pos, np.int64)
-    _run_tasks(batch * (np.asarray(grid_t).size - 1),
-               (np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
-                np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=kind),
-                np.ascontiguousarray(inertia, dtype=kind), np.ascontiguousarray(inertia_after, dtype=kind),
-                np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
-                tau_index, np.ascontiguousarray(h, dtype=float), h_index,
-                np.ascontiguousarray(dist, dtype=kind), np.ascontiguousarray(damping, dtype=float),
-                damping_index, out))
+    steps = batch * (np.asarray(grid_t).size - 1)
+    run_split(_model_tasks, batch * (seg_pos.size - 1), min(nb.get_num_threads(), steps // STEPS_PER_THREAD),
+              (np.ascontiguousarray(grid_t, dtype=float), sample_pos, seg_pos,
+               np.searchsorted(sample_pos, seg_pos[:-1]), np.ascontiguousarray(y0, dtype=kind),
+               np.ascontiguousarray(inertia, dtype=kind), np.ascontiguousarray(inertia_after, dtype=kind),
+               np.ascontiguousarray(change_t, dtype=float), np.ascontiguousarray(tau, dtype=float),
+               tau_index, np.ascontiguousarray(h, dtype=float), h_index,
+               np.ascontiguousarray(dist, dtype=kind), np.ascontiguousarray(damping, dtype=float),
+               damping_index, out))
     return out

@@ -15,18 +15,26 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
 
-_POOL: dict = {}  # process id -> its threads (a forked child, whose copy has none, makes its own)
+_POOL: list = []  # the threads, made on first use
 _POOL_LOCK = threading.Lock()
 
 
+def _forget_after_fork() -> None:
+    """A forked child starts without the parent's threads (and with its lock free)."""
+    global _POOL_LOCK
+    _POOL_LOCK = threading.Lock()
+    _POOL.clear()
+
+
+os.register_at_fork(after_in_child=_forget_after_fork)
+
+
 def _pool() -> ThreadPoolExecutor:
-    pid = os.getpid()
     with _POOL_LOCK:
-        if pid not in _POOL:
-            _POOL.clear()
-            _POOL[pid] = ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
-                                            thread_name_prefix="inertia-gym-tasks")
-        return _POOL[pid]
+        if not _POOL:
+            _POOL.append(ThreadPoolExecutor(max(1, nb.config.NUMBA_NUM_THREADS - 1),
+                                            thread_name_prefix="inertia-gym-tasks"))
+        return _POOL[0]
 
 
 def run_split(kernel, tasks: int, threads: int, args: tuple) -> None:
