@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
@@ -167,20 +168,79 @@ def _euler(inertia, torque=None):
     return rate
 
 
-def flat_record(shape, delta: float, rate: float, sigma: float,
-                seed: int) -> tuple[Recording, np.ndarray]:
-    """A 1-s, 100-Hz torque-free toss of a near-flat body: (record, true inertia (3, 3))."""
-    rng = np.random.default_rng(seed)
+#: A near-flat toss's sample times (s): 1 s at 100 Hz.
+FLAT_TIMES = np.arange(101) * 0.01
+
+
+def _flat_truth(shape, delta: float, rate: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """flat_record's body and spin, drawn from rng: (inertia (3, 3) kg·m², w0 (3,) rad/s)."""
     i1, i2 = shape
     moments = np.array([i1, i2, (1 - delta) * (i1 + i2)]) * 3e-4
     turn = Rotation.random(random_state=rng).as_matrix()
     inertia = turn @ np.diag(moments) @ turn.T
     direction = rng.normal(size=3)
-    w0 = rate * direction / np.linalg.norm(direction)
-    t = np.arange(101) * 0.01
-    sol = solve_ivp(_euler(inertia), (0, t[-1]), w0, t_eval=t, rtol=1e-11, atol=1e-12, method="DOP853")
-    w = sol.y.T + sigma * rng.normal(size=(t.size, 3))
-    return Recording(t, w, meta={"gyro_sigma": sigma}, name=f"flat-{seed}"), inertia
+    return inertia, rate * direction / np.linalg.norm(direction)
+
+
+def _flat_rates(inertia, w0) -> np.ndarray:
+    """The torque-free rates (101, 3) at FLAT_TIMES."""
+    sol = solve_ivp(_euler(inertia), (0, FLAT_TIMES[-1]), w0, t_eval=FLAT_TIMES, rtol=1e-11, atol=1e-12,
+                    method="DOP853")
+    return sol.y.T
+
+
+def flat_record(shape, delta: float, rate: float, sigma: float,
+                seed: int) -> tuple[Recording, np.ndarray]:
+    """A 1-s, 100-Hz torque-free toss of a near-flat body: (record, true inertia (3, 3))."""
+    rng = np.random.default_rng(seed)
+    inertia, w0 = _flat_truth(shape, delta, rate, rng)
+    w = _flat_rates(inertia, w0) + sigma * rng.normal(size=(FLAT_TIMES.size, 3))
+    return Recording(FLAT_TIMES, w, meta={"gyro_sigma": sigma}, name=f"flat-{seed}"), inertia
+
+
+def _principal_ratios(theta) -> np.ndarray:
+    """(I2/I1, I3/I1) of theta (6,) = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz), I1 the largest moment."""
+    j = np.array([[theta[0], theta[1], theta[2]], [theta[1], theta[3], theta[4]],
+                  [theta[2], theta[4], theta[5]]])
+    moments = np.sort(np.linalg.eigvalsh(j))[::-1]
+    return moments[1:] / moments[0]
+
+
+def flat_ratio_bound(shape, delta: float, rate: float, sigma: float, seed: int) -> np.ndarray:
+    """The Cramér-Rao bound (2, 2) on the principal ratios (I2/I1, I3/I1) of flat_record's toss,
+    at its truth: sigma^2 (G^T G)^-1 over the inertia's five directions at a fixed trace (a
+    torque-free record has no scale) and the initial rate, G the rates' derivatives by central
+    differences of scipy's DOP853 solutions, carried to the ratios by their gradient. No
+    unbiased estimator's covariance lies below it.
+    """
+    inertia, w0 = _flat_truth(shape, delta, rate, np.random.default_rng(seed))
+    theta = inertia[np.triu_indices(3)]
+    basis = np.linalg.svd(np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 1.0]]))[2][1:].T  # (6, 5): trace kept
+    steps = np.r_[np.full(5, 1e-4 * np.abs(theta).max()), np.full(3, 1e-4 * np.linalg.norm(w0))]
+
+    def rates(p):
+        d = theta + basis @ p[:5]
+        j = np.array([[d[0], d[1], d[2]], [d[1], d[3], d[4]], [d[2], d[4], d[5]]])
+        return _flat_rates(j, w0 + p[5:]).ravel()
+
+    unit = np.eye(8) * steps
+    g = np.column_stack([(rates(e) - rates(-e)) / (2 * s) for e, s in zip(unit, steps)])
+    cov = sigma ** 2 * np.linalg.inv(g.T @ g)[:5, :5]
+    grad = np.column_stack([(_principal_ratios(theta + basis[:, k] * steps[k])
+                             - _principal_ratios(theta - basis[:, k] * steps[k])) / (2 * steps[k])
+                            for k in range(5)])  # (2, 5)
+    return grad @ cov @ grad.T
+
+
+def efficient_pass_probability(cov) -> float:
+    """The probability that a Gaussian, unbiased error of covariance cov (2, 2) passes
+    score_ratios' rule (each ratio within 3 of its standard deviations and within 0.5 %): what an
+    efficient estimator reaches on a record whose bound is cov.
+    """
+    cov = np.asarray(cov, float)
+    half = np.minimum(3 * np.sqrt(np.diag(cov)), 0.005)
+    law = stats.multivariate_normal(np.zeros(2), cov, seed=0)
+    return float(law.cdf(half, lower_limit=-half))
 
 
 def satellite_record(seed: int) -> tuple[Recording, np.ndarray]:
