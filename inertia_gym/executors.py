@@ -34,7 +34,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from inertia_gym.errors import ConfigError
+from inertia_gym.errors import ConfigError, install_hint
 
 BACKENDS = ("local", "ray")
 _HOME = os.getpid()  # the process that imported this module
@@ -347,8 +347,7 @@ def _map_ray(fn, tasks, workers, address):
     try:
         import ray
     except ImportError as exc:
-        raise ConfigError("the Ray backend needs Ray, an optional extra: pip install "
-                          "'inertia-gym[ray]'") from exc
+        raise ConfigError(f"the Ray backend needs Ray, an optional extra: {install_hint('ray')}") from exc
 
     started_here = not ray.is_initialized()
     if started_here:

@@ -13,8 +13,8 @@ def markdown(summary: dict, plots=()) -> str:
     unit = "kg·m²" if summary["scale_identified"] else "normalised"
     lines = [f"# Inertia of {summary['name']} ({summary['method']})", ""]
     if not summary["scale_identified"]:
-        lines += ["**Scale not identified**: neither a known torque nor a changing internal "
-                  "momentum fixed the inertia's absolute size. The values are ratios, normalised "
+        lines += ["**Scale not identified**: neither a known torque nor a known non-zero "
+                  "internal momentum fixed the inertia's absolute size. The values are ratios, normalised "
                   "to the trace shown; their intervals are those of the ratios.", ""]
     lines += [f"| parameter | estimate ({unit}) | 95 % interval |", "|---|---|---|"]
     for name, value, (lo, hi) in zip(LABELS, summary["theta"], summary["ci95"]):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inertia_gym.errors import ConfigError, RecordingError, SidecarKeyWarning
+from inertia_gym.errors import ConfigError, RecordingError, SidecarKeyWarning, install_hint
 from inertia_gym.recording import (
     COLUMN_NAMES,
     GAP_FACTOR,
@@ -451,8 +451,8 @@ def _xlsx_table(path: Path) -> tuple[list[str], np.ndarray]:
     try:
         import openpyxl
     except ImportError:
-        raise _fail(path, "reading a phyphox Excel export needs openpyxl: pip install "
-                    "'inertia-gym[xlsx]' (or export CSV from phyphox)") from None
+        raise _fail(path, f"reading a phyphox Excel export needs openpyxl: {install_hint('xlsx')} "
+                    "(or export CSV from phyphox)") from None
     try:
         book = openpyxl.load_workbook(path, read_only=True, data_only=True)
         try:

@@ -65,4 +65,4 @@ raise SystemExit(main(["optimize", "--agent", "random", "--budget", "2", "--out"
 """, tmp_path)
     assert done.returncode != 0
     said = [line for line in done.stderr.splitlines() if line.strip()]
-    assert len(said) == 1 and "pip install 'inertia-gym[optimize]'" in said[0], done.stderr
+    assert len(said) == 1 and "pip install -e '.[optimize]'" in said[0], done.stderr

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from tqdm.auto import tqdm
 
-from inertia_gym.errors import ConfigError
+from inertia_gym.errors import ConfigError, install_hint
 
 
 def candidates(within, n: int) -> np.ndarray:
@@ -103,7 +103,7 @@ def extra_module(extra: str, needed_by: str):
         module = importlib.import_module(f"inertia_gym.agents.{'bo' if extra == 'optimize' else 'sb3'}")
     except ModuleNotFoundError as missing:
         raise ConfigError(f"{needed_by} needs {missing.name}, which is not installed: "
-                          f"pip install 'inertia-gym[{extra}]'") from missing
+                          f"{install_hint(extra)}") from missing
     return module
 
 

@@ -38,7 +38,7 @@ def add_objective_options(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--cost", choices=COSTS, default=DEFAULT_COST,
                         help=f"posterior: change of log det P_theta over the episode; info: the "
-                             f"paper's J ({DEFAULT_COST})")
+                             f"paper's J. Default: {DEFAULT_COST}")
     objective = parser.add_mutually_exclusive_group()
     default = "carry-over" if DEFAULT_CARRY_OVER else "restart-each-episode"
     objective.add_argument("--carry-over", dest="carry_over", action="store_true",

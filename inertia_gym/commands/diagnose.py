@@ -18,9 +18,10 @@ from inertia_gym.html_page import render
 
 def add_parser(subparsers) -> None:
     """Register the sub-command."""
-    p = subparsers.add_parser("diagnose", help="diagnose a recording against the rigid-body model")
+    p = subparsers.add_parser("diagnose", help="diagnose a recording against the rigid-body model",
+                              description=__doc__)
     add_recording_argument(p)
-    p.add_argument("--out", default="diagnosis", metavar="DIR", help="output folder")
+    p.add_argument("--out", default="diagnosis", metavar="DIR", help="output folder (default: diagnosis)")
     p.add_argument("--no-plots", action="store_true", help="report.json and summary only")
     p.set_defaults(func=run)
 

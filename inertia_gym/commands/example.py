@@ -12,7 +12,7 @@ from inertia_gym import examples
 def add_parser(subparsers) -> None:
     """Register the sub-command."""
     p = subparsers.add_parser("example", help="copy a shipped example recording into a folder",
-                              description=__doc__.splitlines()[0])
+                              description=__doc__)
     p.add_argument("name", choices=examples.names(), help="which example")
     p.add_argument("--out", default="examples", help="folder to copy it into (default: examples)")
     p.set_defaults(func=run)

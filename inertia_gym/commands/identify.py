@@ -34,7 +34,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--method", choices=METHODS, default="ml",
                    help="ml: maximum likelihood over the whole record (default); ekf/ukf: the "
                         "paper's filter run once over the record")
-    p.add_argument("--out", default="identify", metavar="DIR", help="output folder (identify)")
+    p.add_argument("--out", default="identify", metavar="DIR", help="output folder (default: identify)")
     p.add_argument("--no-plots", action="store_true", help="identify.json and summary.md only")
     p.add_argument("--joint", action="store_true",
                    help="the recordings are of one body: also fit one inertia to them all (DIR/joint.json, "

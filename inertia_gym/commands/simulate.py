@@ -19,13 +19,15 @@ from inertia_gym.recordings import write_recording
 
 def add_parser(subparsers) -> None:
     """Register the sub-command."""
-    p = subparsers.add_parser("simulate", help="write a synthetic recording with a catalogue effect")
+    p = subparsers.add_parser("simulate", help="write a synthetic recording with a catalogue effect",
+                              description=__doc__)
     add_scenario_option(p)
     p.add_argument("--duration", type=positive_float, default=60.0, help="seconds (default 60)")
     p.add_argument("--effect", default=None,
                    help="NAME[:key=value,...] from the catalogue (random magnitudes unless given; "
                         "vectors as a;b;c), or none")
-    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0,
+                   help="seed of the noise, the initial rates and random effect magnitudes (default 0)")
     p.add_argument("--sample-dt", type=positive_float, default=None,
                    help="seconds between rows (default: the scenario's dt)")
     p.add_argument("--no-torque", action="store_true", help="torque-free (no commanded bursts)")

@@ -184,9 +184,9 @@ def _explanation_words(report: dict) -> str:
         text += f"\n\n{loaded}" if loaded else ""
     cmp = report.get("inertia_vs_nominal")
     if cmp is not None and cmp["delta_bic"] is not None:
-        text += (f"\n\nThe user's model as given (`fit_before`, the base of every effect but "
-                 f"inertia_offset) against the same model with the inertia fitted "
-                 f"(`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
+        text += (f"\n\nYour model with its nominal inertia as given (the base of every effect but "
+                 f"inertia_offset; report.json's `fit_before`) against the same model with the inertia "
+                 f"fitted (`fit_inertia_fitted`): delta BIC {cmp['delta_bic']:.1f}; principal moments "
                  f"{np.round(cmp['percent_change'], 2).tolist()} % from the nominal's "
                  f"(ascending), matched axes turned by {np.round(cmp['axis_rotation_deg'], 2).tolist()} deg.")
     if _scale_loose(report):

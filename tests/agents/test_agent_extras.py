@@ -31,7 +31,7 @@ def test_an_agent_without_its_extra_names_the_extra_in_one_line(monkeypatch, age
         make_agent(agent, seed=0, budget=4)
     message = str(caught.value)
     assert f"the {agent} agent needs {package}" in message
-    assert f"pip install 'inertia-gym[{extra}]'" in message
+    assert f"pip install -e '.[{extra}]'" in message and "torch==2.13.0" in message
     assert "\n" not in message
 
 
@@ -47,6 +47,6 @@ def test_optimize_without_the_optimize_extra_stops_before_its_first_episode(monk
     _uninstalled(monkeypatch, "botorch")
     built = []
     monkeypatch.setattr(optimization, "make_env", lambda *a, **k: built.append(a))
-    with pytest.raises(ConfigError, match=r"pip install 'inertia-gym\[optimize\]'"):
+    with pytest.raises(ConfigError, match=r"pip install -e '\.\[optimize\]'"):
         optimization.optimize("random", Scenario(), budget=3, seed=0)
     assert not built  # no env was built: the run had not started

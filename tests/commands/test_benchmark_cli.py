@@ -197,4 +197,4 @@ def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, capsys, mo
     extra, not a traceback."""
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as where it is not installed
     assert main(["benchmark", *SMALL, "--out", str(tmp_path / "o"), "--backend", "ray"]) == 2
-    assert "pip install 'inertia-gym[ray]'" in capsys.readouterr().err
+    assert "pip install -e '.[ray]'" in capsys.readouterr().err
