@@ -61,7 +61,7 @@ def _held_out_sum(fit: Fit, d: Data, fold: np.ndarray, k: int, tested: str | Non
         if name != tested:
             free[part] = False
     x0 = _profile_from_rows_kept(fit, d, held, tested)
-    x, _ = solve(np.clip(x0, lb, ub), free, fit.layout, train, lb, ub, FULL_ITER)
+    x = solve(np.clip(x0, lb, ub), free, fit.layout, train, lb, ub, FULL_ITER).x
     z = whitened(np.asarray(x, float)[None], fit.layout, d)[0]
     return float(np.sum(z[held] ** 2)) if np.all(np.isfinite(z[held])) else np.inf
 

@@ -10,6 +10,7 @@ shared with helper processes (fanned).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -78,8 +79,10 @@ def _solver_problem(free, layout: Layout, d: Data, lb, ub) -> solver.Problem:
                           project=lambda x: layout.feasible(x, d), face=layout.face, bounds=(lb, ub))
 
 
-def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: float | None = None):
-    """The core solver (estimation/solver.py) over the free entries of x. Returns (x, cost).
+def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int,
+          decrement: float | None = None) -> solver.Result:
+    """The core solver (estimation/solver.py) over the free entries of x: its Result (x, cost, and
+    left, the gain the Gauss-Newton step predicts from x, in BIC units before the rows' share).
 
     Stops when a step gains less than CONVERGED in BIC units (the cost's gain over the mean
     square per residual: N log(mse) moves by that much), or after max_iter iterations. With
@@ -92,7 +95,7 @@ def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int, decrement: f
 
 
 def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
-               decrement: float | None = None) -> list[tuple[np.ndarray, float]]:
+               decrement: float | None = None) -> list[solver.Result]:
     """[solve(x0, ...) for x0 in x0s], the solves run side by side: the points each asks for
     next (its Jacobian's, or its steps') integrated in one batch with the others'. Each
     trajectory is integrated alone, so each solve's (x, cost) is the one it gives by itself;
@@ -138,7 +141,7 @@ def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
             try:
                 asked[i] = gens[i].send(answer)
             except StopIteration as done:
-                out[i] = (done.value.x, done.value.cost)
+                out[i] = done.value
                 del asked[i]
         known = fresh
     return out
@@ -171,20 +174,19 @@ def fit_nominal(d: Data) -> Fit:
     free = _free(layout, d)
     starts = [np.concatenate([phi, initial_rates(d)]) for phi in _inertia_starts(d)]
     if d.inertia0 is not None:
-        x, _ = solve(starts[0], free, layout, d, lb, ub, FULL_ITER)
-        return polished([finish(layout, x, d)], d)[0]
+        return polished([finished(layout, solve(starts[0], free, layout, d, lb, ub, FULL_ITER), d)], d)[0]
     if d.segments < SHORT_SEGMENTS:  # the runs are independent: side by side (fanned)
         runs = fanned(_rigid_run, d, [{"layout": layout, "starts": starts}]
                       + [{"layout": layout, "x0": x0} for x0 in starts]
                       + [{"layout": layout, "x0": starts[0], "continued": True}])
-        chosen, *direct = [finish(layout, x, d) for x, _ in runs]
+        chosen, *direct = [finished(layout, run, d) for run in runs]
         chosen, best = polished([chosen, min(direct, key=lambda f: f.bic)], d)
         return best if best.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
     runs = fanned(_rigid_run, d, [{"layout": layout, "x0": x0, "max_iter": START_ITER} for x0 in starts]
                   + [{"layout": layout, "x0": starts[0], "continued": True}])
-    x = min(runs[:-1], key=lambda f: f[1])[0]  # the first of least cost
-    x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
-    chosen, continued = polished([finish(layout, x, d), finish(layout, runs[-1][0], d)], d)
+    x = min(runs[:-1], key=lambda run: run.cost).x  # the first of least cost
+    chosen, continued = polished([finished(layout, solve(x, free, layout, d, lb, ub, FULL_ITER), d),
+                                  finished(layout, runs[-1], d)], d)
     return continued if continued.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
 
 
@@ -195,20 +197,27 @@ def polished(fits: list[Fit], d: Data) -> list[Fit]:
     near = [i for i, f in enumerate(fits) if np.sqrt(np.mean(f.z ** 2)) <= POLISH_MAX_RMS]
     runs = fanned(_polish_run, d, [{"layout": fits[i].layout, "x0": fits[i].x} for i in near])
     out = list(fits)
-    for i, x in zip(near, runs):
-        out[i] = finish(fits[i].layout, x, d, fits[i].k)
+    for i, run in zip(near, runs):
+        out[i] = finished(fits[i].layout, run, d, fits[i].k)
     return out
 
 
-def _polish_run(layout: Layout, d: Data, x0) -> np.ndarray:
-    """The x of the model solved from x0 on to the valley's floor (POLISH_ITER, POLISH_DECREMENT)."""
+def _polish_run(layout: Layout, d: Data, x0) -> solver.Result:
+    """The model solved from x0 on to the valley's floor (POLISH_ITER, POLISH_DECREMENT)."""
     lb, ub = _bounds(layout, d)
-    return solve(x0, _free(layout, d), layout, d, lb, ub, POLISH_ITER, POLISH_DECREMENT)[0]
+    return solve(x0, _free(layout, d), layout, d, lb, ub, POLISH_ITER, POLISH_DECREMENT)
+
+
+def finished(layout: Layout, run: solver.Result, d: Data, k: int | None = None) -> Fit:
+    """The Fit of a solve's x (finish), with the BIC its solve left above the floor (run.left,
+    counted with the rows' independent share as the BIC is).
+    """
+    return dataclasses.replace(finish(layout, run.x, d, k), left=d.effective_share * run.left)
 
 
 def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER,
-               continued: bool = False):
-    """(x, cost) of the rigid model solved for max_iter iterations from x0, or from the start
+               continued: bool = False) -> solver.Result:
+    """The rigid model solved for max_iter iterations from x0, or from the start
     that _best_start_on_short_segments chooses among `starts`; continued: from x0's globals
     carried over ever longer pieces of d first (_continued_start).
     """
@@ -241,7 +250,7 @@ def _continued_start(x0, layout: Layout, d: Data) -> np.ndarray:
         lay = dataclasses.replace(layout, segments=piece.segments)
         lo, hi = _bounds(lay, piece)
         x = solve(np.clip(np.r_[glob, rates(piece)], lo, hi), _free(lay, piece), lay, piece, lo, hi,
-                  POLISH_ITER, POLISH_DECREMENT)[0]
+                  POLISH_ITER, POLISH_DECREMENT).x
         glob = x[:lay.n_global]
         fitted = dict(zip(piece.seg[:-1].tolist(), x[lay.n_global:].reshape(-1, 3)))
     return np.r_[glob, rates(d)]
@@ -319,10 +328,11 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, 
            tuple(np.asarray(x0, float).tobytes() for x0 in extra_starts))
     if key not in d.cache:
         fit = _fit_model(names, forms, d, base, joint, start, extra_starts, omega_max)
-        d.cache[key] = (fit.layout, fit.x, fit.k)  # not its residuals: a long record has many fits
+        # not its residuals: a long record has many fits
+        d.cache[key] = (fit.layout, fit.x, fit.k, fit.left / max(d.effective_share, 1e-300))
         return fit
-    layout, x, k = d.cache[key]
-    return finish(layout, x, d, k)
+    layout, x, k, left = d.cache[key]
+    return dataclasses.replace(finish(layout, x, d, k), left=d.effective_share * left)
 
 
 def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_starts,
@@ -348,18 +358,18 @@ def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_start
         return finish(layout, probe.x(np.zeros(layout.sizes[-1])), d, k)
     first = SCREEN_ITER if not joint else (START_ITER if len(starts) > 1 else FULL_ITER)
     if joint and len(starts) > 1 and d.segments < SHORT_SEGMENTS:
-        x = _best_start_on_short_segments(starts, layout, d, lb, ub)
+        run = solver.Result(_best_start_on_short_segments(starts, layout, d, lb, ub), math.inf, 0, False)
     else:  # the first of least cost
-        x = min(solve_many([np.clip(x0, lb, ub) for x0 in starts], free, layout, d, lb, ub, first),
-                key=lambda run: run[1])[0]
+        run = min(solve_many([np.clip(x0, lb, ub) for x0 in starts], free, layout, d, lb, ub, first),
+                  key=lambda run: run.cost)
     if joint and first != FULL_ITER:
-        x, _ = solve(x, free, layout, d, lb, ub, FULL_ITER)
+        run = solve(run.x, free, layout, d, lb, ub, FULL_ITER)
     if joint:  # a start chosen elsewhere can lead astray: never worse than the effect at neutral
         neutral = probe.x(new.neutral(form, d, base))
-        cost = probe.costs([x, neutral])
+        cost = probe.costs([run.x, neutral])
         if cost[1] < cost[0]:
-            x = solve(neutral, free, layout, d, lb, ub, FULL_ITER)[0]
-    return finish(layout, x, d, k)
+            run = solve(neutral, free, layout, d, lb, ub, FULL_ITER)
+    return finished(layout, run, d, k)
 
 
 def _best_start_on_short_segments(starts, layout: Layout, d: Data, lb, ub) -> np.ndarray:
@@ -377,7 +387,7 @@ def _best_start_on_short_segments(starts, layout: Layout, d: Data, lb, ub) -> np
     rates = initial_rates(short)
     runs = solve_many([np.clip(np.r_[x0[:layout.n_global], rates], lo, hi) for x0 in starts], free, lay,
                       short, lo, hi, START_ITER)
-    x, _ = solve(min(runs, key=lambda run: run[1])[0], free, lay, short, lo, hi, FULL_ITER)  # the first
+    x = solve(min(runs, key=lambda run: run.cost).x, free, lay, short, lo, hi, FULL_ITER).x  # the first
     # of least cost
     first_rates = x[lay.n_global:lay.n_global + 3] if d.seg[0] == short.seg[0] else initial_rates(d)[:3]
     rates_back = np.r_[first_rates, initial_rates(d)[3:]]

@@ -87,14 +87,18 @@ class Problem:
 
 @dataclasses.dataclass(frozen=True)
 class Result:
-    """A solve's end: x, cost = |r|^2 at x (twice the least-squares objective), iterations, and
-    converged (a convergence test met, not the iteration limit).
+    """A solve's end: x, cost = |r|^2 at x (twice the least-squares objective), iterations,
+    converged (a convergence test met, not the iteration limit), and left: the gain in cost the
+    undamped Gauss-Newton step predicts from x (the lesser of it and the step's kept on a limit's
+    face), over the mean square cost / N, the units of an information criterion: how far above
+    its floor the solve stopped (inf where the cost is not finite).
     """
 
     x: np.ndarray
     cost: float
     iterations: int
     converged: bool
+    left: float = math.inf
 
 
 def _segment_rows(seg_of: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:
@@ -321,22 +325,12 @@ def levenberg_marquardt(prob: Problem, x0, max_iter: int, tol: float = 0.0, rel_
     cost = float(lin.r @ lin.r)
     if not math.isfinite(cost):
         return Result(x, cost, 0, False)
+    n_res = lin.r.size
     lam, restarted, converged, iterations = LM_START, False, False, 0
     for iterations in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
-        g = lin.g[:, gi] if lin.g.shape[1] == prob.n_global != gi.size else lin.g
-        g = np.where(np.isfinite(g), g, 0.0)  # a column that breaks the model moves nothing
-        js = None if lin.js is None else np.where(np.isfinite(lin.js), lin.js, 0.0)
-        lin = dataclasses.replace(lin, g=g, js=js)
-        blocks = NormalBlocks.of(lin, prob.segments, prob.locals_free)
-        face = None if prob.face is None else face_basis(prob.face(x)[:, gi])
-        # the step kept on a limit's face: the same least squares over the face's directions
-        on_face = None if face is None else (face, NormalBlocks.of(dataclasses.replace(lin, g=g @ face),
-                                                                   prob.segments, prob.locals_free))
-        n_res = lin.r.size
+        lin, blocks, on_face = _normal_blocks(prob, lin, x, gi)
         if decrement is not None:
-            left = blocks.decrement()
-            if on_face is not None:
-                left = min(left, on_face[1].decrement())
+            left = _predicted_gain(blocks, on_face)
             if left <= decrement * cost / n_res:
                 converged = True
                 break
@@ -378,7 +372,35 @@ def levenberg_marquardt(prob: Problem, x0, max_iter: int, tol: float = 0.0, rel_
             converged = True
             break
         lam, restarted = LM_START, True
-    return Result(x, cost, iterations, converged)
+    # lin is x's linearization on every way out of the loop (an accepted step relinearizes)
+    left = _predicted_gain(*_normal_blocks(prob, lin, x, gi)[1:])
+    return Result(x, cost, iterations, converged, left / (cost / n_res) if cost > 0 else 0.0)
+
+
+def _normal_blocks(prob: Problem, lin: Linearization, x,
+                   gi) -> tuple[Linearization, NormalBlocks, tuple | None]:
+    """(lin with its free columns kept and non-finite entries zeroed, its normal blocks, and
+    where x sits on a limit's face (face basis, the blocks of the columns projected on it), else
+    None).
+    """
+    g = lin.g[:, gi] if lin.g.shape[1] == prob.n_global != gi.size else lin.g
+    g = np.where(np.isfinite(g), g, 0.0)  # a column that breaks the model moves nothing
+    js = None if lin.js is None else np.where(np.isfinite(lin.js), lin.js, 0.0)
+    lin = dataclasses.replace(lin, g=g, js=js)
+    blocks = NormalBlocks.of(lin, prob.segments, prob.locals_free)
+    face = None if prob.face is None else face_basis(prob.face(x)[:, gi])
+    # the step kept on a limit's face: the same least squares over the face's directions
+    on_face = None if face is None else (face, NormalBlocks.of(dataclasses.replace(lin, g=g @ face),
+                                                               prob.segments, prob.locals_free))
+    return lin, blocks, on_face
+
+
+def _predicted_gain(blocks: NormalBlocks, on_face) -> float:
+    """The cost the undamped Gauss-Newton step predicts to gain; at a limit, the lesser of it and
+    the step's kept on the limit's face.
+    """
+    left = blocks.decrement()
+    return left if on_face is None else min(left, on_face[1].decrement())
 
 
 def _put_back(prob: Problem, x) -> np.ndarray:

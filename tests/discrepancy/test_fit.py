@@ -455,7 +455,7 @@ def test_the_rigid_fit_of_a_real_toss_keeps_the_best_basin_any_start_reaches(rac
     layout = F.Layout.of((), (), d)
     lb, ub = _bounds(layout, d)
     free = _free(layout, d)
-    runs = [F.solve(np.r_[phi, F.initial_rates(d)], free, layout, d, lb, ub, F.FULL_ITER)[0]
+    runs = [F.solve(np.r_[phi, F.initial_rates(d)], free, layout, d, lb, ub, F.FULL_ITER).x
             for phi in _inertia_starts(d)]
     direct = [F.finish(layout, x, d) for x in runs]
     assert nominal.bic <= min(f.bic for f in direct) + F.SIGNIFICANT_DELTA_BIC
@@ -574,11 +574,11 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
     together = F.solve_many(starts, free, layout, d, lb, ub, F.FULL_ITER)
     for speculate in (1, 2, 3):
         monkeypatch.setattr(solver, "SPECULATE", speculate)
-        for x0, (x_batch, cost_batch) in zip(starts, together):
-            x_alone, cost_alone = F.solve(x0, free, layout, d, lb, ub, F.FULL_ITER)
-            np.testing.assert_array_equal(x_alone, x_batch)
-            assert cost_alone == cost_batch
-    assert together[0][1] < float(np.sum(F.objective(x[None], layout, d) ** 2))  # the solves moved
+        for x0, batch in zip(starts, together):
+            alone = F.solve(x0, free, layout, d, lb, ub, F.FULL_ITER)
+            np.testing.assert_array_equal(alone.x, batch.x)
+            assert (alone.cost, alone.left) == (batch.cost, batch.left)
+    assert together[0].cost < float(np.sum(F.objective(x[None], layout, d) ** 2))  # the solves moved
 
 
 @pytest.mark.parametrize("name", ["s0.02_e0.005_d1.2_seed3",  # one segment: 12x in a basin of its own
@@ -614,3 +614,23 @@ def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path)
     plain, _ = thin_body(tmp_path, "s0.01_e0.0_d1.2_seed0")
     report = diagnose(plain).report
     assert report["gyro_frame_mirrored"] is None and report["explanation"] == []
+
+
+def test_a_fit_carries_the_bic_its_solve_left_above_the_floor_also_from_the_cache():
+    """fitting.finished scores a solve's x as finish does and carries its left in BIC units (the
+    solver's, times the rows' independent share, as every BIC is counted); fit_model asked again
+    from its cache gives the same fit, left included; a polished fit stops within the polish's
+    decrement of its floor, a single iteration far above it."""
+    d, layout, x = _drag_and_bias_layout()
+    lb, ub = _bounds(layout, d)
+    free = _free(layout, d)
+    one = F.solve(x, free, layout, d, lb, ub, 1)
+    fit = fitting.finished(layout, one, d)
+    assert fit.bic == F.finish(layout, one.x, d).bic
+    assert fit.left == d.effective_share * one.left and fit.left > 10 * fitting.POLISH_DECREMENT
+    nominal = F.fit_nominal(d)
+    first = F.fit_model(("viscous_damping",), ("",), d, nominal)
+    again = F.fit_model(("viscous_damping",), ("",), d, nominal)
+    assert (again.bic, again.left) == (first.bic, first.left)
+    polished = F.polished([first], d)[0]
+    assert polished.left <= d.effective_share * fitting.POLISH_DECREMENT
