@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         importlib.import_module(f"inertia_gym.commands.{name}").add_parser(sub)
+    parser.subcommands = sub.choices  # name -> its parser, for errors in the sub-command's words
     return parser
 
 
@@ -37,7 +38,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit code: 2 for a usage or input error, 1 for an
     internal failure (one line on stderr; the traceback with INERTIA_GYM_DEBUG=1).
     """
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # a mistyped option: the sub-command's usage, which lists its options
+        parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     shown = warnings.showwarning
 
     def one_line(message, category, filename, lineno, file=None, line=None):

@@ -1,4 +1,5 @@
-"""The command's error contract: input errors exit 2, internal failures exit 1, both in one line."""
+"""The command's error contract: input errors exit 2, internal failures exit 1, both in one line;
+a mistyped option is refused in the sub-command's own usage."""
 
 import pytest
 
@@ -35,5 +36,14 @@ class _Fixed:
         args.func = _boom
         self.args = args
 
-    def parse_args(self, argv):
-        return self.args
+    def parse_known_args(self, argv):
+        return self.args, []
+
+
+def test_a_mistyped_option_is_refused_with_the_sub_commands_usage(capsys):
+    with pytest.raises(SystemExit) as stopped:
+        cli.main(["identify", "x.csv", "--ouput", "runs/x"])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: inertia-gym identify ") and "--out DIR" in err
+    assert err.rstrip().endswith("error: unrecognized arguments: --ouput runs/x")
