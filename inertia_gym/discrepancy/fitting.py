@@ -10,7 +10,6 @@ shared with helper processes (fanned).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -357,13 +356,14 @@ def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_start
     if not starts:  # no valid start (e.g. no rigid body to attach a mode to): the base, effect zero
         return finish(layout, probe.x(np.zeros(layout.sizes[-1])), d, k)
     first = SCREEN_ITER if not joint else (START_ITER if len(starts) > 1 else FULL_ITER)
-    if joint and len(starts) > 1 and d.segments < SHORT_SEGMENTS:
-        run = solver.Result(_best_start_on_short_segments(starts, layout, d, lb, ub), math.inf, 0, False)
+    if joint and len(starts) > 1 and d.segments < SHORT_SEGMENTS:  # solved on d below: first != FULL_ITER
+        x = _best_start_on_short_segments(starts, layout, d, lb, ub)
     else:  # the first of least cost
         run = min(solve_many([np.clip(x0, lb, ub) for x0 in starts], free, layout, d, lb, ub, first),
                   key=lambda run: run.cost)
+        x = run.x
     if joint and first != FULL_ITER:
-        run = solve(run.x, free, layout, d, lb, ub, FULL_ITER)
+        run = solve(x, free, layout, d, lb, ub, FULL_ITER)
     if joint:  # a start chosen elsewhere can lead astray: never worse than the effect at neutral
         neutral = probe.x(new.neutral(form, d, base))
         cost = probe.costs([run.x, neutral])
