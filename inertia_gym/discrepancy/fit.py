@@ -64,6 +64,7 @@ from inertia_gym.discrepancy.fitting import (
     fit_model,
     fit_nominal,
     polished,
+    rescored,
     solve,
     solve_many,
 )
@@ -212,6 +213,7 @@ __all__ = [
     "named_params",
     "objective",
     "polished",
+    "rescored",
     "predict",
     "predictive",
     "predictive_selection",

@@ -214,6 +214,14 @@ def finished(layout: Layout, run: solver.Result, d: Data, k: int | None = None) 
     return dataclasses.replace(finish(layout, run.x, d, k), left=d.effective_share * run.left)
 
 
+def rescored(fit: Fit, d: Data, was: Data) -> Fit:
+    """The fit scored on d (finish: the same rows recounted, or read at another noise level), the BIC
+    its solve left above the floor (fit.left, counted as `was` counts rows) recounted as d does.
+    """
+    left = fit.left * d.effective_share / max(was.effective_share, 1e-300)
+    return dataclasses.replace(finish(fit.layout, fit.x, d, fit.k), left=left)
+
+
 def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER,
                continued: bool = False) -> solver.Result:
     """The rigid model solved for max_iter iterations from x0, or from the start

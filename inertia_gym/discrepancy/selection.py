@@ -251,14 +251,6 @@ def predictive_selection(expl: Explanation, d: Data, nominal: Fit, singles: list
     return dataclasses.replace(chosen, dropped=dropped, unpredictive=left)
 
 
-def gain(base: Fit, fit: Fit) -> float:
-    """The BIC fit gains over base, less what base's solve left above its floor (base.left): a
-    fit that adds an effect also runs on the parameters base shares with it, and the part of its
-    gain that base would have made alone, run on to its floor, is no evidence for the effect.
-    """
-    return base.bic - base.left - fit.bic
-
-
 def _claims_cost(fit: Fit, d: Data) -> float:
     """A compound fit's BIC plus the margin each effect it names must clear (claim_margin)."""
     return fit.bic + sum(claim_margin(d, name) for name in fit.names)
@@ -333,9 +325,8 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     search adds the inertia offset and a mode, then drops the momentum, short of the torque).
     """
     by_name = {f.name: f for f in singles}
-    ranked = [f for f in singles if np.isfinite(f.bic) and gain(nominal, f) > claim_margin(d, f.name)]
-    rigid_left = _less_left(nominal, "the rigid fit")
-    dropped = {f.name: f"alone it improves the BIC by {nominal.bic - f.bic:.1f}{rigid_left} "
+    ranked = [f for f in singles if np.isfinite(f.bic) and nominal.bic - f.bic > claim_margin(d, f.name)]
+    dropped = {f.name: f"alone it improves the BIC by {nominal.bic - f.bic:.1f} "
                        f"<= {margin_words(d, f.name)}" if np.isfinite(f.bic) else "no valid fit"
                for f in singles if f not in ranked}
     if len(ranked) <= lead:
@@ -364,11 +355,6 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     refused = {n: r for n, r in refused.items() if n not in chosen}
     return Explanation(tuple(chain), _added(nominal, chain, chosen), {**dropped, **_refused_words(refused)},
                        refused)
-
-
-def _less_left(base: Fit, whose: str) -> str:
-    """base.left in words where it counts: ", less the 23.4 that {whose} stopped above its floor"."""
-    return f", less the {base.left:.1f} that {whose} stopped above its floor" if base.left >= 0.05 else ""
 
 
 def _refused_words(refused: dict) -> dict:
@@ -401,7 +387,7 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         refits = fanned(fit_model, d, [{"names": t.names, "forms": t.forms, "base": current, "start": t.x,
                                         "omega_max": t.layout.omega_max} for t in leading])
         best = min(refits, key=lambda f: f.bic)
-        if not gain(current, best) > claim_margin(d, best.name):
+        if not current.bic - best.bic > claim_margin(d, best.name):
             break
         # every effect of the new fit, not only the one added: two effects that trade (a bias and
         # a scale) can move an earlier one beyond what the body or its sensor plausibly has
@@ -442,11 +428,9 @@ def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: di
                                            for i, first in zip(batch, firsts)])
             for i, rest_chain in zip(batch, without):
                 name = current.names[i]
-                if gain(rest_chain[-1], current) <= claim_margin(d, name):
-                    without = _less_left(rest_chain[-1], "the fit without it")
+                if rest_chain[-1].bic - current.bic <= claim_margin(d, name):
                     dropped[name] = (f"removing it from the explanation costs only "
-                                     f"{rest_chain[-1].bic - current.bic:.1f} in BIC{without} "
-                                     "(backward check)")
+                                     f"{rest_chain[-1].bic - current.bic:.1f} in BIC (backward check)")
                     current, chain, changed = rest_chain[-1], rest_chain, True
                     removed.append(name)
                     break

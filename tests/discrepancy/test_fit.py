@@ -620,7 +620,8 @@ def test_a_fit_carries_the_bic_its_solve_left_above_the_floor_also_from_the_cach
     """fitting.finished scores a solve's x as finish does and carries its left in BIC units (the
     solver's, times the rows' independent share, as every BIC is counted); fit_model asked again
     from its cache gives the same fit, left included; a polished fit stops within the polish's
-    decrement of its floor, a single iteration far above it."""
+    decrement of its floor, a single iteration far above it; re-scored on recounted rows
+    (rescored), its left is recounted with them."""
     d, layout, x = _drag_and_bias_layout()
     lb, ub = _bounds(layout, d)
     free = _free(layout, d)
@@ -634,3 +635,8 @@ def test_a_fit_carries_the_bic_its_solve_left_above_the_floor_also_from_the_cach
     assert (again.bic, again.left) == (first.bic, first.left)
     polished = F.polished([first], d)[0]
     assert polished.left <= d.effective_share * fitting.POLISH_DECREMENT
+    # the rows recounted (a share of 0.4): the fit re-scored with its left counted as they are
+    fewer = dataclasses.replace(d, effective_share=0.4 * d.effective_share)
+    recounted = F.rescored(fit, fewer, d)
+    assert recounted.bic == F.finish(layout, one.x, fewer).bic
+    assert recounted.left == pytest.approx(0.4 * fit.left, rel=1e-12)

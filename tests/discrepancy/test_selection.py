@@ -184,18 +184,3 @@ def test_a_momentum_that_follows_a_real_toss_s_leftover_misfit_is_left_out(real_
     assert "internal_momentum" not in found.chosen.fit.names
     assert found.chosen.fit.names[0] in ("viscous_damping", "aero_drag")
     assert "internal_momentum" not in [e["name"] for e in report["explanation"]]
-
-
-def test_a_gain_counts_only_what_the_base_would_not_have_made_run_on_to_its_floor():
-    """gain against its definition (base BIC, less what base's solve left above its floor, less
-    the fit's BIC), and search claims no leader whose gain over the rigid fit lies within what
-    that fit's solve left: 25 in BIC clears the margin of 10 from a rigid fit at its floor, not
-    from one that stopped 30 above it, and the reason says so."""
-    nominal = SimpleNamespace(bic=1000.0, left=30.0)
-    single = SimpleNamespace(name=CATALOGUE[0], bic=975.0, left=2.0)
-    assert selection.gain(nominal, single) == pytest.approx(1000.0 - 30.0 - 975.0)
-    d = SimpleNamespace(effective_share=1.0, rounding_floor={})
-    expl = search(d, nominal, [single])
-    assert expl.chain == ()
-    assert "improves the BIC by 25.0, less the 30.0 that the rigid fit stopped above its floor" \
-        in expl.dropped[single.name]
