@@ -29,5 +29,6 @@ def install_hint(extra: str) -> str:
     """How to install the optional extra `extra` from the repository's folder; torch pinned first
     for the extras that need it (an unpinned torch pulls a several-GB CUDA build).
     """
-    torch = "pip install torch==2.13.0 (a CPU build), then " if extra in ("optimize", "rl") else ""
+    torch = ("pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu (a CPU build), then "
+             if extra in ("optimize", "rl") else "")
     return f"{torch}pip install -e '.[{extra}]' in the repository's folder"

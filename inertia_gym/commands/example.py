@@ -14,7 +14,8 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser("example", help="copy a shipped example recording into a folder",
                               description=__doc__)
     p.add_argument("name", choices=examples.names(), help="which example")
-    p.add_argument("--out", default="examples", help="folder to copy it into (default: examples)")
+    p.add_argument("--out", default="examples", metavar="DIR",
+                   help="folder to copy it into (default: examples)")
     p.set_defaults(func=run)
 
 
