@@ -51,8 +51,10 @@ if __name__ == "__main__":
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -232,10 +234,21 @@ def rotor(args) -> None:
 FLAT_SHAPES = [((0.2, 0.8), 0.02), ((0.2, 0.8), 0.05), ((0.45, 0.55), 0.01), ((0.1, 0.9), 0.03)]
 FLAT_RATES = (5.0, 15.0, 30.0)
 FLAT_NOISE = (1e-3, 5e-3)
-def family_cases():
-    """(label, record maker(seed), scorer, the bound's pass probability(seed) or None): the records
-    and scores the tests hold identify to.
+@dataclasses.dataclass(frozen=True)
+class FamilyCase:
+    """One case of the families: its label, make(seed) -> (record, true inertia), score(result,
+    inertia) -> (passes, covered), and bound(seed) -> an efficient estimator's chance to pass that
+    seed (None where no bound is worked out).
     """
+
+    label: str
+    make: Callable
+    score: Callable
+    bound: Callable | None
+
+
+def family_cases():
+    """The FamilyCases: the records and scores the tests hold identify to."""
     from records import (  # tests/records.py
         efficient_pass_probability,
         flat_ratio_bound,
@@ -250,9 +263,9 @@ def family_cases():
             for sigma in FLAT_NOISE:
                 label = f"flat {shape[0]}:{shape[1]} delta {delta} {rate:g} rad/s noise {sigma:g}"
                 args = (shape, delta, rate, sigma)
-                yield (label, (lambda s, a=args: flat_record(*a, s)), score_ratios,
-                       lambda s, a=args: efficient_pass_probability(flat_ratio_bound(*a, s)))
-    yield "satellite, five torque pulses", satellite_record, score_entries, None
+                yield FamilyCase(label, lambda s, a=args: flat_record(*a, s), score_ratios,
+                                 lambda s, a=args: efficient_pass_probability(flat_ratio_bound(*a, s)))
+    yield FamilyCase("satellite, five torque pulses", satellite_record, score_entries, None)
 
 
 def families(args) -> None:
@@ -261,14 +274,15 @@ def families(args) -> None:
     print("| case | within 3 sigma and 0.5 % | an efficient estimator's expected passes | "
           "95 % intervals cover | reported by | wall s |")
     print("|---|---|---|---|---|---|")
-    for label, make, scorer, bound in family_cases():
+    for case in family_cases():
+        label, bound = case.label, case.bound
         good, covered, estimators, wall = 0, [], {}, 0.0
         for seed in range(args.seeds):
-            rec, inertia = make(seed)
+            rec, inertia = case.make(seed)
             t0 = time.perf_counter()
             result = identify(rec)
             wall += time.perf_counter() - t0
-            ok, cov = scorer(result, inertia)
+            ok, cov = case.score(result, inertia)
             good += ok
             covered.extend(cov.tolist())
             estimators[result.estimator] = estimators.get(result.estimator, 0) + 1
