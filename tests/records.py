@@ -198,11 +198,15 @@ def flat_record(shape, delta: float, rate: float, sigma: float,
     return Recording(FLAT_TIMES, w, meta={"gyro_sigma": sigma}, name=f"flat-{seed}"), inertia
 
 
+def _matrix(theta) -> np.ndarray:
+    """The inertia (3, 3) of theta (6,) = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz)."""
+    return np.array([[theta[0], theta[1], theta[2]], [theta[1], theta[3], theta[4]],
+                     [theta[2], theta[4], theta[5]]])
+
+
 def _principal_ratios(theta) -> np.ndarray:
-    """(I2/I1, I3/I1) of theta (6,) = (Jxx, Jxy, Jxz, Jyy, Jyz, Jzz), I1 the largest moment."""
-    j = np.array([[theta[0], theta[1], theta[2]], [theta[1], theta[3], theta[4]],
-                  [theta[2], theta[4], theta[5]]])
-    moments = np.sort(np.linalg.eigvalsh(j))[::-1]
+    """(I2/I1, I3/I1) of theta (6,), I1 the largest moment."""
+    moments = np.sort(np.linalg.eigvalsh(_matrix(theta)))[::-1]
     return moments[1:] / moments[0]
 
 
@@ -219,9 +223,7 @@ def flat_ratio_bound(shape, delta: float, rate: float, sigma: float, seed: int) 
     steps = np.r_[np.full(5, 1e-4 * np.abs(theta).max()), np.full(3, 1e-4 * np.linalg.norm(w0))]
 
     def rates(p):
-        d = theta + basis @ p[:5]
-        j = np.array([[d[0], d[1], d[2]], [d[1], d[3], d[4]], [d[2], d[4], d[5]]])
-        return _flat_rates(j, w0 + p[5:]).ravel()
+        return _flat_rates(_matrix(theta + basis @ p[:5]), w0 + p[5:]).ravel()
 
     unit = np.eye(8) * steps
     g = np.column_stack([(rates(e) - rates(-e)) / (2 * s) for e, s in zip(unit, steps)])

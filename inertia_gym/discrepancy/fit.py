@@ -64,7 +64,6 @@ from inertia_gym.discrepancy.fitting import (
     fit_model,
     fit_nominal,
     polished,
-    rescored,
     solve,
     solve_many,
 )
@@ -213,7 +212,6 @@ __all__ = [
     "named_params",
     "objective",
     "polished",
-    "rescored",
     "predict",
     "predictive",
     "predictive_selection",

@@ -80,8 +80,8 @@ def _solver_problem(free, layout: Layout, d: Data, lb, ub) -> solver.Problem:
 
 def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int,
           decrement: float | None = None) -> solver.Result:
-    """The core solver (estimation/solver.py) over the free entries of x: its Result (x, cost, and
-    left, the gain the Gauss-Newton step predicts from x, in BIC units before the rows' share).
+    """The core solver (estimation/solver.py) over the free entries of x: its Result (x, cost,
+    iterations, converged).
 
     Stops when a step gains less than CONVERGED in BIC units (the cost's gain over the mean
     square per residual: N log(mse) moves by that much), or after max_iter iterations. With
@@ -173,19 +173,19 @@ def fit_nominal(d: Data) -> Fit:
     free = _free(layout, d)
     starts = [np.concatenate([phi, initial_rates(d)]) for phi in _inertia_starts(d)]
     if d.inertia0 is not None:
-        return polished([finished(layout, solve(starts[0], free, layout, d, lb, ub, FULL_ITER), d)], d)[0]
+        return polished([finish(layout, solve(starts[0], free, layout, d, lb, ub, FULL_ITER).x, d)], d)[0]
     if d.segments < SHORT_SEGMENTS:  # the runs are independent: side by side (fanned)
         runs = fanned(_rigid_run, d, [{"layout": layout, "starts": starts}]
                       + [{"layout": layout, "x0": x0} for x0 in starts]
                       + [{"layout": layout, "x0": starts[0], "continued": True}])
-        chosen, *direct = [finished(layout, run, d) for run in runs]
+        chosen, *direct = [finish(layout, run.x, d) for run in runs]
         chosen, best = polished([chosen, min(direct, key=lambda f: f.bic)], d)
         return best if best.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
     runs = fanned(_rigid_run, d, [{"layout": layout, "x0": x0, "max_iter": START_ITER} for x0 in starts]
                   + [{"layout": layout, "x0": starts[0], "continued": True}])
     x = min(runs[:-1], key=lambda run: run.cost).x  # the first of least cost
-    chosen, continued = polished([finished(layout, solve(x, free, layout, d, lb, ub, FULL_ITER), d),
-                                  finished(layout, runs[-1], d)], d)
+    chosen, continued = polished([finish(layout, solve(x, free, layout, d, lb, ub, FULL_ITER).x, d),
+                                  finish(layout, runs[-1].x, d)], d)
     return continued if continued.bic < chosen.bic - SIGNIFICANT_DELTA_BIC else chosen
 
 
@@ -197,7 +197,7 @@ def polished(fits: list[Fit], d: Data) -> list[Fit]:
     runs = fanned(_polish_run, d, [{"layout": fits[i].layout, "x0": fits[i].x} for i in near])
     out = list(fits)
     for i, run in zip(near, runs):
-        out[i] = finished(fits[i].layout, run, d, fits[i].k)
+        out[i] = finish(fits[i].layout, run.x, d, fits[i].k)
     return out
 
 
@@ -205,21 +205,6 @@ def _polish_run(layout: Layout, d: Data, x0) -> solver.Result:
     """The model solved from x0 on to the valley's floor (POLISH_ITER, POLISH_DECREMENT)."""
     lb, ub = _bounds(layout, d)
     return solve(x0, _free(layout, d), layout, d, lb, ub, POLISH_ITER, POLISH_DECREMENT)
-
-
-def finished(layout: Layout, run: solver.Result, d: Data, k: int | None = None) -> Fit:
-    """The Fit of a solve's x (finish), with the BIC its solve left above the floor (run.left,
-    counted with the rows' independent share as the BIC is).
-    """
-    return dataclasses.replace(finish(layout, run.x, d, k), left=d.effective_share * run.left)
-
-
-def rescored(fit: Fit, d: Data, was: Data) -> Fit:
-    """The fit scored on d (finish: the same rows recounted, or read at another noise level), the BIC
-    its solve left above the floor (fit.left, counted as `was` counts rows) recounted as d does.
-    """
-    left = fit.left * d.effective_share / max(was.effective_share, 1e-300)
-    return dataclasses.replace(finish(fit.layout, fit.x, d, fit.k), left=left)
 
 
 def _rigid_run(layout: Layout, d: Data, x0=None, starts=None, max_iter: int = FULL_ITER,
@@ -335,11 +320,10 @@ def fit_model(names, forms, d: Data, base: Fit, joint: bool = True, start=None, 
            tuple(np.asarray(x0, float).tobytes() for x0 in extra_starts))
     if key not in d.cache:
         fit = _fit_model(names, forms, d, base, joint, start, extra_starts, omega_max)
-        # not its residuals: a long record has many fits
-        d.cache[key] = (fit.layout, fit.x, fit.k, fit.left / max(d.effective_share, 1e-300))
+        d.cache[key] = (fit.layout, fit.x, fit.k)  # not its residuals: a long record has many fits
         return fit
-    layout, x, k, left = d.cache[key]
-    return dataclasses.replace(finish(layout, x, d, k), left=d.effective_share * left)
+    layout, x, k = d.cache[key]
+    return finish(layout, x, d, k)
 
 
 def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_starts,
@@ -377,7 +361,7 @@ def _fit_model(names, forms, d: Data, base: Fit, joint: bool, start, extra_start
         cost = probe.costs([run.x, neutral])
         if cost[1] < cost[0]:
             run = solve(neutral, free, layout, d, lb, ub, FULL_ITER)
-    return finished(layout, run, d, k)
+    return finish(layout, run.x, d, k)
 
 
 def _best_start_on_short_segments(starts, layout: Layout, d: Data, lb, ub) -> np.ndarray:

@@ -13,8 +13,8 @@ import dataclasses
 import numpy as np
 
 from inertia_gym.discrepancy.data import Data
-from inertia_gym.discrepancy.fitting import FULL_ITER, finished, solve
-from inertia_gym.discrepancy.objective import Fit, Layout, _bounds, _free, predict
+from inertia_gym.discrepancy.fitting import FULL_ITER, solve
+from inertia_gym.discrepancy.objective import Fit, Layout, _bounds, _free, finish, predict
 from inertia_gym.sensors import lattice_replays, read_on_lattice
 
 #: An axis read on a lattice (sensors.quantisation_step) whose kept samples repeat in runs of this
@@ -141,4 +141,4 @@ def _lattice_refits(fit: Fit, d: Data, idx) -> tuple[np.ndarray, int]:
 def _refit(layout: Layout, x0, d: Data) -> Fit:
     """The model `layout` solved on d from x0 to convergence."""
     lb, ub = _bounds(layout, d)
-    return finished(layout, solve(np.clip(x0, lb, ub), _free(layout, d), layout, d, lb, ub, FULL_ITER), d)
+    return finish(layout, solve(np.clip(x0, lb, ub), _free(layout, d), layout, d, lb, ub, FULL_ITER).x, d)

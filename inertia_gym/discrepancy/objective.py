@@ -316,8 +316,7 @@ def _jacobian_columns(x, free, layout: Layout, d: Data, r0, rs, central: bool):
 class Fit:
     """One fitted model: its layout, x, the whitened residual rows z (n_rows, 3), the rate
     residual rows r (n_rows, 3) rad/s, bic, k (free global parameters), inertia (3, 3) kg·m²,
-    each effect's named parameters, and left: the BIC its solve stopped above the model's floor,
-    as the Gauss-Newton step at x predicts it (0 for an x not solved for).
+    and each effect's named parameters.
     """
 
     layout: Layout
@@ -328,7 +327,6 @@ class Fit:
     k: int
     inertia: np.ndarray
     effect_params: dict  # effect name -> its named parameters, in the order the effects were added
-    left: float = 0.0
 
     @property
     def names(self) -> tuple[str, ...]:

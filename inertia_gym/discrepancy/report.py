@@ -42,6 +42,7 @@ from inertia_gym.discrepancy.fit import (
     Fit,
     claim_margin,
     effective_share,
+    finish,
     fit_all,
     fit_nominal,
     impulses,
@@ -52,7 +53,6 @@ from inertia_gym.discrepancy.fit import (
     predictive_selection,
     prepare,
     ranked,
-    rescored,
     rounding_checked,
     rounding_floors,
     rounding_runs,
@@ -156,7 +156,7 @@ def _fitted_nominal(d: Data) -> tuple[Data, Fit]:
     """
     nominal = fit_nominal(d)
     level = lattice_level(d, nominal)
-    return (d, nominal) if level is d else (level, rescored(nominal, level, d))
+    return (d, nominal) if level is d else (level, finish(nominal.layout, nominal.x, level, nominal.k))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,9 +213,9 @@ def _fits(prep: Prepared) -> _Fits:
     # recounted with the rows that are independent, and the selection made again on them
     share = effective_share(d, chosen.fit or nominal)
     if share < RECOUNT_BELOW:
-        d, was = dataclasses.replace(d, effective_share=share), d
-        nominal = rescored(nominal, d, was)
-        fits = ranked([rescored(f, d, was) for f in fits])
+        d = dataclasses.replace(d, effective_share=share)
+        nominal = finish(nominal.layout, nominal.x, d, nominal.k)
+        fits = ranked([finish(f.layout, f.x, d, f.k) for f in fits])
         chosen = select(d, nominal, fits)
     chosen = predictive_selection(chosen, d, nominal, fits)  # what it adds after its leader must predict
     if floors and chosen.fit is not None:  # each effect it claims against the rounding, over more draws

@@ -87,18 +87,14 @@ class Problem:
 
 @dataclasses.dataclass(frozen=True)
 class Result:
-    """A solve's end: x, cost = |r|^2 at x (twice the least-squares objective), iterations,
-    converged (a convergence test met, not the iteration limit), and left: the gain in cost the
-    undamped Gauss-Newton step predicts from x (the lesser of it and the step's kept on a limit's
-    face), over the mean square cost / N, the units of an information criterion: how far above
-    its floor the solve stopped (inf where the cost is not finite).
+    """A solve's end: x, cost = |r|^2 at x (twice the least-squares objective), iterations, and
+    converged (a convergence test met, not the iteration limit).
     """
 
     x: np.ndarray
     cost: float
     iterations: int
     converged: bool
-    left: float = math.inf
 
 
 def _segment_rows(seg_of: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:
@@ -372,9 +368,7 @@ def levenberg_marquardt(prob: Problem, x0, max_iter: int, tol: float = 0.0, rel_
             converged = True
             break
         lam, restarted = LM_START, True
-    # lin is x's linearization on every way out of the loop (an accepted step relinearizes)
-    left = _predicted_gain(*_normal_blocks(prob, lin, x, gi)[1:])
-    return Result(x, cost, iterations, converged, left / (cost / n_res) if cost > 0 else 0.0)
+    return Result(x, cost, iterations, converged)
 
 
 def _normal_blocks(prob: Problem, lin: Linearization, x,

@@ -577,7 +577,7 @@ def test_solves_side_by_side_give_what_each_gives_alone(monkeypatch):
         for x0, batch in zip(starts, together):
             alone = F.solve(x0, free, layout, d, lb, ub, F.FULL_ITER)
             np.testing.assert_array_equal(alone.x, batch.x)
-            assert (alone.cost, alone.left) == (batch.cost, batch.left)
+            assert alone.cost == batch.cost
     assert together[0].cost < float(np.sum(F.objective(x[None], layout, d) ** 2))  # the solves moved
 
 
@@ -615,28 +615,3 @@ def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path)
     report = diagnose(plain).report
     assert report["gyro_frame_mirrored"] is None and report["explanation"] == []
 
-
-def test_a_fit_carries_the_bic_its_solve_left_above_the_floor_also_from_the_cache():
-    """fitting.finished scores a solve's x as finish does and carries its left in BIC units (the
-    solver's, times the rows' independent share, as every BIC is counted); fit_model asked again
-    from its cache gives the same fit, left included; a polished fit stops within the polish's
-    decrement of its floor, a single iteration far above it; re-scored on recounted rows
-    (rescored), its left is recounted with them."""
-    d, layout, x = _drag_and_bias_layout()
-    lb, ub = _bounds(layout, d)
-    free = _free(layout, d)
-    one = F.solve(x, free, layout, d, lb, ub, 1)
-    fit = fitting.finished(layout, one, d)
-    assert fit.bic == F.finish(layout, one.x, d).bic
-    assert fit.left == d.effective_share * one.left and fit.left > 10 * fitting.POLISH_DECREMENT
-    nominal = F.fit_nominal(d)
-    first = F.fit_model(("viscous_damping",), ("",), d, nominal)
-    again = F.fit_model(("viscous_damping",), ("",), d, nominal)
-    assert (again.bic, again.left) == (first.bic, first.left)
-    polished = F.polished([first], d)[0]
-    assert polished.left <= d.effective_share * fitting.POLISH_DECREMENT
-    # the rows recounted (a share of 0.4): the fit re-scored with its left counted as they are
-    fewer = dataclasses.replace(d, effective_share=0.4 * d.effective_share)
-    recounted = F.rescored(fit, fewer, d)
-    assert recounted.bic == F.finish(layout, one.x, fewer).bic
-    assert recounted.left == pytest.approx(0.4 * fit.left, rel=1e-12)
