@@ -22,12 +22,14 @@ signed-rank test of the differences). Prints markdown tables; with --out writes
 DIR/rotor_throws.json. The data live outside the repository (no licence to copy them in):
 without the folder the script prints one line and exits 0.
 
-families: Two families, each case over --seeds noise seeds:
+families: Three families, each case over --seeds noise seeds:
 
 * near-flat bodies tossed without torque, 1 s at 100 Hz: phone-like plates whose largest moment
   is 1-5 % short of the sum of the other two, in several aspect ratios, spun at 5-30 rad/s about
   a random direction, their axes turned at random, gyro noise 1e-3 or 5e-3 rad/s; the scale is
   not seen, so the principal ratios I2/I1, I3/I1 are scored;
+* near-symmetric bodies tossed the same way (oblate, prolate, near-spherical; two moments 0.2 or
+  2 % apart), spun at 5 or 15 rad/s, gyro noise 1e-3 rad/s; their principal ratios scored;
 * a small satellite with five 2-s torque pulses (logged), 60 s at 10 Hz, gyro noise 1e-4 rad/s:
   the inertia's six entries are scored.
 
@@ -274,6 +276,14 @@ def rotor(args) -> None:
 FLAT_SHAPES = [((0.2, 0.8), 0.02), ((0.2, 0.8), 0.05), ((0.45, 0.55), 0.01), ((0.1, 0.9), 0.03)]
 FLAT_RATES = (5.0, 15.0, 30.0)
 FLAT_NOISE = (1e-3, 5e-3)
+#: Near-symmetric bodies: (name, principal moments relative to the phone's scale), two moments
+#: 0.2 % or 2 % apart: oblate (a disc, the equal pair the least), prolate (a rod, the equal pair
+#: the largest) and a body near a sphere.
+SYMMETRIC_SHAPES = [("oblate", (1.0, 1.002, 1.8)), ("oblate", (1.0, 1.02, 1.8)),
+                    ("prolate", (0.3, 1.0, 1.002)), ("prolate", (0.3, 1.0, 1.02)),
+                    ("near-spherical", (1.0, 1.01, 1.02))]
+SYMMETRIC_RATES = (5.0, 15.0)
+SYMMETRIC_NOISE = 1e-3
 @dataclasses.dataclass(frozen=True)
 class FamilyCase:
     """One case of the families: its label, make(seed) -> (record, true inertia), score(result,
@@ -296,6 +306,8 @@ def family_cases():
         satellite_record,
         score_entries,
         score_ratios,
+        toss_ratio_bound,
+        toss_record,
     )
 
     for shape, delta in FLAT_SHAPES:
@@ -305,6 +317,13 @@ def family_cases():
                 args = (shape, delta, rate, sigma)
                 yield FamilyCase(label, lambda s, a=args: flat_record(*a, s), score_ratios,
                                  lambda s, a=args: efficient_pass_probability(flat_ratio_bound(*a, s)))
+    for name, shape in SYMMETRIC_SHAPES:
+        moments = 3e-4 * np.array(shape)
+        for rate in SYMMETRIC_RATES:
+            label = f"{name} {':'.join(f'{m:g}' for m in shape)} {rate:g} rad/s noise {SYMMETRIC_NOISE:g}"
+            args = (moments, rate, SYMMETRIC_NOISE)
+            yield FamilyCase(label, lambda s, a=args: toss_record(*a, s), score_ratios,
+                             lambda s, a=args: efficient_pass_probability(toss_ratio_bound(*a, s)))
     yield FamilyCase("satellite, five torque pulses", satellite_record, score_entries, None)
 
 
@@ -338,7 +357,7 @@ def families(args) -> None:
     print(f"\n{within} of {len(rows)} cases within 3 sigma and 0.5 % on at least 90 % of their seeds; "
           f"coverage {np.mean([r['coverage'] for r in rows]):.3f} overall. An efficient estimator is "
           f"expected to pass on at least 90 % of the seeds in {reachable} of the {len(bounded)} "
-          "near-flat cases")
+          "tossed cases")
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         (Path(args.out) / "families.json").write_text(json.dumps(rows, indent=1))
@@ -351,7 +370,8 @@ def main():
     one.add_argument("--data", default=str(DEFAULT_DATA),
                      help="folder with the throws' CSV + JSON and truth.json")
     one.add_argument("--out", default=None, help="write DIR/rotor_throws.json")
-    two = sub.add_parser("families", help="near-flat tosses and a small satellite made with scipy alone")
+    two = sub.add_parser("families", help="near-flat and near-symmetric tosses and a small satellite made "
+                         "with scipy alone")
     two.add_argument("--seeds", type=int, default=10)
     two.add_argument("--out", default=None, help="write DIR/families.json")
     args = parser.parse_args()

@@ -168,34 +168,47 @@ def _euler(inertia, torque=None):
     return rate
 
 
-#: A near-flat toss's sample times (s): 1 s at 100 Hz.
-FLAT_TIMES = np.arange(101) * 0.01
+#: A toss's sample times (s): 1 s at 100 Hz.
+TOSS_TIMES = np.arange(101) * 0.01
 
 
-def _flat_truth(shape, delta: float, rate: float, rng) -> tuple[np.ndarray, np.ndarray]:
-    """flat_record's body and spin, drawn from rng: (inertia (3, 3) kg·m², w0 (3,) rad/s)."""
+def flat_moments(shape, delta: float) -> np.ndarray:
+    """A near-flat body's moments (3,) kg·m²: I3 = (1 - delta)(I1 + I2), (I1, I2) = shape, at the
+    scale of a phone."""
     i1, i2 = shape
-    moments = np.array([i1, i2, (1 - delta) * (i1 + i2)]) * 3e-4
+    return np.array([i1, i2, (1 - delta) * (i1 + i2)]) * 3e-4
+
+
+def _toss_truth(moments, rate: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A toss's body of principal moments (3,), its axes turned at random, and its spin of `rate`
+    rad/s about a random direction, drawn from rng: (inertia (3, 3) kg·m², w0 (3,) rad/s)."""
     turn = Rotation.random(random_state=rng).as_matrix()
-    inertia = turn @ np.diag(moments) @ turn.T
+    inertia = turn @ np.diag(np.asarray(moments, float)) @ turn.T
     direction = rng.normal(size=3)
     return inertia, rate * direction / np.linalg.norm(direction)
 
 
-def _flat_rates(inertia, w0) -> np.ndarray:
-    """The torque-free rates (101, 3) at FLAT_TIMES."""
-    sol = solve_ivp(_euler(inertia), (0, FLAT_TIMES[-1]), w0, t_eval=FLAT_TIMES, rtol=1e-11, atol=1e-12,
+def _toss_rates(inertia, w0) -> np.ndarray:
+    """The torque-free rates (101, 3) at TOSS_TIMES."""
+    sol = solve_ivp(_euler(inertia), (0, TOSS_TIMES[-1]), w0, t_eval=TOSS_TIMES, rtol=1e-11, atol=1e-12,
                     method="DOP853")
     return sol.y.T
 
 
+def toss_record(moments, rate: float, sigma: float, seed: int,
+                name: str = "toss") -> tuple[Recording, np.ndarray]:
+    """A 1-s, 100-Hz torque-free toss of a body of principal moments (3,) kg·m² spun at `rate`
+    rad/s, gyro noise sigma rad/s: (record, true inertia (3, 3))."""
+    rng = np.random.default_rng(seed)
+    inertia, w0 = _toss_truth(moments, rate, rng)
+    w = _toss_rates(inertia, w0) + sigma * rng.normal(size=(TOSS_TIMES.size, 3))
+    return Recording(TOSS_TIMES, w, meta={"gyro_sigma": sigma}, name=f"{name}-{seed}"), inertia
+
+
 def flat_record(shape, delta: float, rate: float, sigma: float,
                 seed: int) -> tuple[Recording, np.ndarray]:
-    """A 1-s, 100-Hz torque-free toss of a near-flat body: (record, true inertia (3, 3))."""
-    rng = np.random.default_rng(seed)
-    inertia, w0 = _flat_truth(shape, delta, rate, rng)
-    w = _flat_rates(inertia, w0) + sigma * rng.normal(size=(FLAT_TIMES.size, 3))
-    return Recording(FLAT_TIMES, w, meta={"gyro_sigma": sigma}, name=f"flat-{seed}"), inertia
+    """A 1-s, 100-Hz torque-free toss of a near-flat body (flat_moments): (record, true inertia)."""
+    return toss_record(flat_moments(shape, delta), rate, sigma, seed, "flat")
 
 
 def _matrix(theta) -> np.ndarray:
@@ -210,20 +223,20 @@ def _principal_ratios(theta) -> np.ndarray:
     return moments[1:] / moments[0]
 
 
-def flat_ratio_bound(shape, delta: float, rate: float, sigma: float, seed: int) -> np.ndarray:
-    """The Cramér-Rao bound (2, 2) on the principal ratios (I2/I1, I3/I1) of flat_record's toss,
+def toss_ratio_bound(moments, rate: float, sigma: float, seed: int) -> np.ndarray:
+    """The Cramér-Rao bound (2, 2) on the principal ratios (I2/I1, I3/I1) of toss_record's toss,
     at its truth: sigma^2 (G^T G)^-1 over the inertia's five directions at a fixed trace (a
     torque-free record has no scale) and the initial rate, G the rates' derivatives by central
     differences of scipy's DOP853 solutions, carried to the ratios by their gradient. No
     unbiased estimator's covariance lies below it.
     """
-    inertia, w0 = _flat_truth(shape, delta, rate, np.random.default_rng(seed))
+    inertia, w0 = _toss_truth(moments, rate, np.random.default_rng(seed))
     theta = inertia[np.triu_indices(3)]
     basis = np.linalg.svd(np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 1.0]]))[2][1:].T  # (6, 5): trace kept
     steps = np.r_[np.full(5, 1e-4 * np.abs(theta).max()), np.full(3, 1e-4 * np.linalg.norm(w0))]
 
     def rates(p):
-        return _flat_rates(_matrix(theta + basis @ p[:5]), w0 + p[5:]).ravel()
+        return _toss_rates(_matrix(theta + basis @ p[:5]), w0 + p[5:]).ravel()
 
     unit = np.eye(8) * steps
     g = np.column_stack([(rates(e) - rates(-e)) / (2 * s) for e, s in zip(unit, steps)])
@@ -232,6 +245,11 @@ def flat_ratio_bound(shape, delta: float, rate: float, sigma: float, seed: int) 
                              - _principal_ratios(theta - basis[:, k] * steps[k])) / (2 * steps[k])
                             for k in range(5)])  # (2, 5)
     return grad @ cov @ grad.T
+
+
+def flat_ratio_bound(shape, delta: float, rate: float, sigma: float, seed: int) -> np.ndarray:
+    """toss_ratio_bound of flat_record's toss."""
+    return toss_ratio_bound(flat_moments(shape, delta), rate, sigma, seed)
 
 
 def efficient_pass_probability(cov) -> float:

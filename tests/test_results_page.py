@@ -256,10 +256,13 @@ def test_render_identify_families_splices_the_printed_table(tmp_path):
     text = tables.render_stdout(folder)
     assert text.startswith("| case | within 3 sigma and 0.5 % |")
     assert len([ln for ln in text.splitlines() if ln.startswith("| flat ")]) == 24
+    symmetric = ("| oblate ", "| prolate ", "| near-spherical ")
+    assert len([ln for ln in text.splitlines() if ln.startswith(symmetric)]) == 10
     assert row_cells(text, "satellite, five torque pulses")[1:3] == ["1/1", "–"]
     # an efficient estimator's expected passes of the one seed: a probability
-    assert 0.0 <= float(row_cells(text, "flat 0.2:0.8 delta 0.02 5 rad/s noise 0.001")[2]) <= 1.0
-    assert text.splitlines()[-1].endswith("of the 24 near-flat cases")  # the totals under the table
+    for case in ("flat 0.2:0.8 delta 0.02 5 rad/s noise 0.001", "prolate 0.3:1:1.02 5 rad/s noise 0.001"):
+        assert 0.0 <= float(row_cells(text, case)[2]) <= 1.0
+    assert text.splitlines()[-1].endswith("of the 34 tossed cases")  # the totals under the table
 
 
 def test_render_cost_vs_error_on_a_real_run(tmp_path):
