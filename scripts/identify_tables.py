@@ -28,8 +28,9 @@ families: Three families, each case over --seeds noise seeds:
   is 1-5 % short of the sum of the other two, in several aspect ratios, spun at 5-30 rad/s about
   a random direction, their axes turned at random, gyro noise 1e-3 or 5e-3 rad/s; the scale is
   not seen, so the principal ratios I2/I1, I3/I1 are scored;
-* near-symmetric bodies tossed the same way (oblate, prolate, near-spherical; two moments 0.2 or
-  2 % apart), spun at 5 or 15 rad/s, gyro noise 1e-3 rad/s; their principal ratios scored;
+* near-symmetric bodies tossed the same way (oblate and prolate, two moments 0.2 or 2 % apart;
+  near-spherical, moments 1 % apart), spun at 5 or 15 rad/s, gyro noise 1e-3 rad/s; their
+  principal ratios scored;
 * a small satellite with five 2-s torque pulses (logged), 60 s at 10 Hz, gyro noise 1e-4 rad/s:
   the inertia's six entries are scored.
 
@@ -276,14 +277,16 @@ def rotor(args) -> None:
 FLAT_SHAPES = [((0.2, 0.8), 0.02), ((0.2, 0.8), 0.05), ((0.45, 0.55), 0.01), ((0.1, 0.9), 0.03)]
 FLAT_RATES = (5.0, 15.0, 30.0)
 FLAT_NOISE = (1e-3, 5e-3)
-#: Near-symmetric bodies: (name, principal moments relative to the phone's scale), two moments
-#: 0.2 % or 2 % apart: oblate (a disc, the equal pair the least), prolate (a rod, the equal pair
-#: the largest) and a body near a sphere.
+#: Near-symmetric bodies: (name, principal moments relative to the phone's scale): oblate (a disc,
+#: its two least moments 0.2 % or 2 % apart), prolate (a rod, its two largest) and a body near a
+#: sphere (moments 1 % apart).
 SYMMETRIC_SHAPES = [("oblate", (1.0, 1.002, 1.8)), ("oblate", (1.0, 1.02, 1.8)),
                     ("prolate", (0.3, 1.0, 1.002)), ("prolate", (0.3, 1.0, 1.02)),
                     ("near-spherical", (1.0, 1.01, 1.02))]
 SYMMETRIC_RATES = (5.0, 15.0)
 SYMMETRIC_NOISE = 1e-3
+
+
 @dataclasses.dataclass(frozen=True)
 class FamilyCase:
     """One case of the families: its label, make(seed) -> (record, true inertia), score(result,
