@@ -312,8 +312,9 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     from its neutral parameters, whichever fits better, and for an effect in a form it
     restarts_on_base in also, where the current fit's residual is not white (residual_correlated),
     from each of its own starts found on top of the current fit, the best screen kept),
-    refits the REFIT_SCREENED best (and any that restarts_on_base) jointly with the inertia and
-    the effects already chosen,
+    refits the REFIT_SCREENED best (and any that restarts_on_base, where the residual is not
+    white or its score test, fitting.predicted_bic, clears the margin) jointly with the inertia
+    and the effects already chosen,
     and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
     testable effect is screened at every step, also those that explain nothing alone: a large
     effect can hide a second one. The backward check then refits without each chosen effect and
