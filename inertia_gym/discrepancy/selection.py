@@ -14,7 +14,7 @@ import numpy as np
 from inertia_gym.discrepancy.crossval import held_out_sums, predicts_words
 from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import REGISTRY
-from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fanned, fit_model, predicted_bic
+from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fanned, fit_model
 from inertia_gym.discrepancy.objective import Fit, Layout
 from inertia_gym.discrepancy.plausibility import implausible
 from inertia_gym.discrepancy.starts import SHORT_SEGMENTS, Probe
@@ -312,9 +312,8 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     from its neutral parameters, whichever fits better, and for an effect in a form it
     restarts_on_base in also, where the current fit's residual is not white (residual_correlated),
     from each of its own starts found on top of the current fit, the best screen kept),
-    refits the REFIT_SCREENED best (and any that restarts_on_base, where the residual is not
-    white or its score test, fitting.predicted_bic, clears the margin) jointly with the inertia
-    and the effects already chosen,
+    refits the REFIT_SCREENED best (and any that restarts_on_base) jointly with the inertia and
+    the effects already chosen,
     and keeps the best if that improves the BIC by the same margin; at most max_effects. Every
     testable effect is screened at every step, also those that explain nothing alone: a large
     effect can hide a second one. The backward check then refits without each chosen effect and
@@ -380,18 +379,11 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         if not trials:
             break
         # a screen holds everything else and stops early: the leading few are refitted jointly,
-        # and so is every effect that restarts_on_base (a mode, a bias: its screen, with the
-        # parameters held that it trades with, says little of what it explains jointly) where
-        # structure is left or, where the residual tests white, where its score test (the joint
-        # model's Gauss-Newton gain from the screen) clears the claim margin: a whiteness test has
-        # little power against a small, smooth misfit that such an effect takes up jointly
+        # and, where structure is left, every effect that restarts_on_base (a mode: its screen,
+        # with the rates held that it trades with, says little of what it explains jointly)
         leading = sorted(trials, key=lambda t: t.bic)
-        restarting = [t for t in leading[REFIT_SCREENED:]
-                      if t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
-        if not structured:
-            restarting = [t for t in restarting
-                          if current.bic - predicted_bic(t, d) > claim_margin(d, t.names[-1])]
-        leading = leading[:REFIT_SCREENED] + restarting
+        leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:] if structured
+                                              and t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
         refits = fanned(fit_model, d, [{"names": t.names, "forms": t.forms, "base": current, "start": t.x,
                                         "omega_max": t.layout.omega_max} for t in leading])
         best = min(refits, key=lambda f: f.bic)
