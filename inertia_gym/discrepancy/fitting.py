@@ -78,6 +78,36 @@ def _solver_problem(free, layout: Layout, d: Data, lb, ub) -> solver.Problem:
                           project=lambda x: layout.feasible(x, d), face=layout.face, bounds=(lb, ub))
 
 
+def _linearization(x, free, layout: Layout, d: Data) -> solver.Linearization:
+    """The solver's linearization of the objective at x over the free entries (objective.jacobian's
+    forward differences), each row's segment marked.
+    """
+    points = np.vstack([np.asarray(x, float)[None], _jacobian_points(x, free, layout, d, False)])
+    rows = objective(points, layout, d)
+    r, g, js = _jacobian_columns(x, free, layout, d, rows[0], rows[1:], False)
+    seg_of = np.full(r.size, -1)
+    seg_of[:3 * d.n_rows] = np.repeat(d.row_seg, 3)
+    return solver.Linearization(r, g, js, seg_of)
+
+
+def predicted_bic(fit: Fit, d: Data) -> float:
+    """The BIC fit's model is predicted to reach from fit.x by one undamped Gauss-Newton step over
+    every parameter it fits (solver.predicted_gain, its cost carried into the BIC's log of the
+    mean square as finish counts the rows): the score test of what its last effect adds once the
+    parameters it trades with move too. Exact for a model linear over the step, optimistic where
+    it curves: a reason to fit the model jointly, never a fit.
+    """
+    layout = fit.layout
+    free = _free(layout, d)
+    lb, ub = _bounds(layout, d)
+    lin = _linearization(fit.x, free, layout, d)
+    cost = float(lin.r @ lin.r)
+    if not np.isfinite(cost) or cost <= 0.0:
+        return fit.bic
+    gain = min(max(solver.predicted_gain(_solver_problem(free, layout, d, lb, ub), lin, fit.x), 0.0), cost)
+    return fit.bic + d.effective_share * lin.r.size * np.log(max(cost - gain, 1e-300 * cost) / cost)
+
+
 def solve(x0, free, layout: Layout, d: Data, lb, ub, max_iter: int,
           decrement: float | None = None) -> solver.Result:
     """The core solver (estimation/solver.py) over the free entries of x: its Result (x, cost,

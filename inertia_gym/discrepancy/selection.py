@@ -14,7 +14,7 @@ import numpy as np
 from inertia_gym.discrepancy.crossval import held_out_sums, predicts_words
 from inertia_gym.discrepancy.data import Data
 from inertia_gym.discrepancy.effects import REGISTRY
-from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fanned, fit_model
+from inertia_gym.discrepancy.fitting import SIGNIFICANT_DELTA_BIC, _helpers, fanned, fit_model, predicted_bic
 from inertia_gym.discrepancy.objective import Fit, Layout
 from inertia_gym.discrepancy.plausibility import implausible
 from inertia_gym.discrepancy.starts import SHORT_SEGMENTS, Probe
@@ -113,6 +113,10 @@ class Explanation:
     #: {name: held-out residual sum with it over without it}: effects the selection added after
     #: the leader that did not predict the rows held out in turn (predictive), left out
     unpredictive: dict = dataclasses.field(default_factory=dict)
+    #: the search left an effect that restarts_on_base out of a joint refit because the residual
+    #: tested white, while its score test cleared the claim margin (_forward): the same search
+    #: with such effects refitted may find a better explanation
+    gated_out: bool = False
 
     @property
     def fit(self) -> Fit | None:
@@ -159,15 +163,21 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
         first = search(d, nominal, singles, max_effects)
     if not first.chain:
         return first
-    best = first
+    runs = [((singles, 0), first)]
     simplest = {n: REGISTRY[n].forms(d)[0] for n in REGISTRY}
     if any(f != simplest[n] for n, f in zip(first.fit.names, first.fit.forms)):
         plain = ranked(fanned(_alone, d, [{"single": f, "form": simplest[f.name], "nominal": nominal}
                                           for f in singles]))
-        others = (search(d, nominal, plain, max_effects), search(d, nominal, singles, max_effects, lead=1))
-        for other in others:
-            if other.chain and _claims_cost(other.fit, d) < _claims_cost(best.fit, d) - TIE_BIC:
-                best = other
+        runs += [((pool, lead), search(d, nominal, pool, max_effects, lead=lead))
+                 for pool, lead in ((plain, 0), (singles, 1))]
+    # a search that left out an effect its score test favoured is run again with it refitted:
+    # one more search whose explanation competes, never one that replaces another's
+    runs += [(args, search(d, nominal, args[0], max_effects, lead=args[1], score_gate=True))
+             for args, run in list(runs) if run.gated_out]
+    best = first
+    for _, other in runs[1:]:
+        if other.chain and _claims_cost(other.fit, d) < _claims_cost(best.fit, d) - TIE_BIC:
+            best = other
     return _led_by_best_single(best, d, nominal, singles)
 
 
@@ -302,7 +312,7 @@ def _without(fit: Fit, drop: int, first: Fit, d: Data) -> list[Fit]:
 
 
 def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS,
-           lead: int = 0) -> Explanation:
+           lead: int = 0, score_gate: bool = False) -> Explanation:
     """Forward selection over the catalogue, then a backward check.
 
     Step 1 takes the best single-effect fit (the lead-th best with lead > 0) if it beats the
@@ -339,9 +349,12 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     chain = [current]
     pool = [f.name for f in singles if np.isfinite(f.bic)]
     removed = []  # the effects the backward checks dropped
+    gated_out = False
     while True:
-        current, chain, refused = _forward(d, current, chain, by_name,
-                                           [n for n in pool if n not in removed], max_effects)
+        current, chain, refused, left_out = _forward(d, current, chain, by_name,
+                                                     [n for n in pool if n not in removed], max_effects,
+                                                     score_gate)
+        gated_out |= left_out
         current, chain, now_removed = _backward(d, nominal, current, chain, by_name, dropped)
         if not now_removed:
             break
@@ -354,7 +367,7 @@ def search(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
                              f"{', '.join(chosen)} {'is' if len(chosen) == 1 else 'are'} in")
     refused = {n: r for n, r in refused.items() if n not in chosen}
     return Explanation(tuple(chain), _added(nominal, chain, chosen), {**dropped, **_refused_words(refused)},
-                       refused)
+                       refused, gated_out=gated_out)
 
 
 def _refused_words(refused: dict) -> dict:
@@ -363,14 +376,20 @@ def _refused_words(refused: dict) -> dict:
 
 
 def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[str],
-             max_effects: int) -> tuple[Fit, list[Fit], dict]:
+             max_effects: int, score_gate: bool = False) -> tuple[Fit, list[Fit], dict, bool]:
     """The forward steps of `search` from the fit current (chain: its prefixes): each adds the effect of
     pool that improves the BIC most, by more than the margin; at most max_effects in all. Where
     that effect is not physics the body or its sensor plausibly has (plausibility), the steps
     stop: what is left is best fitted by something the catalogue does not plausibly hold, and a
-    lesser effect that fits part of it would pad the explanation. Returns the last fit, its
-    chain and the effect refused so ({name: (why, gain)}, or {}).
+    lesser effect that fits part of it would pad the explanation. Where the residual tests
+    white, an effect that restarts_on_base is refitted jointly only with score_gate, and then
+    where its score test (fitting.predicted_bic: the joint model's Gauss-Newton gain from its
+    screen) clears the claim margin: a whiteness test has little power against a small, smooth
+    misfit that such an effect takes up only together with the others. Returns the last fit, its
+    chain, the effect refused so ({name: (why, gain)}, or {}) and whether, without score_gate,
+    such an effect was left out (the search with it may differ).
     """
+    gated_out = False
     while len(current.names) < max_effects:
         structured = residual_correlated(d, current)  # the residual left is not white
         trials = fanned(_screened, d, [{"single": by_name[n], "current": current, "structured": structured}
@@ -382,8 +401,14 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
         # and, where structure is left, every effect that restarts_on_base (a mode: its screen,
         # with the rates held that it trades with, says little of what it explains jointly)
         leading = sorted(trials, key=lambda t: t.bic)
-        leading = leading[:REFIT_SCREENED] + [t for t in leading[REFIT_SCREENED:] if structured
-                                              and t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
+        restarting = [t for t in leading[REFIT_SCREENED:]
+                      if t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
+        if not structured:
+            favoured = [t for t in restarting
+                        if current.bic - predicted_bic(t, d) > claim_margin(d, t.names[-1])]
+            gated_out |= bool(favoured) and not score_gate
+            restarting = favoured if score_gate else []
+        leading = leading[:REFIT_SCREENED] + restarting
         refits = fanned(fit_model, d, [{"names": t.names, "forms": t.forms, "base": current, "start": t.x,
                                         "omega_max": t.layout.omega_max} for t in leading])
         best = min(refits, key=lambda f: f.bic)
@@ -395,10 +420,10 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
             why = implausible(name, best.effect_params[name], d, SIGNIFICANT_DELTA_BIC)
             if why:
                 why = why if name == best.name else f"with it, `{name}` is fitted so that {why}"
-                return current, chain, {best.name: (why, float(current.bic - best.bic))}
+                return current, chain, {best.name: (why, float(current.bic - best.bic))}, gated_out
         current = best
         chain = [*chain, best]
-    return current, chain, {}
+    return current, chain, {}, gated_out
 
 
 def _backward(d: Data, nominal: Fit, current: Fit, chain: list[Fit], by_name: dict,

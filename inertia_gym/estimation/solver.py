@@ -389,6 +389,17 @@ def _normal_blocks(prob: Problem, lin: Linearization, x,
     return lin, blocks, on_face
 
 
+def predicted_gain(prob: Problem, lin: Linearization, x) -> float:
+    """The cost (|r|^2 units) the undamped Gauss-Newton step from x predicts to gain over the free
+    parameters of prob (lin: the linearization at x); at a limit, the lesser of it and the same
+    step's kept on the limit's face. The score statistic of a least-squares fit: exact where the
+    model is linear over the step, an overstatement where it curves.
+    """
+    x = np.asarray(x, float)
+    _, blocks, on_face = _normal_blocks(prob, lin, x, np.flatnonzero(prob.free))
+    return _predicted_gain(blocks, on_face)
+
+
 def _predicted_gain(blocks: NormalBlocks, on_face) -> float:
     """The cost the undamped Gauss-Newton step predicts to gain; at a limit, the lesser of it and
     the step's kept on the limit's face.
@@ -445,4 +456,4 @@ def run(gen: Generator[Request, object, Result], linearize: Callable[[np.ndarray
 
 
 __all__ = ["Linearization", "Problem", "Result", "NormalBlocks", "face_basis", "levenberg_marquardt",
-           "run"]
+           "predicted_gain", "run"]

@@ -313,3 +313,26 @@ def test_the_step_keeps_its_digits_where_the_segments_sensitivities_span_eight_o
     ref = np.linalg.lstsq(np.vstack([dense, np.diag(damp)]), -np.r_[r, np.zeros(8)], rcond=None)[0]
     np.testing.assert_allclose(dg, ref[:2], rtol=1e-6)
     np.testing.assert_allclose(ds.ravel(), ref[2:], rtol=1e-6, atol=1e-12)
+
+
+def test_the_predicted_gain_is_the_linear_fall_over_the_free_globals_and_on_a_limit_its_faces():
+    """solver.predicted_gain: over the free globals (and the segments' locals), the fall of the
+    linear least squares, by the dense least squares; a held global takes no part; at a limit,
+    the lesser of that and the fall kept on the limit's face."""
+    n_seg = 3
+    seg_of, g, js, r = _arrow_problem(4, n_seg, 25, [1.0, 1.0, 1.0])
+    lin = Linearization(r, g, js, seg_of)
+    free = np.array([True, False, True])
+    dense = _dense(g[:, free], js, seg_of, n_seg)
+    best = np.linalg.lstsq(dense, -r, rcond=None)[0]
+    fall = r @ r - np.sum((r + dense @ best) ** 2)
+    x = np.zeros(3 + 3 * n_seg)
+    prob = Problem(3, free, segments=n_seg)
+    assert solver.predicted_gain(prob, lin, x) == pytest.approx(fall, rel=1e-9)
+    # on the face g0 = g2 (the limit's row (1, 0, -1)): the two free columns move as one
+    on_face = Problem(3, free, segments=n_seg, face=lambda x: np.array([[1.0, 0.0, -1.0]]))
+    joined = _dense((g[:, 0] + g[:, 2])[:, None], js, seg_of, n_seg)
+    best = np.linalg.lstsq(joined, -r, rcond=None)[0]
+    kept = r @ r - np.sum((r + joined @ best) ** 2)
+    assert kept < fall
+    assert solver.predicted_gain(on_face, lin, x) == pytest.approx(kept, rel=1e-9)
