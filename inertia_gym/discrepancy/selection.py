@@ -150,11 +150,12 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     where that explanation holds an effect in a
     richer form than its simplest (internal_momentum or viscous_damping varying), over the
     singles with every effect in its simplest form and over the singles as fitted led by the
-    runner-up. A rich form can soak up a second effect and lead the greedy search astray (racquet
-    round 1 segment 3: the free momentum profile alone, where the varying drag and a flexible
-    mode fit better by 85 with every row counted); the final explanations' BICs then decide,
-    each effect an explanation claims charged the significance margin, as the forward selection
-    charges it: an explanation that names one more effect must fit better by
+    runner-up; and each of these again, with score_gate, where it left out an effect that its
+    score test favoured (Explanation.gated_out). A rich form can soak up a second effect and lead
+    the greedy search astray (racquet round 1 segment 3: the free momentum profile alone, where
+    the varying drag and a flexible mode fit better by 85 with every row counted); the final
+    explanations' BICs then decide, each effect an explanation claims charged the significance
+    margin, as the forward selection charges it: an explanation that names one more effect must fit better by
     SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. The explanation is
     listed led by the effect that explains most alone (_led_by_best_single): the first search's
     own lead, unless the backward check dropped it or another search found the explanation.
