@@ -145,7 +145,7 @@ def _chain(names, forms, d: Data, singles: dict) -> list[Fit]:
 
 def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFFECTS,
            first: Explanation | None = None) -> Explanation:
-    """The compound explanation of lowest BIC of up to three searches (search): over the singles
+    """The compound explanation of lowest BIC of up to six searches (search): over the singles
     as fitted (each effect in its best form; `first`, where the caller has run that search), and,
     where that explanation holds an effect in a
     richer form than its simplest (internal_momentum or viscous_damping varying), over the
@@ -155,8 +155,8 @@ def select(d: Data, nominal: Fit, singles: list[Fit], max_effects: int = MAX_EFF
     the greedy search astray (racquet round 1 segment 3: the free momentum profile alone, where
     the varying drag and a flexible mode fit better by 85 with every row counted); the final
     explanations' BICs then decide, each effect an explanation claims charged the significance
-    margin, as the forward selection charges it: an explanation that names one more effect must fit better by
-    SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. The explanation is
+    margin, as the forward selection charges it: an explanation that names one more effect must
+    fit better by SIGNIFICANT_DELTA_BIC to be preferred. Ties go to the earlier search. The explanation is
     listed led by the effect that explains most alone (_led_by_best_single): the first search's
     own lead, unless the backward check dropped it or another search found the explanation.
     """
