@@ -23,6 +23,7 @@ from inertia_gym.discrepancy.objective import (
     _jacobian_columns,
     _jacobian_points,
     finish,
+    jacobian,
     objective,
 )
 from inertia_gym.discrepancy.starts import (
@@ -78,13 +79,10 @@ def _solver_problem(free, layout: Layout, d: Data, lb, ub) -> solver.Problem:
                           project=lambda x: layout.feasible(x, d), face=layout.face, bounds=(lb, ub))
 
 
-def _linearization(x, free, layout: Layout, d: Data) -> solver.Linearization:
-    """The solver's linearization of the objective at x over the free entries (objective.jacobian's
-    forward differences), each row's segment marked.
+def _linearization(r, g, js, d: Data) -> solver.Linearization:
+    """The solver's Linearization of objective rows r with their columns (g for the free globals,
+    js for the segments' rates): each gyro row marked with its segment, a penalty row with none.
     """
-    points = np.vstack([np.asarray(x, float)[None], _jacobian_points(x, free, layout, d, False)])
-    rows = objective(points, layout, d)
-    r, g, js = _jacobian_columns(x, free, layout, d, rows[0], rows[1:], False)
     seg_of = np.full(r.size, -1)
     seg_of[:3 * d.n_rows] = np.repeat(d.row_seg, 3)
     return solver.Linearization(r, g, js, seg_of)
@@ -100,7 +98,7 @@ def predicted_bic(fit: Fit, d: Data) -> float:
     layout = fit.layout
     free = _free(layout, d)
     lb, ub = _bounds(layout, d)
-    lin = _linearization(fit.x, free, layout, d)
+    lin = _linearization(*jacobian(fit.x, free, layout, d), d)
     cost = float(lin.r @ lin.r)
     if not np.isfinite(cost) or cost <= 0.0:
         return fit.bic
@@ -134,8 +132,6 @@ def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
     rel = CONVERGED if decrement is None else STEP_FLOOR
     gens = [solver.levenberg_marquardt(spec, np.asarray(x0, float), max_iter, rel_tol=rel,
                                        decrement=decrement) for x0 in x0s]
-    seg_of = np.full(3 * d.n_rows, -1)
-    seg_of[:d.n_rows * 3] = np.repeat(d.row_seg, 3)
     known: dict = {}  # the rows already integrated at a point (an accepted step's)
     out: list = [None] * len(gens)
     asked = {i: next(g) for i, g in enumerate(gens)}
@@ -163,10 +159,7 @@ def solve_many(x0s, free, layout: Layout, d: Data, lb, ub, max_iter: int,
                 r0 = known.get(arg.tobytes())
                 if r0 is None:
                     r0, block = block[0], block[1:]
-                r, g, js = _jacobian_columns(arg, free, layout, d, r0, block, False)
-                sof = np.full(r.size, -1)
-                sof[:seg_of.size] = seg_of
-                answer = solver.Linearization(r, g, js, sof)
+                answer = _linearization(*_jacobian_columns(arg, free, layout, d, r0, block, False), d)
             try:
                 asked[i] = gens[i].send(answer)
             except StopIteration as done:

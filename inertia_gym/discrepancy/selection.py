@@ -400,7 +400,9 @@ def _forward(d: Data, current: Fit, chain: list[Fit], by_name: dict, pool: list[
             break
         # a screen holds everything else and stops early: the leading few are refitted jointly,
         # and, where structure is left, every effect that restarts_on_base (a mode: its screen,
-        # with the rates held that it trades with, says little of what it explains jointly)
+        # with the rates held that it trades with, says little of what it explains jointly);
+        # where the residual tests white, only those whose score test clears the margin, and
+        # only with score_gate (without it, that one would is recorded: gated_out)
         leading = sorted(trials, key=lambda t: t.bic)
         restarting = [t for t in leading[REFIT_SCREENED:]
                       if t.forms[-1] in REGISTRY[t.names[-1]].restarts_on_base]
