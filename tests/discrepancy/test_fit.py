@@ -620,7 +620,6 @@ def test_a_mirrored_gyro_frame_is_said_where_no_right_handed_body_fits(tmp_path)
     assert report["gyro_frame_mirrored"] is None and report["explanation"] == []
 
 
-
 def test_the_score_test_predicts_what_a_bias_gains_when_fitted_jointly():
     """fitting.predicted_bic: a gyro bias moves the measured rates linearly, so one Gauss-Newton
     step of the joint model from the nominal fit with the bias at zero predicts the BIC its joint
