@@ -38,7 +38,7 @@ import numpy as np
 from scipy import stats
 
 from inertia_gym.errors import ConfigError, EstimatorDivergedError, RecordingError
-from inertia_gym.estimation import ml, output_error
+from inertia_gym.estimation import ml, output_error, profile
 from inertia_gym.estimation.equation_error import EquationError, equation_error
 from inertia_gym.estimation.filters import run_over_recording
 from inertia_gym.estimation.inertia_param import nearest_realizable, phi_from_inertia, theta_from_phi
@@ -275,10 +275,11 @@ class _Estimates:
     bias_note: str | None
 
 
-def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> _Estimates:
+def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref,
+               profiled: bool = True) -> _Estimates:
     """The equation error, then the output error started from it (output_error_fit, with its
-    nested terms on a gyro-only record); where that fits a gyro bias, the equation error again
-    from the rates less it.
+    nested terms on a gyro-only record) and, profiled, its ratios' profile likelihood (_profiled);
+    where that fits a gyro bias, the equation error again from the rates less it.
     """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
@@ -286,10 +287,30 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref)
     found = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref,
                              nested=fit_bias is None and prep.rec.q is None)
     prob, oe, said = found.prob, found.refinement, found.note
+    if profiled and oe.fit.segments == 1:
+        oe = _profiled(prep, prob, oe, trace_ref)
     if prob.fit_bias:  # a sensor offset enters the windows' regressors: both estimates without it
         ee = _equation_error_estimate(prep, trace_ref, oe.fit.p[-3:])
         reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
     return _Estimates(ee, reference, prob, oe, said)
+
+
+def _profiled(prep: Prepared, prob: output_error.Problem, oe: ml.Refinement, trace_ref) -> ml.Refinement:
+    """The refinement oe with its principal ratios' profile-likelihood intervals
+    (profile.ratio_profile). Where a constrained fit of the profile lies below the fit, the fit has
+    stopped short of the likelihood's maximum: it is continued from there, kept where it ends
+    lower, and profiled anew.
+    """
+    traced = profile.ratio_profile(prob, oe.fit, oe.estimate)
+    if traced.better is not None:
+        try:
+            fit = output_error.fit(prob, *traced.better)
+            moved = ml.statistics(prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
+        except (EstimatorDivergedError, ConfigError):
+            moved = None
+        if moved is not None and fit.segments == 1 and fit.cost < oe.fit.cost:
+            oe, traced = moved, profile.ratio_profile(prob, fit, moved.estimate)
+    return dataclasses.replace(oe, estimate=dataclasses.replace(oe.estimate, ratio_ci=traced.intervals))
 
 
 def held_out(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -> Forecast | None:
@@ -307,7 +328,7 @@ def held_out(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref) -
     losses = []
     for train, test in (halves, halves[::-1]):
         try:
-            part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref)
+            part = _estimates(prep.rows(*train), fit_bias, fit_drag, trace_ref, profiled=False)
         except (EstimatorDivergedError, ConfigError, RecordingError):
             return None
         held = output_error.problem_from(prep.rows(*test), prep.level, part.prob.fit_bias, part.prob.fit_drag)

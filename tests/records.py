@@ -283,14 +283,15 @@ def satellite_record(seed: int) -> tuple[Recording, np.ndarray]:
 
 
 def score_ratios(result, inertia) -> tuple[bool, np.ndarray]:
-    """(within 3 sigma and 0.5 % on both ratios, covered (2,) by the 95 % intervals)."""
+    """(within 3 sigma and 0.5 % on both ratios, covered (2,) by the reported 95 % intervals)."""
     summary = result.summary()
     ratios = np.array(summary["principal_ratios"])[1:]
     sd = np.sqrt(np.diag(np.array(summary["principal_ratios_cov"])))[1:]
+    ci = np.array(summary["principal_ratios_ci95"])[1:]
     truth = np.sort(np.linalg.eigvalsh(inertia))[::-1]
     truth = (truth / truth[0])[1:]
     err = np.abs(ratios - truth)
-    return bool(np.all(err <= 3 * sd) and np.all(err <= 0.005)), err <= 1.96 * sd
+    return bool(np.all(err <= 3 * sd) and np.all(err <= 0.005)), (ci[:, 0] <= truth) & (truth <= ci[:, 1])
 
 
 def score_entries(result, inertia) -> tuple[bool, np.ndarray]:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -425,29 +426,58 @@ def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) 
     return _Stage(sh.p_of(x_new, 0), q_refs[0], whole, res.iterations, res.converged, x_new, q_refs, cov)
 
 
-def solve(prob: Problem, p, q_ref, prior: Prior | None = None, max_iter: int = STAGE_ITER) -> _Stage:
-    """Minimise |r|^2 (+ the prior's) over the free parameters of one trajectory from p (q_ref
-    the attitude dq0 perturbs), the inertia kept on the bodies that exist, MAX_PHI_STEP its
-    trust radius.
+@dataclasses.dataclass(frozen=True)
+class Pin:
+    """A stiff residual row weight * (value(phi) - target) that holds a function of the inertia
+    at a target while the rest is fitted (a profile likelihood's constrained fit): value(phi)
+    returns the function and its gradient (6,) in phi.
+    """
+
+    value: Callable[[np.ndarray], tuple[float, np.ndarray]]
+    target: float
+    weight: float
+
+    def row(self, x, idx) -> tuple[float, np.ndarray]:
+        """The row's residual and its Jacobian over the free parameters idx."""
+        v, grad = self.value(x[:6])
+        full = np.zeros(x.size)
+        full[:6] = grad
+        return self.weight * (v - self.target), self.weight * full[idx]
+
+
+def solve(prob: Problem, p, q_ref, prior: Prior | None = None, max_iter: int = STAGE_ITER,
+          pin: Pin | None = None) -> _Stage:
+    """Minimise |r|^2 (+ the prior's, + the pin's row) over the free parameters of one trajectory
+    from p (q_ref the attitude dq0 perturbs), the inertia kept on the bodies that exist,
+    MAX_PHI_STEP its trust radius. The stage's evaluation holds the measurements' rows alone.
     """
     free = prob.free()
     idx = np.flatnonzero(free)
     q_ref = np.asarray(q_ref, float)
     prior_rows = None if prior is None else prior.rows(free)
 
+    def extra(x) -> tuple[np.ndarray, np.ndarray]:
+        rows, jac = [np.zeros(0)], [np.zeros((0, idx.size))]
+        if prior_rows is not None:
+            rows.append(prior_rows @ (x - prior.mean)[free])
+            jac.append(prior_rows)
+        if pin is not None:
+            r_pin, j_pin = pin.row(x, idx)
+            rows.append(np.array([r_pin]))
+            jac.append(j_pin[None])
+        return np.concatenate(rows), np.vstack(jac)
+
     def residuals(x) -> np.ndarray:
         ev = evaluate(prob, x, q_ref, False)
         r = ev.r if ev.ok else np.full(ev.r.size, np.inf)
-        return r if prior_rows is None else np.r_[r, prior_rows @ (x - prior.mean)[free]]
+        return np.r_[r, extra(x)[0]]
 
     def linearize(x) -> solver.Linearization:
         ev = evaluate(prob, x, q_ref, True)
         if not ev.ok:
             return solver.Linearization(np.full(ev.r.size, np.inf), np.zeros((ev.r.size, idx.size)))
-        if prior_rows is None:
-            return solver.Linearization(ev.r, ev.jac[:, idx])
-        return solver.Linearization(np.r_[ev.r, prior_rows @ (x - prior.mean)[free]],
-                                    np.vstack([ev.jac[:, idx], prior_rows]))
+        r_extra, j_extra = extra(x)
+        return solver.Linearization(np.r_[ev.r, r_extra], np.vstack([ev.jac[:, idx], j_extra]))
 
     res = _minimised(prob.n_params, free, p, max_iter, linearize, residuals,
                      drag=np.arange(prob.n_params)[prob.drag_slice])
@@ -597,5 +627,5 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
                stage.converged, seg.size - 1, stage.global_cov)
 
 
-__all__ = ["Problem", "Evaluation", "Prior", "Fit", "Shooting", "evaluate", "solve", "solve_shooting", "fit",
-           "profile_cost", "profile_losses"]
+__all__ = ["Problem", "Evaluation", "Prior", "Pin", "Fit", "Shooting", "evaluate", "solve", "solve_shooting",
+           "fit", "profile_cost", "profile_losses"]

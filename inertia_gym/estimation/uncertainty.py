@@ -97,12 +97,15 @@ class InertiaEstimate:
     """An inertia with its uncertainty.
 
     theta (6,) kg·m² (xx, xy, xz, yy, yz, zz); theta_cov (6, 6); scale_identified: False means
-    theta is normalised (trace = its trace) and theta_cov is that of the normalised inertia.
+    theta is normalised (trace = its trace) and theta_cov is that of the normalised inertia;
+    ratio_ci (3, 2): the principal ratios' profile-likelihood intervals where a fit traced them
+    (estimation.profile), which the reported intervals take in beside the delta method's.
     """
 
     theta: np.ndarray
     theta_cov: np.ndarray
     scale_identified: bool
+    ratio_ci: np.ndarray | None = None
 
     @property
     def inertia(self) -> np.ndarray:
@@ -171,6 +174,9 @@ class InertiaEstimate:
         ratios, ratio_cov = self.principal_ratios()
         ratio_half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
         ratio_ci = np.stack([ratios - ratio_half, ratios + ratio_half], axis=1)
+        if self.ratio_ci is not None:
+            ratio_ci = np.stack([np.minimum(ratio_ci[:, 0], self.ratio_ci[:, 0]),
+                                 np.maximum(ratio_ci[:, 1], self.ratio_ci[:, 1])], axis=1)
         return {"inertia": self.inertia.tolist(), "theta": self.theta.tolist(),
                 "theta_cov": self.theta_cov.tolist(), "ci95": self.ci95().tolist(),
                 "principal_moments": vals.tolist(),

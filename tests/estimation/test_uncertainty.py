@@ -155,3 +155,15 @@ def test_homogeneity_is_the_weighted_scatter_and_for_two_the_difference_over_the
     keep = np.linalg.svd(np.array([[1.0, 0, 0, 1.0, 0, 1.0]]))[2][1:].T  # directions at a fixed trace
     fixed = [keep @ keep.T @ c @ keep @ keep.T for c in covs[:2]]
     assert homogeneity(vals[:2], fixed).dof == 5
+
+
+def test_the_reported_ratio_intervals_take_in_a_profiles_and_never_narrow_the_delta_methods():
+    est = inertia_estimate(phi_from_inertia(J_TRUE), np.diag([0.0, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4]), True)
+    delta = np.array(est.summary()["principal_ratios_ci95"])
+    traced = delta.copy()
+    traced[1] = [delta[1, 0] - 0.05, delta[1, 1] - 0.001]  # wider below, narrower above
+    traced[2] = [delta[2, 0] + 0.001, delta[2, 1] + 0.02]
+    shown = np.array(dataclasses.replace(est, ratio_ci=traced).summary()["principal_ratios_ci95"])
+    np.testing.assert_allclose(shown[1], [delta[1, 0] - 0.05, delta[1, 1]])
+    np.testing.assert_allclose(shown[2], [delta[2, 0], delta[2, 1] + 0.02])
+    np.testing.assert_allclose(shown[0], delta[0])
