@@ -25,6 +25,10 @@ def markdown(summary: dict, plots=()) -> str:
                                      summary["principal_axes"], summary["principal_axes_ci95_deg"]):
         axis = ", ".join(f"{a:+.4f}" for a in ax)
         lines.append(f"| {m:.6g} | [{lo:.6g}, {hi:.6g}] | ({axis}) | {cone:.2f}° |")
+    shape = ", ".join(f"{r:.6g} [{lo:.6g}, {hi:.6g}]" for r, (lo, hi) in
+                      zip(summary["principal_ratios"][1:], summary["principal_ratios_ci95"][1:]))
+    lines += ["", f"Shape (the principal moments over the largest, with 95 % intervals that follow the "
+              f"likelihood): 1, {shape}."]
     ee = summary.get("equation_error")
     if ee is not None:
         vals = ", ".join(f"{m:.6g} [{lo:.6g}, {hi:.6g}]" for m, (lo, hi) in

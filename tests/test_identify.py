@@ -195,7 +195,10 @@ def test_identify_cli_writes_json_plots_and_summary(tmp_path, capsys):
     summary = json.loads((out / "identify.json").read_text())
     assert summary["method"] == "ml" and summary["scale_identified"] is True
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "inertia.png").stat().st_size > 5_000
-    assert "95 % interval" in (out / "summary.md").read_text()
+    text = (out / "summary.md").read_text()
+    assert "95 % interval" in text
+    ratios, ci = summary["principal_ratios"], summary["principal_ratios_ci95"]
+    assert f"1, {ratios[1]:.6g} [{ci[1][0]:.6g}, {ci[1][1]:.6g}], {ratios[2]:.6g}" in text
     assert "principal moments" in capsys.readouterr().out
 
 
