@@ -72,7 +72,7 @@ def principal_ratio(phi, k: int) -> tuple[float, np.ndarray]:
 
 @dataclasses.dataclass(frozen=True)
 class RatioProfile:
-    """The principal ratios' 95 % intervals (3, 2), descending (the first is 1), and better: a
+    """The principal ratios' 95 % profile intervals (3, 2), descending (the first is 1), and better: a
     constrained fit met on the way whose residual sum lies below the fit's by more than
     BETTER_BY (its p (n,) and q_ref (4,)), or None: the fit is then the likelihood's maximum
     along every profile traced.
@@ -142,8 +142,9 @@ def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: f
 
 
 def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioProfile:
-    """The principal ratios' 95 % intervals of a one-trajectory fit with its reported estimate:
-    the union of the profile likelihood's and the delta method's. The profile is traced in prob's
+    """The principal ratios' 95 % profile-likelihood intervals of a one-trajectory fit with its
+    reported estimate (the delta method's for a ratio without curvature to trace; the estimate
+    takes in the union of the two: InertiaEstimate.ratio_ci). The profile is traced in prob's
     weights, its level 3.84 times the reported variance of each ratio over its Fisher bound in
     those weights (so the two intervals agree where the likelihood is quadratic).
     """
@@ -163,8 +164,7 @@ def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioPr
         if not 0.0 < sigma < 1.0:  # no curvature, or none worth tracing: the delta method's
             continue
         level = LEVEL_95 * max(float(ratio_cov[k, k]) / sigma ** 2, 1.0)
-        lo, hi = (_edge(prob, (fit.p, q, cost0), k, side, sigma, level, best) for side in (-1, 1))
-        out[k] = min(out[k, 0], lo), max(out[k, 1], hi)
+        out[k] = [_edge(prob, (fit.p, q, cost0), k, side, sigma, level, best) for side in (-1, 1)]
     return RatioProfile(out, None if best.p is None else (best.p, best.q))
 
 

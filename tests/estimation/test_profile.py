@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 from records import toss_record
+from rigid_records import noisy_problem, start
 
-from inertia_gym.estimation import output_error, profile
+from inertia_gym.estimation import ml, output_error, profile
 from inertia_gym.estimation.inertia_param import phi_from_inertia
 from inertia_gym.identification import _estimates, identify
 from inertia_gym.prepare import prepared
@@ -65,6 +66,20 @@ def test_where_the_likelihood_is_quadratic_the_profile_interval_is_the_delta_met
         lo, hi = traced.intervals[k]
         assert hi - lo == pytest.approx(2 * half[k], rel=0.1)
         assert (lo + hi) / 2 == pytest.approx(ratios[k], abs=0.1 * half[k])
+
+
+def test_with_attitude_and_a_bias_the_profile_follows_the_reference_attitude():
+    """A record with attitude, torque and a fitted gyro bias: each pinned fit carries its own
+    attitude correction, and the sharp likelihood's profile interval is the delta method's."""
+    prob = noisy_problem(3, n=1500)
+    p0, cov = start(prob)
+    ref = ml.refine(prob, p0, prob.z_q[0], cov, None, "test")
+    traced = profile.ratio_profile(prob, ref.fit, ref.estimate)
+    ratios, ratio_cov = ref.estimate.principal_ratios()
+    half = 1.96 * np.sqrt(np.diag(ratio_cov))
+    assert traced.better is None
+    for k in (1, 2):
+        assert np.diff(traced.intervals[k])[0] == pytest.approx(2 * half[k], rel=0.1)
 
 
 def test_a_fit_short_of_the_maximum_is_found_by_its_profile_and_identify_continues_it():
