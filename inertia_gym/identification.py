@@ -308,7 +308,7 @@ def _profiled(prep: Prepared, prob: output_error.Problem, oe: ml.Refinement, tra
             moved = ml.statistics(prob, fit, trace_ref, prep.sigma_source, prep.sigma is not None)
         except (EstimatorDivergedError, ConfigError):
             moved = None
-        if moved is not None and fit.segments == 1 and fit.cost < oe.fit.cost:
+        if moved is not None and fit.segments == 1 and fit.cost < traced.cost:
             oe, traced = moved, profile.ratio_profile(prob, fit, moved.estimate)
     return dataclasses.replace(oe, estimate=dataclasses.replace(oe.estimate, ratio_ci=traced.intervals))
 

@@ -30,9 +30,14 @@ import math
 import numpy as np
 
 from inertia_gym.estimation import output_error
-from inertia_gym.estimation.inertia_param import dtheta_dphi, theta_from_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
 from inertia_gym.estimation.output_error import Fit, Pin, Problem
-from inertia_gym.estimation.uncertainty import InertiaEstimate, inertia_estimate, jacobian_covariance
+from inertia_gym.estimation.uncertainty import (
+    InertiaEstimate,
+    inertia_estimate,
+    jacobian_covariance,
+    principal_ratio_gradients,
+)
 
 #: chi-square(1) at 0.95: the rise of the residual sum (noise variances) at a 95 % interval's edge.
 LEVEL_95 = 3.841458820694124
@@ -48,38 +53,26 @@ OVERSHOOT = 1.15
 PIN_STIFFNESS = 100.0
 
 
-def _sym(theta) -> np.ndarray:
-    return np.array([[theta[0], theta[1], theta[2]], [theta[1], theta[3], theta[4]],
-                     [theta[2], theta[4], theta[5]]])
-
-
 def principal_ratio(phi, k: int) -> tuple[float, np.ndarray]:
     """The k-th principal moment over the largest (descending order: k = 1 the middle, 2 the
     smallest) of the inertia phi (6,), and its gradient (6,) in phi.
     """
     phi = np.ascontiguousarray(phi, dtype=float)
-    vals, vecs = np.linalg.eigh(_sym(theta_from_phi(phi)))
-    vals, vecs = vals[::-1], vecs[:, ::-1]
-
-    def grad(i):  # d(u_i^T J u_i) / d theta, off-diagonals counted twice
-        u = vecs[:, i]
-        return np.array([u[0] * u[0], 2 * u[0] * u[1], 2 * u[0] * u[2], u[1] * u[1], 2 * u[1] * u[2],
-                         u[2] * u[2]])
-
-    g_theta = (grad(k) * vals[0] - vals[k] * grad(0)) / vals[0] ** 2
-    return float(vals[k] / vals[0]), g_theta @ dtheta_dphi(phi)
+    ratios, grads = principal_ratio_gradients(inertia_from_phi(phi))
+    return float(ratios[k]), grads[k] @ dtheta_dphi(phi)
 
 
 @dataclasses.dataclass(frozen=True)
 class RatioProfile:
-    """The principal ratios' 95 % profile intervals (3, 2), descending (the first is 1), and better: a
-    constrained fit met on the way whose residual sum lies below the fit's by more than
+    """The principal ratios' 95 % profile intervals (3, 2), descending (the first is 1); better:
+    a constrained fit met on the way whose residual sum lies below the fit's by more than
     BETTER_BY (its p (n,) and q_ref (4,)), or None: the fit is then the likelihood's maximum
-    along every profile traced.
+    along every profile traced; cost: the fit's residual sum in the problem's weights.
     """
 
     intervals: np.ndarray
     better: tuple[np.ndarray, np.ndarray] | None
+    cost: float
 
 
 #: A constrained fit below the fit's residual sum by more than this (noise variances) shows the
@@ -154,7 +147,7 @@ def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioPr
     half = 1.96 * np.sqrt(np.clip(np.diag(ratio_cov), 0.0, None))
     out = np.stack([ratios - half, ratios + half], axis=1)
     if not ev.ok:
-        return RatioProfile(out, None)
+        return RatioProfile(out, None, math.inf)
     fisher = inertia_estimate(fit.p[:6], jacobian_covariance(ev.jac, prob.free())[:6, :6], prob.fix_scale)
     fisher_cov = fisher.principal_ratios()[1]
     cost0 = float(ev.r @ ev.r)
@@ -165,7 +158,7 @@ def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioPr
             continue
         level = LEVEL_95 * max(float(ratio_cov[k, k]) / sigma ** 2, 1.0)
         out[k] = [_edge(prob, (fit.p, q, cost0), k, side, sigma, level, best) for side in (-1, 1)]
-    return RatioProfile(out, None if best.p is None else (best.p, best.q))
+    return RatioProfile(out, None if best.p is None else (best.p, best.q), cost0)
 
 
 __all__ = ["LEVEL_95", "BETTER_BY", "RatioProfile", "principal_ratio", "ratio_profile"]

@@ -159,10 +159,8 @@ class InertiaEstimate:
         covariance (3, 3) (delta method; the first row and column zero): the inertia's shape,
         which gyro-only data fix without its scale.
         """
-        vals, _, grads = self._moment_gradients()
-        vals, grads = vals[::-1], grads[::-1]
-        g = (grads * vals[0] - np.outer(vals, grads[0])) / vals[0] ** 2
-        return vals / vals[0], g @ self.theta_cov @ g.T
+        ratios, g = principal_ratio_gradients(self.inertia)
+        return ratios, g @ self.theta_cov @ g.T
 
     def summary(self) -> dict:
         """Its keys of identify.json: the inertia, its entries, covariance and intervals,
@@ -186,6 +184,16 @@ class InertiaEstimate:
                 "principal_ratios_ci95": ratio_ci.tolist(),
                 "principal_ratios_cov": ratio_cov.tolist(), "scale_identified": bool(self.scale_identified),
                 "scale_rel_sigma": float(self.scale_sigma()) if self.scale_identified else None}
+
+
+def principal_ratio_gradients(inertia) -> tuple[np.ndarray, np.ndarray]:
+    """The principal moments of inertia (3, 3) over the largest (3,), descending (the first is
+    1), and their gradients (3, 6) with respect to theta.
+    """
+    vals, vecs = np.linalg.eigh(inertia)
+    vals, vecs = vals[::-1], vecs[:, ::-1]
+    grads = np.stack([_eig_gradient(vecs[:, i], vecs[:, i]) for i in range(3)])
+    return vals / vals[0], (grads * vals[0] - np.outer(vals, grads[0])) / vals[0] ** 2
 
 
 def _eig_gradient(u, v) -> np.ndarray:
