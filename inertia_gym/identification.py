@@ -278,8 +278,9 @@ class _Estimates:
 def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref,
                profiled: bool = True) -> _Estimates:
     """The equation error, then the output error started from it (output_error_fit, with its
-    nested terms on a gyro-only record) and, profiled, its ratios' profile likelihood (_profiled);
-    where that fits a gyro bias, the equation error again from the rates less it.
+    nested terms on a gyro-only record) and, profiled, its ratios' profile likelihood where the
+    rigid model explains the record (_profiled); where that fits a gyro bias, the equation error
+    again from the rates less it.
     """
     ee = _equation_error_estimate(prep, trace_ref)
     reference = InertiaEstimate(ee.theta, ee.theta_cov, ee.scale_seen)
@@ -287,7 +288,9 @@ def _estimates(prep: Prepared, fit_bias: bool | None, fit_drag: bool, trace_ref,
     found = output_error_fit(prep, prob, reference, ee.misfit_z > stats.norm.ppf(TEST_LEVEL), trace_ref,
                              nested=fit_bias is None and prep.rec.q is None)
     prob, oe, said = found.prob, found.refinement, found.note
-    if profiled and oe.fit.segments == 1:
+    # the profile is the data's likelihood only where the rigid model explains them (the
+    # lack-of-fit test); a rejected model's intervals are its model-error covariance's
+    if profiled and oe.fit.segments == 1 and lack_of_fit(oe, prep.level, prob) >= 1 - TEST_LEVEL:
         oe = _profiled(prep, prob, oe, trace_ref)
     if prob.fit_bias:  # a sensor offset enters the windows' regressors: both estimates without it
         ee = _equation_error_estimate(prep, trace_ref, oe.fit.p[-3:])

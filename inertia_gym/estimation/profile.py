@@ -16,9 +16,11 @@ likelihood is quadratic the profile interval is the reported delta-method interv
 
 The profile is traced outwards from the fit by continuation (each constrained fit starts where
 the last ended, its step predicted from the root of the rise, which is linear in the ratio where
-the likelihood is quadratic). A local solver's constrained fit only bounds the profile from
-above, so its interval bounds the true one from inside: the reported interval is the union of
-the profile's and the delta method's. A constrained fit that ends below the fit itself shows the
+the likelihood is quadratic, and it starts where the quadratic likelihood puts the constrained
+fit; each runs for up to output_error.FINAL_ITER iterations, as a valley crawl may need). A
+local solver's constrained fit only bounds the profile from above, so its interval bounds the
+true one from inside: the reported interval is the union of the profile's and the delta
+method's. A constrained fit that ends below the fit itself shows the
 fit short of the likelihood's maximum; the profile hands it back (RatioProfile.better).
 """
 
@@ -30,7 +32,7 @@ import math
 import numpy as np
 
 from inertia_gym.estimation import output_error
-from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, realizable_phi
 from inertia_gym.estimation.output_error import Fit, Pin, Problem
 from inertia_gym.estimation.uncertainty import (
     InertiaEstimate,
@@ -91,10 +93,13 @@ class _Trace:
 
 
 def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: float,
-          best: _Trace) -> float:
+          best: _Trace, lean: np.ndarray) -> float:
     """The ratio k's profile interval edge on one side (+1 up, -1 down) from start (p, q_ref,
     cost): where the refitted residual sum first rises by `level` over the start's, or the
     furthest ratio reached below it. Every constrained fit below best.cost is kept in best.
+    Each constrained fit starts from the last moved by lean (n,) per unit of the ratio: the
+    change of every parameter with the ratio along the likelihood's quadratic valley, which
+    is the constrained fit itself where the likelihood is quadratic.
     """
     p, q, cost0 = start
     r_prev, root_prev = principal_ratio(p[:6], k)[0], 0.0
@@ -111,7 +116,8 @@ def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: f
         if not 0.0 < target < 1.0:
             target = r_prev + side * step / OVERSHOOT
         pin = Pin(lambda phi: principal_ratio(phi, k), target, weight)
-        stage = output_error.solve(prob, p, q, pin=pin, max_iter=output_error.FINAL_ITER)
+        stage = output_error.solve(prob, _leaned(prob, p, lean * (target - r_prev)), q, pin=pin,
+                                   max_iter=output_error.FINAL_ITER)
         if not stage.evaluation.ok:
             break
         r = principal_ratio(stage.p[:6], k)[0]
@@ -134,6 +140,17 @@ def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: f
     return edge
 
 
+def _leaned(prob: Problem, p, move) -> np.ndarray:
+    """The parameters p moved by move (n,), the inertia kept on the bodies that exist and the
+    drag at or above zero (the solver's own limits).
+    """
+    out = p + move
+    out[:6] = realizable_phi(out[:6], keep_scale=True)
+    drag = np.arange(prob.n_params)[prob.drag_slice]
+    out[drag] = np.maximum(out[drag], 0.0)
+    return out
+
+
 def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioProfile:
     """The principal ratios' 95 % profile-likelihood intervals of a one-trajectory fit with its
     reported estimate (the delta method's for a ratio without curvature to trace; the estimate
@@ -148,8 +165,8 @@ def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioPr
     out = np.stack([ratios - half, ratios + half], axis=1)
     if not ev.ok:
         return RatioProfile(out, None, math.inf)
-    fisher = inertia_estimate(fit.p[:6], jacobian_covariance(ev.jac, prob.free())[:6, :6], prob.fix_scale)
-    fisher_cov = fisher.principal_ratios()[1]
+    cov = jacobian_covariance(ev.jac, prob.free())
+    fisher_cov = inertia_estimate(fit.p[:6], cov[:6, :6], prob.fix_scale).principal_ratios()[1]
     cost0 = float(ev.r @ ev.r)
     best = _Trace(cost0 - BETTER_BY)
     for k in (1, 2):
@@ -157,7 +174,10 @@ def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioPr
         if not 0.0 < sigma < 1.0:  # no curvature, or none worth tracing: the delta method's
             continue
         level = LEVEL_95 * max(float(ratio_cov[k, k]) / sigma ** 2, 1.0)
-        out[k] = [_edge(prob, (fit.p, q, cost0), k, side, sigma, level, best) for side in (-1, 1)]
+        grad = np.zeros(prob.n_params)
+        grad[:6] = principal_ratio(fit.p[:6], k)[1]
+        lean = cov @ grad / sigma ** 2  # E[p | ratio] per unit of the ratio (Gaussian conditioning)
+        out[k] = [_edge(prob, (fit.p, q, cost0), k, side, sigma, level, best, lean) for side in (-1, 1)]
     return RatioProfile(out, None if best.p is None else (best.p, best.q), cost0)
 
 
