@@ -375,6 +375,13 @@ def _limits(n: int, drag: np.ndarray):
     return project, face
 
 
+def projected(prob: Problem, p) -> np.ndarray:
+    """The parameters p (n,) taken onto the limits every solve keeps (_limits): the inertia on
+    the bodies that exist, its scale kept, and the drag at or above zero.
+    """
+    return _limits(prob.n_params, np.arange(prob.n_params)[prob.drag_slice])[0](np.asarray(p, float))
+
+
 def solve_shooting(sh: Shooting, x, q_refs, prior: Prior | None, max_iter: int) -> _Stage:
     """Minimise |r|^2 (+ the prior's on phi) of the segmented problem over its globals and every
     segment's state (the solver's arrow structure), the inertia kept on the bodies that exist.
@@ -627,5 +634,5 @@ def fit(prob: Problem, p_start, q_start=None, start_info=None, first_horizon: in
                stage.converged, seg.size - 1, stage.global_cov)
 
 
-__all__ = ["Problem", "Evaluation", "Prior", "Pin", "Fit", "Shooting", "evaluate", "solve", "solve_shooting",
-           "fit", "profile_cost", "profile_losses"]
+__all__ = ["Problem", "Evaluation", "Prior", "Pin", "Fit", "Shooting", "evaluate", "projected", "solve",
+           "solve_shooting", "fit", "profile_cost", "profile_losses"]

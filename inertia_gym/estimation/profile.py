@@ -20,8 +20,8 @@ the likelihood is quadratic, and it starts where the quadratic likelihood puts t
 fit; each runs for up to output_error.FINAL_ITER iterations, as a valley crawl may need). A
 local solver's constrained fit only bounds the profile from above, so its interval bounds the
 true one from inside: the reported interval is the union of the profile's and the delta
-method's. A constrained fit that ends below the fit itself shows the
-fit short of the likelihood's maximum; the profile hands it back (RatioProfile.better).
+method's. A constrained fit that ends below the fit itself shows the fit short of the
+likelihood's maximum; the profile hands it back (RatioProfile.better).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from inertia_gym.estimation import output_error
-from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi, realizable_phi
+from inertia_gym.estimation.inertia_param import dtheta_dphi, inertia_from_phi
 from inertia_gym.estimation.output_error import Fit, Pin, Problem
 from inertia_gym.estimation.uncertainty import (
     InertiaEstimate,
@@ -79,7 +79,8 @@ class RatioProfile:
 
 #: A constrained fit below the fit's residual sum by more than this (noise variances) shows the
 #: fit short of the likelihood's maximum: the solver's own stopping gain (output_error.TOL) is
-#: far smaller, so this is a basin the fit missed, not its valley's last crawl.
+#: far smaller, so the fit stalled (on a narrow valley's wall, or in another basin), not in its
+#: last crawl.
 BETTER_BY = 0.5
 
 
@@ -116,8 +117,8 @@ def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: f
         if not 0.0 < target < 1.0:
             target = r_prev + side * step / OVERSHOOT
         pin = Pin(lambda phi: principal_ratio(phi, k), target, weight)
-        stage = output_error.solve(prob, _leaned(prob, p, lean * (target - r_prev)), q, pin=pin,
-                                   max_iter=output_error.FINAL_ITER)
+        leaned = output_error.projected(prob, p + lean * (target - r_prev))
+        stage = output_error.solve(prob, leaned, q, pin=pin, max_iter=output_error.FINAL_ITER)
         if not stage.evaluation.ok:
             break
         r = principal_ratio(stage.p[:6], k)[0]
@@ -138,17 +139,6 @@ def _edge(prob: Problem, start: tuple, k: int, side: int, sigma: float, level: f
         step = float(np.clip(wanted, moved / MAX_GROWTH, MAX_GROWTH * moved))
         r_prev, root_prev, p, q = r, root, stage.p, stage.q_ref
     return edge
-
-
-def _leaned(prob: Problem, p, move) -> np.ndarray:
-    """The parameters p moved by move (n,), the inertia kept on the bodies that exist and the
-    drag at or above zero (the solver's own limits).
-    """
-    out = p + move
-    out[:6] = realizable_phi(out[:6], keep_scale=True)
-    drag = np.arange(prob.n_params)[prob.drag_slice]
-    out[drag] = np.maximum(out[drag], 0.0)
-    return out
 
 
 def ratio_profile(prob: Problem, fit: Fit, estimate: InertiaEstimate) -> RatioProfile:
